@@ -1,0 +1,1 @@
+"""Command-line tools (insalign-demo, insalign-align, insalign-simulate, insalign-kitti2bag)."""

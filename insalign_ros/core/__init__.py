@@ -1,0 +1,1 @@
+"""Numerical core: pure numpy/scipy, no ROS import (Lie groups, Earth model, mechanization, types)."""

@@ -1,0 +1,1 @@
+"""Alignment estimators, all implementing insalign_ros.filters.base.AlignmentCore. No ROS import."""

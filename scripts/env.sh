@@ -1,0 +1,32 @@
+# Sourced by scripts/test and scripts/demo: create the virtualenv and install what is missing.
+# Quick when everything is there: pip runs only when requirements.txt or setup.py changed.
+set -euo pipefail
+INSALIGN_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+INSALIGN_VENV="${INSALIGN_VENV:-$INSALIGN_ROOT/.venv}"
+PYTHON="${PYTHON:-python3}"
+
+if ! "$PYTHON" -c 'import sys; sys.exit(0 if (3, 10) <= sys.version_info[:2] <= (3, 14) else 1)'; then
+  echo "insalign_ros needs CPython 3.10-3.14 on Linux x86_64 (the ROS 2 Jazzy PyPI wheels); found: $("$PYTHON" --version 2>&1)" >&2
+  exit 2
+fi
+if [ ! -x "$INSALIGN_VENV/bin/python" ]; then
+  echo "[insalign] creating virtualenv $INSALIGN_VENV" >&2
+  if ! "$PYTHON" -m venv "$INSALIGN_VENV" 2>/dev/null; then
+    echo "[insalign] python3 -m venv failed; on Debian/Ubuntu: sudo apt-get install python3-venv" >&2
+    exit 2
+  fi
+fi
+stamp="$INSALIGN_VENV/.insalign-installed"
+want="$(cat "$INSALIGN_ROOT/requirements.txt" "$INSALIGN_ROOT/setup.py" "$INSALIGN_ROOT/setup.cfg" | sha256sum | cut -d' ' -f1)"
+if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
+  echo "[insalign] installing pinned requirements into $INSALIGN_VENV (about a minute on a cold machine)" >&2
+  "$INSALIGN_VENV/bin/python" -m pip install --quiet --disable-pip-version-check --upgrade pip
+  "$INSALIGN_VENV/bin/python" -m pip install --quiet --disable-pip-version-check -r "$INSALIGN_ROOT/requirements.txt"
+  "$INSALIGN_VENV/bin/python" -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e "$INSALIGN_ROOT"
+  echo "$want" > "$stamp"
+fi
+export PATH="$INSALIGN_VENV/bin:$PATH"
+export VIRTUAL_ENV="$INSALIGN_VENV"
+# Only needed for ament-index look-ups and colcon overlays; rclpy itself needs nothing.
+export AMENT_PREFIX_PATH="$INSALIGN_VENV${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}"
+export MPLBACKEND="${MPLBACKEND:-Agg}"

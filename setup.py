@@ -1,0 +1,34 @@
+"""ament_python package definition: works with colcon (ROS 2 Jazzy) and with pip (PyPI wheels of ROS)."""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "insalign_ros"
+
+# Executables that `ros2 run insalign_ros <name>` finds (installed under lib/insalign_ros by setup.cfg)
+# and command-line tools. One list, so colcon and pip install the same things.
+CONSOLE_SCRIPTS = [
+    "imu_sim_node = insalign_ros.nodes.imu_sim_node:main",
+    "imu_listener_node = insalign_ros.nodes.imu_listener_node:main",
+    "insalign-demo = insalign_ros.cli.demo:main",
+]
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(include=[PACKAGE, PACKAGE + ".*"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + PACKAGE]),
+        ("share/" + PACKAGE, ["package.xml"]),
+        ("share/" + PACKAGE + "/config", glob("config/*.yaml")),
+        ("share/" + PACKAGE + "/launch", glob("launch/*.py")),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="insalign_ros developers",
+    maintainer_email="insalign@example.invalid",
+    description="Strapdown INS initial alignment (LIEKF, PI-LIEKF, IEKF, EKF, PKF, backtracking) for ROS 2 Jazzy",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={"console_scripts": CONSOLE_SCRIPTS},
+)
