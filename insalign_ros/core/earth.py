@@ -1,0 +1,206 @@
+"""Earth model: WGS84, Earth rate, ECI/ECEF/ENU frames, gravity, Euler angles (REP 103).
+
+Frames: i = ECI, e = ECEF, n = local-level ENU (REP 103), b = body FLU.
+``C_a_b`` maps vectors in frame a to frame b (``v_b = C_a_b @ v_a``), so ``C_b_n`` is body -> ENU.
+
+ECI definition: the ECI frame coincides with ECEF at a chosen epoch ``t0_s`` (data time, seconds) and the
+ECEF frame rotates about the common z axis at ``OMEGA_IE_RAD_S``. Precession, nutation and polar motion are
+ignored: over an alignment window (minutes) they are far below any sensor error.
+
+Gravity: the gravitation (mass attraction) of the WGS84 *normal* field, with its even zonal harmonics
+J2, J4, J6, plus the centrifugal term gives the normal gravity vector, which on the ellipsoid equals
+Somigliana's closed form along the ellipsoid normal (the test checks both).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pymap3d
+from scipy.spatial.transform import Rotation
+
+# --------------------------------------------------------------------------------- WGS84 constants
+A_M = 6378137.0  #: semi-major axis [m]
+F = 1.0 / 298.257223563  #: flattening
+B_M = A_M * (1.0 - F)  #: semi-minor axis [m]
+E2 = F * (2.0 - F)  #: first eccentricity squared
+GM_M3_S2 = 3.986004418e14  #: Earth's gravitational constant incl. atmosphere [m^3/s^2]
+OMEGA_IE_RAD_S = 7.292115e-5  #: Earth rotation rate [rad/s]
+GAMMA_EQUATOR_M_S2 = 9.7803253359  #: normal gravity at the equator [m/s^2]
+GAMMA_POLE_M_S2 = 9.8321849378  #: normal gravity at the poles [m/s^2]
+J2 = 1.082629821313e-3  #: second zonal harmonic of the WGS84 normal field (= -sqrt(5) C20)
+_M = OMEGA_IE_RAD_S**2 * A_M**2 * B_M / GM_M3_S2
+_K_SOMIGLIANA = B_M * GAMMA_POLE_M_S2 / (A_M * GAMMA_EQUATOR_M_S2) - 1.0
+
+
+def _normal_field_j2n(n: int) -> float:
+    """Even zonal coefficient J_2n of the normal (ellipsoidal) field (Moritz, Geodetic Reference System)."""
+    e2n = E2**n
+    return (-1.0) ** (n + 1) * 3.0 * e2n / ((2 * n + 1) * (2 * n + 3)) * (1.0 - n + 5.0 * n * J2 / E2)
+
+
+_ZONAL = ((2, J2), (4, _normal_field_j2n(2)), (6, _normal_field_j2n(3)))
+OMEGA_IE_E = np.array([0.0, 0.0, OMEGA_IE_RAD_S])  #: Earth rate in ECEF (and ECI) [rad/s]
+
+
+# ------------------------------------------------------------------------------------ frames, time
+def C_e_i(t_s: float, t0_s: float = 0.0) -> np.ndarray:
+    """Rotation ECEF -> ECI at data time t_s [s]; ECI == ECEF at the epoch t0_s."""
+    a = OMEGA_IE_RAD_S * (t_s - t0_s)
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def ecef_to_eci(t_s: float, p_e: np.ndarray, v_e: np.ndarray | None = None, t0_s: float = 0.0):
+    """ECEF position [m] (and velocity [m/s] relative to ECEF) -> ECI position and inertial velocity."""
+    C = C_e_i(t_s, t0_s)
+    p_i = C @ p_e
+    if v_e is None:
+        return p_i
+    return p_i, C @ (np.asarray(v_e) + np.cross(OMEGA_IE_E, p_e))
+
+
+def eci_to_ecef(t_s: float, p_i: np.ndarray, v_i: np.ndarray | None = None, t0_s: float = 0.0):
+    """ECI position [m] (and inertial velocity [m/s]) -> ECEF position and velocity relative to ECEF."""
+    C = C_e_i(t_s, t0_s).T
+    p_e = C @ p_i
+    if v_i is None:
+        return p_e
+    return p_e, C @ np.asarray(v_i) - np.cross(OMEGA_IE_E, p_e)
+
+
+def geodetic_to_ecef(lat_rad: float, lon_rad: float, h_m: float) -> np.ndarray:
+    """Geodetic latitude/longitude [rad], ellipsoidal height [m] -> ECEF [m] (pymap3d, WGS84)."""
+    return np.array(pymap3d.geodetic2ecef(lat_rad, lon_rad, h_m, deg=False))
+
+
+def ecef_to_geodetic(p_e: np.ndarray) -> tuple[float, float, float]:
+    """ECEF [m] -> (lat_rad, lon_rad, h_m) (pymap3d, WGS84)."""
+    lat, lon, h = pymap3d.ecef2geodetic(p_e[0], p_e[1], p_e[2], deg=False)
+    return float(lat), float(lon), float(h)
+
+
+def C_e_n(lat_rad: float, lon_rad: float) -> np.ndarray:
+    """Rotation ECEF -> local ENU at geodetic (lat, lon); rows are the E, N, U axes in ECEF."""
+    sl, cl = math.sin(lat_rad), math.cos(lat_rad)
+    so, co = math.sin(lon_rad), math.cos(lon_rad)
+    return np.array([[-so, co, 0.0], [-sl * co, -sl * so, cl], [cl * co, cl * so, sl]])
+
+
+def C_n_e(lat_rad: float, lon_rad: float) -> np.ndarray:
+    """Rotation local ENU -> ECEF (transpose of :func:`C_e_n`)."""
+    return C_e_n(lat_rad, lon_rad).T
+
+
+def ecef_to_enu(p_e: np.ndarray, lat0_rad: float, lon0_rad: float, h0_m: float) -> np.ndarray:
+    """ECEF point [m] -> ENU coordinates [m] about the origin (lat0, lon0, h0) (pymap3d)."""
+    return np.array(pymap3d.ecef2enu(p_e[0], p_e[1], p_e[2], lat0_rad, lon0_rad, h0_m, deg=False))
+
+
+def enu_to_ecef(p_n: np.ndarray, lat0_rad: float, lon0_rad: float, h0_m: float) -> np.ndarray:
+    """ENU coordinates [m] about the origin (lat0, lon0, h0) -> ECEF [m] (pymap3d)."""
+    return np.array(pymap3d.enu2ecef(p_n[0], p_n[1], p_n[2], lat0_rad, lon0_rad, h0_m, deg=False))
+
+
+def omega_ie_n(lat_rad: float) -> np.ndarray:
+    """Earth rate in local ENU [rad/s]: [0, omega cos(lat), omega sin(lat)]."""
+    return OMEGA_IE_RAD_S * np.array([0.0, math.cos(lat_rad), math.sin(lat_rad)])
+
+
+def radii_of_curvature(lat_rad: float) -> tuple[float, float]:
+    """Meridian R_N and transverse (prime vertical) R_E radii of curvature [m]."""
+    s2 = math.sin(lat_rad) ** 2
+    d = 1.0 - E2 * s2
+    return A_M * (1.0 - E2) / d**1.5, A_M / math.sqrt(d)
+
+
+# ----------------------------------------------------------------------------------------- gravity
+def normal_gravity(lat_rad: float, h_m: float = 0.0) -> float:
+    """Magnitude of WGS84 normal gravity [m/s^2]: Somigliana's formula with the second-order height correction."""
+    s2 = math.sin(lat_rad) ** 2
+    g0 = GAMMA_EQUATOR_M_S2 * (1.0 + _K_SOMIGLIANA * s2) / math.sqrt(1.0 - E2 * s2)
+    if h_m == 0.0:
+        return g0
+    return g0 * (1.0 - 2.0 / A_M * (1.0 + F + _M - 2.0 * F * s2) * h_m + 3.0 * h_m * h_m / (A_M * A_M))
+
+
+def gravitation_e(p_e: np.ndarray) -> np.ndarray:
+    """Gravitational (mass) acceleration in ECEF [m/s^2] of the WGS84 normal field (J2, J4, J6).
+
+    The field is axially symmetric, so the same function gives the gravitation in ECI for an ECI position:
+    ``gravitation_e(p_i)`` is the ECI gravitation at ECI position p_i (rotation about z commutes).
+    Written with scalar math: it runs once per IMU sample in every mechanization.
+    """
+    x, y, z = float(p_e[0]), float(p_e[1]), float(p_e[2])
+    r2 = x * x + y * y + z * z
+    r = math.sqrt(r2)
+    u = z / r
+    # V = GM/r [1 - sum J_n (a/r)^n P_n(u)];  grad of r^-(n+1) P_n(u) via P_n and P_n'.
+    # Legendre by recurrence up to degree 6.
+    P = [1.0, u]
+    dP = [0.0, 1.0]
+    for k in range(2, 7):
+        P.append(((2 * k - 1) * u * P[k - 1] - (k - 1) * P[k - 2]) / k)
+        dP.append(k * P[k - 1] + u * dP[k - 1])
+    # central term: -GM/r^3 * p
+    gx = gy = gz = 0.0
+    for n, Jn in _ZONAL:
+        an = (A_M / r) ** n
+        # term T = -GM Jn a^n r^-(n+1) P_n(u)  (potential part); its gradient:
+        # dT/dx_i = -GM Jn a^n [ -(n+1) r^-(n+3) x_i P_n + r^-(n+1) P_n' (d_iz/r - z x_i/r^3) ]
+        c = -GM_M3_S2 * Jn * an / r  # = -GM Jn a^n r^-(n+1)
+        radial = -(n + 1) * P[n] / r2 - dP[n] * z / (r2 * r)
+        gx += c * radial * x
+        gy += c * radial * y
+        gz += c * (radial * z + dP[n] / r)
+    k0 = -GM_M3_S2 / (r2 * r)
+    return np.array([k0 * x + gx, k0 * y + gy, k0 * z + gz])
+
+
+def gravity_e(p_e: np.ndarray) -> np.ndarray:
+    """Gravity (gravitation + centrifugal) in ECEF [m/s^2] at ECEF position p_e [m]."""
+    g = gravitation_e(p_e)
+    w2 = OMEGA_IE_RAD_S * OMEGA_IE_RAD_S
+    g[0] += w2 * p_e[0]
+    g[1] += w2 * p_e[1]
+    return g
+
+
+def gravity_n(lat_rad: float, h_m: float = 0.0) -> np.ndarray:
+    """Normal gravity vector in ENU [m/s^2]: [0, 0, -normal_gravity(lat, h)] (ellipsoid normal)."""
+    return np.array([0.0, 0.0, -normal_gravity(lat_rad, h_m)])
+
+
+# ------------------------------------------------------------------------------------ Euler angles
+def C_b_n_from_rpy(roll_rad: float, pitch_rad: float, yaw_rad: float) -> np.ndarray:
+    """Body FLU -> ENU rotation from roll, pitch, yaw [rad] (REP 103: R = Rz(yaw) Ry(pitch) Rx(roll)).
+
+    Yaw is measured from East, counter-clockwise about Up; positive pitch is nose down (rotation about +y = left),
+    as in ROS and the KITTI OXTS data.
+    """
+    return Rotation.from_euler("ZYX", [yaw_rad, pitch_rad, roll_rad]).as_matrix()
+
+
+def rpy_from_C_b_n(C_b_n: np.ndarray) -> np.ndarray:
+    """(roll, pitch, yaw) [rad] of a body FLU -> ENU rotation; yaw in (-pi, pi], pitch in [-pi/2, pi/2]."""
+    yaw, pitch, roll = Rotation.from_matrix(C_b_n).as_euler("ZYX")
+    return np.array([roll, pitch, yaw])
+
+
+def wrap_angle_rad(a):
+    """Wrap angle(s) to (-pi, pi]."""
+    return -((-np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi)
+
+
+def euler_error_rad(C_b_n_est: np.ndarray, C_b_n_true: np.ndarray) -> np.ndarray:
+    """Roll/pitch/yaw error [rad] of an estimate, estimate minus truth, each wrapped to (-pi, pi]."""
+    return wrap_angle_rad(rpy_from_C_b_n(C_b_n_est) - rpy_from_C_b_n(C_b_n_true))
+
+
+def heading_error_enu_rad(C_b_n_est: np.ndarray, C_b_n_true: np.ndarray) -> np.ndarray:
+    """Attitude error as a small rotation vector in ENU [rad]: C_b_n_est = exp(psi_x) C_b_n_true, returns psi.
+
+    Its third component is the azimuth error about Up; unlike Euler differences it has no gimbal-lock problem.
+    """
+    return Rotation.from_matrix(C_b_n_est @ C_b_n_true.T).as_rotvec()

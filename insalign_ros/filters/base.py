@@ -1,0 +1,133 @@
+"""The one interface every alignment core implements, and the sample/fix/estimate types it speaks.
+
+The offline runner (``insalign-align``) and the ROS node (``alignment_node``) drive the same
+:class:`AlignmentCore` objects with the same :class:`ImuSample` / :class:`GnssFix` types; the node adds only
+message conversion, input validation, timing and publishing.
+
+Time: every stamp is data time in seconds (float), monotonic within a run. An :class:`ImuSample` stamped
+``t_k`` holds the average rate and specific force over ``(t_{k-1}, t_k]`` (see core/mechanization.py).
+
+Attitude output: ``C_b_n`` is body FLU -> local ENU at the current position; ``P_att_n`` is the 3x3 covariance
+[rad^2] of the attitude error expressed as a small rotation in ENU, ``C_b_n_true = exp(psi_x) C_b_n_est``
+with ``psi ~ N(0, P_att_n)`` (psi[2] is the azimuth error about Up).
+"""
+
+from __future__ import annotations
+
+import enum
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class ImuSample:
+    """One IMU sample: stamp [s], angular rate omega_ib_b [rad/s], specific force f_ib_b [m/s^2] (body FLU)."""
+
+    stamp_s: float
+    omega_ib_b: np.ndarray
+    f_ib_b: np.ndarray
+
+
+@dataclass(frozen=True)
+class GnssFix:
+    """A GNSS position fix: stamp [s], ECEF position p_e [m] and its 3x3 covariance R_e [m^2] in ECEF."""
+
+    stamp_s: float
+    p_e: np.ndarray
+    R_e: np.ndarray
+
+
+class AlignmentStatus(enum.Enum):
+    """What the core is doing, with a reason string a user can act on (see AlignmentEstimate.reason)."""
+
+    WAITING_FOR_DATA = "waiting for data"
+    WAITING_FOR_GNSS = "waiting for GNSS"
+    WAITING_FOR_MOTION = "waiting for motion"
+    CONVERGING = "aligning"
+    ALIGNED = "aligned"
+    FAULT = "fault"
+
+
+@dataclass
+class UpdateResult:
+    """Outcome of a measurement update: accepted or not, innovation [m or m/s], its covariance, NIS."""
+
+    accepted: bool
+    innovation: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    S: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    nis: float = float("nan")
+    reason: str = ""
+
+
+@dataclass
+class AlignmentEstimate:
+    """A snapshot of a core's estimate (all arrays are copies)."""
+
+    stamp_s: float
+    C_b_n: np.ndarray  # body FLU -> ENU
+    v_n: np.ndarray  # velocity relative to Earth, ENU [m/s]
+    lat_rad: float
+    lon_rad: float
+    h_m: float
+    P_att_n: np.ndarray  # 3x3 [rad^2], attitude error as rotation vector in ENU (see module docstring)
+    P: np.ndarray  # full error-state covariance in the core's own state order (see state_names)
+    state_names: tuple[str, ...]
+    bias_gyro_b: np.ndarray | None = None  # [rad/s] where estimated
+    bias_acc_b: np.ndarray | None = None  # [m/s^2] where estimated
+    status: AlignmentStatus = AlignmentStatus.CONVERGING
+    reason: str = ""
+
+
+class AlignmentCore(ABC):
+    """Base class of every alignment estimator.
+
+    Life cycle: construct with a config dataclass, ``initialize(...)`` with an initial guess, then any
+    interleaving of ``propagate`` (one IMU sample) and ``update_gnss`` / ``update_zero_velocity``, reading
+    ``estimate()`` whenever needed. Cores that need motion (GNSS-aided in-motion cores) say so with
+    ``needs_motion``; static cores use ``update_zero_velocity``.
+    """
+
+    name: str = "base"
+    needs_motion: bool = False
+    supports_gnss: bool = False
+    supports_zero_velocity: bool = False
+    supports_backtracking: bool = False
+
+    @abstractmethod
+    def initialize(
+        self,
+        stamp_s: float,
+        lat_rad: float,
+        lon_rad: float,
+        h_m: float,
+        C_b_n: np.ndarray,
+        v_n: np.ndarray,
+        P_att_n: np.ndarray,
+        sigma_v_m_s: float,
+        sigma_p_m: float,
+    ) -> None:
+        """Start from an initial guess: position, ENU velocity [m/s], attitude C_b_n and its 3x3 covariance
+        [rad^2] in ENU, velocity and position standard deviations."""
+
+    @abstractmethod
+    def propagate(self, imu: ImuSample) -> None:
+        """Propagate state and covariance to ``imu.stamp_s`` with one IMU sample."""
+
+    def update_gnss(self, fix: GnssFix) -> UpdateResult:
+        """Fuse a GNSS position fix (at the core's current time; the caller propagates first)."""
+        return UpdateResult(False, reason=f"{self.name} does not use GNSS")
+
+    def update_zero_velocity(self, stamp_s: float, sigma_v_m_s: float) -> UpdateResult:
+        """Fuse the zero-velocity condition (vehicle at rest relative to Earth) with std sigma_v [m/s]."""
+        return UpdateResult(False, reason=f"{self.name} does not use zero-velocity updates")
+
+    @abstractmethod
+    def estimate(self) -> AlignmentEstimate:
+        """A copy of the current estimate."""
+
+    @property
+    @abstractmethod
+    def initialized(self) -> bool:
+        """True once initialize() was called."""
