@@ -1,0 +1,123 @@
+"""Start ROS 2 node processes without `ros2 launch`: isolated DDS domain, inherited environment, timeouts.
+
+Used by ``insalign-demo`` and by the tests. The ROS 2 PyPI wheels re-execute Python with an
+``LD_LIBRARY_PATH``, so a child must inherit the environment whole: we only *add* variables.
+Every child runs in its own process group so that it and anything it spawned can be stopped together.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+
+def isolated_ros_env(domain_id: int | None = None, base: dict | None = None) -> dict:
+    """The current environment plus a private ROS_DOMAIN_ID and localhost-only discovery.
+
+    Domain ids 1..100 are used (Fast DDS derives UDP ports from the id; ids above ~101 collide with the
+    ephemeral range on Linux). The id is drawn from the pid and the clock so that parallel runs differ.
+    """
+    env = dict(os.environ if base is None else base)
+    if domain_id is None:
+        domain_id = random.Random(os.getpid() * 7919 + time.monotonic_ns()).randint(1, 100)
+    env["ROS_DOMAIN_ID"] = str(int(domain_id))
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env.setdefault("PYTHONUNBUFFERED", "1")
+    return env
+
+
+def ros_args(params: dict | None = None, remaps: dict | None = None, param_files: list | None = None) -> list[str]:
+    """``--ros-args`` list for parameters (-p name:=value), remappings (-r from:=to) and YAML files."""
+    out = ["--ros-args"]
+    for path in param_files or []:
+        out += ["--params-file", str(path)]
+    for k, v in (params or {}).items():
+        if isinstance(v, bool):
+            v = "true" if v else "false"
+        out += ["-p", f"{k}:={v}"]
+    for k, v in (remaps or {}).items():
+        out += ["-r", f"{k}:={v}"]
+    return out
+
+
+@dataclass
+class NodeProcess:
+    """A node running as a child process (module run with the current interpreter)."""
+
+    name: str
+    popen: subprocess.Popen
+    log_path: Path | None = None
+    started_s: float = field(default_factory=time.monotonic)
+
+    def alive(self) -> bool:
+        return self.popen.poll() is None
+
+    def output(self) -> str:
+        if self.log_path and self.log_path.exists():
+            return self.log_path.read_text(errors="replace")
+        return ""
+
+
+def start_node(
+    module: str,
+    env: dict,
+    params: dict | None = None,
+    remaps: dict | None = None,
+    param_files: list | None = None,
+    log_dir: Path | None = None,
+    name: str | None = None,
+) -> NodeProcess:
+    """Run ``python -m module --ros-args ...`` in its own process group; output goes to a log file."""
+    name = name or module.rsplit(".", 1)[-1]
+    cmd = [sys.executable, "-m", module, *ros_args(params, remaps, param_files)]
+    log_path = None
+    if log_dir is not None:
+        log_dir.mkdir(parents=True, exist_ok=True)
+        log_path = Path(log_dir) / f"{name}.log"
+        out = open(log_path, "w")
+    else:
+        out = subprocess.DEVNULL
+    popen = subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+    if out is not subprocess.DEVNULL:
+        out.close()  # the child holds its own descriptor
+    return NodeProcess(name, popen, log_path)
+
+
+def stop_nodes(nodes: list[NodeProcess], timeout_s: float = 5.0) -> None:
+    """SIGINT each process group, wait up to timeout, then SIGKILL what is left. Never raises."""
+    for node in nodes:
+        if node.alive():
+            try:
+                os.killpg(node.popen.pid, signal.SIGINT)
+            except (ProcessLookupError, PermissionError):
+                pass
+    deadline = time.monotonic() + timeout_s
+    for node in nodes:
+        remaining = max(0.1, deadline - time.monotonic())
+        try:
+            node.popen.wait(timeout=remaining)
+        except subprocess.TimeoutExpired:
+            pass
+    for node in nodes:
+        try:
+            os.killpg(node.popen.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
+        try:
+            node.popen.wait(timeout=2.0)
+        except subprocess.TimeoutExpired:
+            pass
+
+
+def wait_for_exit(node: NodeProcess, timeout_s: float) -> int | None:
+    """Return code of the node, or None if it is still running after timeout_s."""
+    try:
+        return node.popen.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        return None
