@@ -158,6 +158,29 @@ def gravitation_e(p_e: np.ndarray) -> np.ndarray:
     return np.array([k0 * x + gx, k0 * y + gy, k0 * z + gz])
 
 
+def gravitation_e_batch(p_e: np.ndarray) -> np.ndarray:
+    """Vectorised :func:`gravitation_e` for an (N, 3) array of positions [m] (same field, same formula)."""
+    p_e = np.asarray(p_e, dtype=float)
+    x, y, z = p_e[:, 0], p_e[:, 1], p_e[:, 2]
+    r2 = x * x + y * y + z * z
+    r = np.sqrt(r2)
+    u = z / r
+    P = [np.ones_like(u), u]
+    dP = [np.zeros_like(u), np.ones_like(u)]
+    for k in range(2, 7):
+        P.append(((2 * k - 1) * u * P[k - 1] - (k - 1) * P[k - 2]) / k)
+        dP.append(k * P[k - 1] + u * dP[k - 1])
+    k0 = -GM_M3_S2 / (r2 * r)
+    g = k0[:, None] * p_e
+    for n, Jn in _ZONAL:
+        c = -GM_M3_S2 * Jn * (A_M / r) ** n / r
+        radial = -(n + 1) * P[n] / r2 - dP[n] * z / (r2 * r)
+        g[:, 0] += c * radial * x
+        g[:, 1] += c * radial * y
+        g[:, 2] += c * (radial * z + dP[n] / r)
+    return g
+
+
 def gravity_e(p_e: np.ndarray) -> np.ndarray:
     """Gravity (gravitation + centrifugal) in ECEF [m/s^2] at ECEF position p_e [m]."""
     g = gravitation_e(p_e)

@@ -259,3 +259,39 @@ def se23_right_jacobian_inv(xi: np.ndarray) -> np.ndarray:
 def se23_box_minus(X: np.ndarray, X_hat: np.ndarray) -> np.ndarray:
     """Left-invariant error vector ``xi = log(X_hat^-1 X)`` so that ``X = X_hat exp(xi)``."""
     return se23_log(se23_inv(X_hat) @ X)
+
+
+# ------------------------------------------------------------------------------------ batched SO(3)
+def _coeff_batch(theta: np.ndarray, series: tuple[float, ...], closed) -> np.ndarray:
+    """A trigonometric coefficient for an array of angles: Taylor series below 0.1 rad, closed form above."""
+    out = np.polynomial.polynomial.polyval(theta * theta, series)
+    big = theta >= _SERIES_BELOW_RAD
+    if np.any(big):
+        out[big] = closed(theta[big])
+    return out
+
+
+def hat3_batch(phi: np.ndarray) -> np.ndarray:
+    """(N, 3) -> (N, 3, 3) skew-symmetric matrices."""
+    K = np.zeros(phi.shape[:-1] + (3, 3))
+    K[..., 0, 1], K[..., 0, 2] = -phi[..., 2], phi[..., 1]
+    K[..., 1, 0], K[..., 1, 2] = phi[..., 2], -phi[..., 0]
+    K[..., 2, 0], K[..., 2, 1] = -phi[..., 1], phi[..., 0]
+    return K
+
+
+def so3_left_jacobian_batch(phi: np.ndarray) -> np.ndarray:
+    """(N, 3) -> (N, 3, 3) SO(3) left Jacobians (same series/closed-form split as so3_left_jacobian)."""
+    theta = np.linalg.norm(phi, axis=-1)
+    b = _coeff_batch(theta, _B_SERIES, lambda t: (1.0 - np.cos(t)) / t**2)
+    c = _coeff_batch(theta, _C1_SERIES, lambda t: (t - np.sin(t)) / t**3)
+    K = hat3_batch(phi)
+    return np.eye(3) + b[:, None, None] * K + c[:, None, None] * (K @ K)
+
+
+def so3_left_jacobian_inv_batch(phi: np.ndarray) -> np.ndarray:
+    """(N, 3) -> (N, 3, 3) inverses of the SO(3) left Jacobian."""
+    theta = np.linalg.norm(phi, axis=-1)
+    d = _coeff_batch(theta, _D_SERIES, lambda t: (1.0 - t * np.sin(t) / (2.0 * (1.0 - np.cos(t)))) / t**2)
+    K = hat3_batch(phi)
+    return np.eye(3) - 0.5 * K + d[:, None, None] * (K @ K)
