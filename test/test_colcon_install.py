@@ -2,13 +2,14 @@
 
 import ast
 import os
-import shutil
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
+
+from insalign_ros.cli.bringup import isolated_ros_env
 
 ROOT = Path(__file__).resolve().parents[1]
 COLCON = Path(sys.executable).with_name("colcon")
@@ -33,27 +34,38 @@ def test_launch_files_are_valid_python():
         assert "generate_launch_description" in names, f
 
 
+LEFTOVERS = ("build", "install", "log")
+
+
 @pytest.mark.timeout(240)
 @pytest.mark.skipif(not COLCON.exists(), reason="colcon is not installed in this interpreter's environment")
 def test_colcon_build_installs_nodes_config_and_launch(tmp_path):
-    src = tmp_path / "ws" / "src" / "insalign_ros"
-    src.parent.mkdir(parents=True)
-    # copy the package as a user's workspace would hold it (no venv, no caches)
-    shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(".venv", ".git", "__pycache__", "*.egg-info", "build",
-                                                            "install", "log", ".pytest_cache", "out"))
-    ws = tmp_path / "ws"
-    r = subprocess.run([str(COLCON), "--log-base", str(ws / "log"), "build", "--base-paths", str(ws / "src"),
-                        "--build-base", str(ws / "build"), "--install-base", str(ws / "install")],
-                       cwd=ws, capture_output=True, text=True, timeout=200, env=dict(os.environ))
+    """colcon build straight from the repository, every colcon directory in tmp; the repo is left untouched."""
+    before = {d for d in LEFTOVERS if (ROOT / d).exists()} | set(p.name for p in ROOT.glob("*.egg-info"))
+    r = subprocess.run([str(COLCON), "--log-base", str(tmp_path / "log"), "build", "--base-paths", str(ROOT),
+                        "--packages-select", "insalign_ros",
+                        "--build-base", str(tmp_path / "build"), "--install-base", str(tmp_path / "install")],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=200, env=dict(os.environ))
+    after = {d for d in LEFTOVERS if (ROOT / d).exists()} | set(p.name for p in ROOT.glob("*.egg-info"))
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
-    inst = ws / "install" / "insalign_ros"
-    lib = inst / "lib" / "insalign_ros"
+    assert after <= before, f"colcon left {sorted(after - before)} in the repository"
+    assert "1 package finished" in r.stdout, r.stdout[-2000:]
+
+    inst = tmp_path / "install" / "insalign_ros"
+    lib = inst / "lib" / "insalign_ros"  # where `ros2 run insalign_ros <exe>` looks (setup.cfg)
     for exe in ["imu_sim_node", "imu_listener_node"]:
         assert (lib / exe).is_file() and os.access(lib / exe, os.X_OK), sorted(p.name for p in lib.iterdir())
     share = inst / "share" / "insalign_ros"
-    assert (share / "package.xml").is_file()
-    assert list((share / "config").glob("*.yaml"))
-    assert list((share / "launch").glob("*.launch.py"))
+    assert (share / "package.xml").read_bytes() == (ROOT / "package.xml").read_bytes()
+    assert sorted(p.name for p in (share / "config").iterdir()) == sorted(p.name for p in (ROOT / "config").glob("*.yaml"))
+    assert sorted(p.name for p in (share / "launch").iterdir()) == sorted(p.name for p in (ROOT / "launch").glob("*.py"))
     assert (inst / "share" / "ament_index" / "resource_index" / "packages" / "insalign_ros").is_file()
-    # the Python package itself is installed where the setup hooks put it on PYTHONPATH
-    assert list(inst.glob("lib/python3*/site-packages/insalign_ros/core/lie.py"))
+    # the Python package itself is installed where the colcon environment hooks put it on PYTHONPATH
+    site = list(inst.glob("lib/python3*/site-packages"))
+    assert site and (site[0] / "insalign_ros" / "core" / "lie.py").is_file()
+
+    # the installed executable runs from the installed tree (not from the repo): a bad parameter is rejected
+    env = isolated_ros_env(base=dict(os.environ, PYTHONPATH=str(site[0])))
+    run = subprocess.run([str(lib / "imu_sim_node"), "--ros-args", "-p", "rate_hz:=-1.0"], cwd=tmp_path, env=env,
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and "rate_hz must be in (0, 2000]" in run.stderr, run.stdout + run.stderr

@@ -1,14 +1,21 @@
 """Real rclpy over real Fast DDS: two processes, isolated domain, localhost discovery, timeouts, no leftovers."""
 
 import os
-import tempfile
+import sys
+import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from insalign_ros.cli.bringup import isolated_ros_env, start_node, start_process, stop_nodes, wait_for_exit
 from insalign_ros.cli.demo import run_pub_sub
+from insalign_ros.core import earth
 
 pytestmark = pytest.mark.ros
+
+SITE = {"lat_deg": -33.9, "lon_deg": 151.2, "h_m": 45.0}  # not the node defaults: proves the parameters arrive
+RPY_DEG = (0.0, 0.0, 0.0)
 
 
 def _pid_alive(pid: int) -> bool:
@@ -24,17 +31,127 @@ def _pid_alive(pid: int) -> bool:
     return state != "Z"
 
 
-@pytest.mark.timeout(90)
-def test_100_imu_messages_cross_between_two_processes():
-    log_dir = Path(tempfile.mkdtemp(prefix="insalign-dds-"))
-    s = run_pub_sub(count=100, rate_hz=200.0, timeout_s=40.0, log_dir=log_dir)
-    assert s["listener_rc"] == 0, (log_dir / "imu_listener_node.log").read_text()
-    assert s["count"] == 100
-    assert 1 <= s["domain_id"] <= 100
-    # the values that crossed are the physics of a body at rest: |f| = gravity, |omega| = Earth rate
-    assert abs(s["mean_f_norm_m_s2"] - 9.81) < 0.01
-    assert abs(s["mean_omega_norm_rad_s"] - 7.292115e-5) < 1e-9
-    assert abs(s["data_rate_hz"] - 200.0) < 1e-3  # stamps on the data-time grid (float64 of epoch stamps: ~1e-7 s)
+def _expected_rest_imu():
+    from insalign_ros.nodes.imu_sim_node import rest_imu
+
+    omega_ib_b, f_ib_b = rest_imu(SITE["lat_deg"], SITE["lon_deg"], SITE["h_m"], RPY_DEG)
+    # independent of rest_imu: the norms are gravity at the site and the Earth rate
+    p_e = earth.geodetic_to_ecef(np.radians(SITE["lat_deg"]), np.radians(SITE["lon_deg"]), SITE["h_m"])
+    assert np.linalg.norm(f_ib_b) == pytest.approx(np.linalg.norm(earth.gravity_e(p_e)), rel=1e-12)
+    assert np.linalg.norm(omega_ib_b) == pytest.approx(earth.OMEGA_IE_RAD_S, rel=1e-12)
+    # level, yaw 0 (x East, y North, z Up): f points up, omega has no East part and its Up part is negative
+    # in the southern hemisphere (omega_ie_n = [0, w cos lat, w sin lat])
+    assert f_ib_b[2] > 9.7 and abs(omega_ib_b[0]) < 1e-12 and omega_ib_b[2] < 0
+    return omega_ib_b, f_ib_b
+
+
+def _check_crossed(s, n_expected, exact):
+    omega_ib_b, f_ib_b = _expected_rest_imu()
+    if exact:
+        assert s["count"] == n_expected
+    else:  # best effort may drop a sample on a loaded machine; localhost loses none in practice
+        assert 0.95 * n_expected <= s["count"] <= n_expected
+    assert s["frame_ids"] == ["imu_link"]
+    # float64 fields cross DDS bit for bit
+    np.testing.assert_array_equal(s["first_f_ib_b"], f_ib_b)
+    np.testing.assert_array_equal(s["first_omega_ib_b"], omega_ib_b)
+    assert s["max_dev_f_m_s2"] == 0.0 and s["max_dev_omega_rad_s"] == 0.0
     assert s["out_of_order"] == 0
+    # stamps on the exact data-time grid of 1/200 s (float64 of epoch seconds resolves ~2e-7 s)
+    assert abs(s["max_gap_s"] - 1 / 200.0) < 1e-6 if exact else s["max_gap_s"] < 0.1
+    if exact:
+        assert s["last_stamp_s"] - s["first_stamp_s"] == pytest.approx(99 / 200.0, abs=1e-6)
+    assert 1 <= s["domain_id"] <= 100
     # both processes are gone (stopped or exited), nothing left behind
     assert not any(_pid_alive(pid) for pid in s["pids"]), s["pids"]
+
+
+@pytest.mark.timeout(90)
+def test_100_imu_messages_cross_reliably_between_two_processes(tmp_path):
+    s = run_pub_sub(count=100, rate_hz=200.0, timeout_s=40.0, log_dir=tmp_path, pub_qos="reliable",
+                    sub_qos="reliable", site=SITE)
+    assert s["listener_rc"] == 0, (tmp_path / "imu_listener_node.log").read_text()
+    assert s["sim_rc"] == 0, (tmp_path / "imu_sim_node.log").read_text()
+    _check_crossed(s, 100, exact=True)
+
+
+@pytest.mark.timeout(90)
+def test_sensor_data_qos_rep2003_pair(tmp_path):
+    """The default pair (REP 2003): reliable publisher, best-effort sensor-data subscriber, QoS-compatible."""
+    s = run_pub_sub(count=100, rate_hz=200.0, timeout_s=20.0, log_dir=tmp_path, site=SITE)
+    assert s["qos"] == "sensor_data"
+    _check_crossed(s, 100, exact=False)
+
+
+@pytest.mark.timeout(60)
+def test_bad_parameter_is_rejected_with_a_reason(tmp_path):
+    env = isolated_ros_env()
+    node = start_node("insalign_ros.nodes.imu_sim_node", env, params={"rate_hz": -5.0}, log_dir=tmp_path)
+    try:
+        rc = wait_for_exit(node, 30.0)
+    finally:
+        stop_nodes([node])
+    assert rc == 2, node.output()
+    assert "rate_hz must be in (0, 2000]" in node.output()
+
+
+@pytest.mark.timeout(30)
+def test_stop_nodes_kills_the_whole_process_group_even_if_sigint_is_ignored(tmp_path):
+    """A child that ignores SIGINT and has its own child: both are gone after stop_nodes (SIGKILL of the group)."""
+    code = (
+        "import signal, subprocess, sys, time\n"
+        "signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
+        "g = subprocess.Popen([sys.executable, '-c', 'import signal, time; "
+        "signal.signal(signal.SIGINT, signal.SIG_IGN); time.sleep(60)'])\n"
+        "print(g.pid, flush=True)\n"
+        "time.sleep(60)\n"
+    )
+    proc = start_process([sys.executable, "-c", code], dict(os.environ), "stubborn", tmp_path)
+    deadline = time.monotonic() + 10.0
+    while not proc.output().strip() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    grandchild = int(proc.output().split()[0])
+    assert _pid_alive(proc.popen.pid) and _pid_alive(grandchild)
+    t0 = time.monotonic()
+    stop_nodes([proc], timeout_s=1.0)
+    assert time.monotonic() - t0 < 5.0
+    time.sleep(0.2)  # the grandchild is re-parented to init, which reaps it
+    assert not _pid_alive(proc.popen.pid)
+    assert not _pid_alive(grandchild)
+
+
+def test_isolated_env_adds_to_the_environment_and_never_removes():
+    base = {"LD_LIBRARY_PATH": "/x", "PATH": "/bin", "ROS_DOMAIN_ID": "0"}
+    env = isolated_ros_env(base=base)
+    assert env["LD_LIBRARY_PATH"] == "/x" and env["PATH"] == "/bin"
+    assert 1 <= int(env["ROS_DOMAIN_ID"]) <= 100
+    assert env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+    assert set(base) <= set(env)
+
+
+@pytest.mark.timeout(60)
+def test_config_file_matches_the_declared_parameters(monkeypatch):
+    """config/imu_sim.yaml sets only parameters imu_sim_node declares, and the node takes their values."""
+    import rclpy
+    import yaml
+
+    from insalign_ros.nodes.imu_sim_node import ImuSimNode
+
+    cfg = Path(__file__).resolve().parents[1] / "config" / "imu_sim.yaml"
+    want = yaml.safe_load(cfg.read_text())["imu_sim_node"]["ros__parameters"]
+    for k, v in isolated_ros_env(base={}).items():
+        monkeypatch.setenv(k, v)
+    ctx = rclpy.Context()
+    rclpy.init(args=["--ros-args", "--params-file", str(cfg), "-p", "rate_hz:=50.0"], context=ctx)
+    try:
+        node = ImuSimNode(context=ctx)
+        try:
+            declared = {name: node.get_parameter(name).value for name in want}
+            assert set(want) <= set(node._parameters), sorted(set(want) - set(node._parameters))
+            assert node.rate_hz == 50.0  # command line overrides the file
+            declared.pop("rate_hz"), want.pop("rate_hz")
+            assert declared == want
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)

@@ -64,6 +64,24 @@ class NodeProcess:
         return ""
 
 
+def start_process(cmd: list[str], env: dict, name: str, log_dir: Path | None = None) -> NodeProcess:
+    """Run ``cmd`` in its own process group (session) with ``env``; stdout+stderr go to ``log_dir/name.log``."""
+    log_path = None
+    if log_dir is not None:
+        log_dir = Path(log_dir)
+        log_dir.mkdir(parents=True, exist_ok=True)
+        log_path = log_dir / f"{name}.log"
+        out = open(log_path, "w")
+    else:
+        out = subprocess.DEVNULL
+    try:
+        popen = subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+    finally:
+        if out is not subprocess.DEVNULL:
+            out.close()  # the child holds its own descriptor
+    return NodeProcess(name, popen, log_path)
+
+
 def start_node(
     module: str,
     env: dict,
@@ -73,20 +91,10 @@ def start_node(
     log_dir: Path | None = None,
     name: str | None = None,
 ) -> NodeProcess:
-    """Run ``python -m module --ros-args ...`` in its own process group; output goes to a log file."""
+    """Run ``python -m module --ros-args ...`` (this interpreter) in its own process group, logging to log_dir."""
     name = name or module.rsplit(".", 1)[-1]
     cmd = [sys.executable, "-m", module, *ros_args(params, remaps, param_files)]
-    log_path = None
-    if log_dir is not None:
-        log_dir.mkdir(parents=True, exist_ok=True)
-        log_path = Path(log_dir) / f"{name}.log"
-        out = open(log_path, "w")
-    else:
-        out = subprocess.DEVNULL
-    popen = subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
-    if out is not subprocess.DEVNULL:
-        out.close()  # the child holds its own descriptor
-    return NodeProcess(name, popen, log_path)
+    return start_process(cmd, env, name, log_dir)
 
 
 def stop_nodes(nodes: list[NodeProcess], timeout_s: float = 5.0) -> None:

@@ -3,8 +3,14 @@
 Current source: ``rest`` — a body at rest on the rotating Earth at (lat_deg, lon_deg, h_m) with attitude
 (roll_deg, pitch_deg, yaw_deg): the gyros read the Earth rate, the accelerometers minus gravity (core/earth.py).
 
-Topics: ``imu/data`` (sensor_msgs/Imu, frame_id ``imu_link``). QoS: reliable, keep-last 200, volatile — a reliable
-publisher serves both reliable subscribers and best-effort (sensor-data) subscribers.
+Topics: ``imu/data`` (sensor_msgs/Imu, frame_id ``imu_link``). QoS (nodes/qos.py, REP 2003): parameter ``qos``,
+``reliable`` by default (serves reliable and best-effort sensor-data subscribers alike) or ``sensor_data`` (best
+effort); volatile, keep-last ``qos_depth`` (200).
+
+Parameters: rate_hz [Hz] (100), count (0: unlimited), duration_s [s] of data time (0: unlimited),
+wait_for_subscribers / wait_timeout_s (start only once that many subscribers matched), frame_id, lat_deg, lon_deg,
+h_m, roll_deg, pitch_deg, yaw_deg, qos, qos_depth. The stamps lie on an exact grid of 1/rate_hz from the first
+message (data time), so the data rate is exact whatever the scheduling jitter.
 """
 
 from __future__ import annotations
@@ -16,12 +22,10 @@ import time
 import numpy as np
 import rclpy
 from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu
 
 from ..core import earth
-
-IMU_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200, reliability=ReliabilityPolicy.RELIABLE)
+from .qos import imu_qos
 
 
 def rest_imu(lat_deg: float, lon_deg: float, h_m: float, rpy_deg) -> tuple[np.ndarray, np.ndarray]:
@@ -34,8 +38,8 @@ def rest_imu(lat_deg: float, lon_deg: float, h_m: float, rpy_deg) -> tuple[np.nd
 
 
 class ImuSimNode(Node):
-    def __init__(self) -> None:
-        super().__init__("imu_sim_node")
+    def __init__(self, **node_kwargs) -> None:
+        super().__init__("imu_sim_node", **node_kwargs)
         p = self.declare_parameter
         self.rate_hz = float(p("rate_hz", 100.0).value)
         self.count = int(p("count", 0).value)  # 0: unlimited
@@ -48,7 +52,8 @@ class ImuSimNode(Node):
         if not (0.0 < self.rate_hz <= 2000.0):
             raise ValueError(f"rate_hz must be in (0, 2000], got {self.rate_hz}")
         self.omega_ib_b, self.f_ib_b = rest_imu(lat, lon, h, rpy)
-        self.pub = self.create_publisher(Imu, "imu/data", IMU_QOS)
+        qos = imu_qos(str(p("qos", "reliable").value), int(p("qos_depth", 200).value))
+        self.pub = self.create_publisher(Imu, "imu/data", qos)
         self.sent = 0
         self.t_start_ns: int | None = None
         self._wait_start = time.monotonic()
