@@ -29,6 +29,6 @@ setup(
     maintainer_email="insalign@example.invalid",
     description="Strapdown INS initial alignment (LIEKF, PI-LIEKF, IEKF, EKF, PKF, backtracking) for ROS 2 Jazzy",
     license="Apache-2.0",
-    tests_require=["pytest"],
+    extras_require={"test": ["pytest"]},
     entry_points={"console_scripts": CONSOLE_SCRIPTS},
 )

@@ -15,6 +15,24 @@ ROOT = Path(__file__).resolve().parents[1]
 COLCON = Path(sys.executable).with_name("colcon")
 
 
+def console_scripts() -> list[str]:
+    """Executable names of setup.py's CONSOLE_SCRIPTS list (read with ast: setup.py must not run here)."""
+    tree = ast.parse((ROOT / "setup.py").read_text())
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == "CONSOLE_SCRIPTS" for t in node.targets):
+            return [ast.literal_eval(e).split("=")[0].strip() for e in node.value.elts]
+    raise AssertionError("setup.py has no CONSOLE_SCRIPTS list")
+
+
+def test_pip_editable_install_puts_every_executable_on_the_venv_path():
+    """scripts/env.sh runs `pip install -e .`: the nodes and tools are then plain commands in the venv's bin/."""
+    names = console_scripts()
+    assert {"imu_sim_node", "imu_listener_node", "insalign-demo"} <= set(names)
+    bindir = Path(sys.executable).parent
+    missing = [n for n in names if not os.access(bindir / n, os.X_OK)]
+    assert not missing, f"not in {bindir}: {missing} (re-run scripts/env.sh after editing setup.py)"
+
+
 def test_package_xml_is_format3_ament_python_with_the_runtime_deps():
     root = ET.parse(ROOT / "package.xml").getroot()
     assert root.tag == "package" and root.get("format") == "3"
@@ -53,7 +71,7 @@ def test_colcon_build_installs_nodes_config_and_launch(tmp_path):
 
     inst = tmp_path / "install" / "insalign_ros"
     lib = inst / "lib" / "insalign_ros"  # where `ros2 run insalign_ros <exe>` looks (setup.cfg)
-    for exe in ["imu_sim_node", "imu_listener_node"]:
+    for exe in console_scripts():
         assert (lib / exe).is_file() and os.access(lib / exe, os.X_OK), sorted(p.name for p in lib.iterdir())
     share = inst / "share" / "insalign_ros"
     assert (share / "package.xml").read_bytes() == (ROOT / "package.xml").read_bytes()
