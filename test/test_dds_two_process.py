@@ -155,3 +155,37 @@ def test_config_file_matches_the_declared_parameters(monkeypatch):
             node.destroy_node()
     finally:
         rclpy.shutdown(context=ctx)
+
+
+@pytest.mark.timeout(60)
+def test_demo_prints_what_crossed_and_exits_0(tmp_path, capsys):
+    from insalign_ros.cli.demo import main
+
+    assert main(["--count", "40", "--rate-hz", "200", "--timeout-s", "20", "--log-dir", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "messages received            40 / 40" in out
+    assert "first / last stamp [s]" in out and "data rate [Hz]               200.000" in out
+    assert out.rstrip().endswith("[insalign-demo] OK")
+
+
+@pytest.mark.timeout(60)
+def test_demo_fails_with_a_reason_when_nothing_can_cross(tmp_path, capsys):
+    """A best-effort publisher cannot serve a reliable subscriber: nothing crosses, the demo says so, exits 1."""
+    from insalign_ros.cli.demo import main
+
+    t0 = time.monotonic()
+    rc = main(["--count", "20", "--pub-qos", "sensor_data", "--sub-qos", "reliable", "--timeout-s", "3",
+               "--log-dir", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert rc == 1, out
+    assert "FAILED: nothing crossed" in out and "imu_sim_node rc=3" in out, out
+    assert "no subscriber matched" in out, out
+    assert time.monotonic() - t0 < 30.0
+
+
+def test_demo_rejects_bad_arguments():
+    from insalign_ros.cli.demo import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["--count", "0"])
+    assert e.value.code == 2

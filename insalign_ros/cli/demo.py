@@ -88,8 +88,11 @@ def main(argv=None) -> int:
                     site=site)
     print(f"[insalign-demo] ROS_DOMAIN_ID={s['domain_id']} (localhost discovery), node logs in {log_dir}")
     if not s.get("count"):
-        print(f"[insalign-demo] FAILED: nothing crossed (listener rc={s.get('listener_rc')}, "
-              f"imu_sim_node rc={s.get('sim_rc')}); see {log_dir}")
+        print(f"[insalign-demo] FAILED: nothing crossed (imu_listener_node rc={s.get('listener_rc')}, "
+              f"imu_sim_node rc={s.get('sim_rc')}); last lines of the node logs in {log_dir}:")
+        for log in sorted(log_dir.glob("*.log")):
+            for line in log.read_text(errors="replace").splitlines()[-3:]:
+                print(f"  {log.stem}: {line[:200]}")
         return 1
     g_m_s2, w_rad_s = expected_norms(site)
     f_err = abs(s["mean_f_norm_m_s2"] - g_m_s2)

@@ -59,13 +59,15 @@ class ImuSimNode(Node):
         self._wait_start = time.monotonic()
         self.timer = self.create_timer(1.0 / self.rate_hz, self._tick)
         self.done = False
+        self.gave_up = False  # no subscriber matched within wait_timeout_s
 
     def _ready(self) -> bool:
         if self.pub.get_subscription_count() >= self.wait_for_subscribers:
             return True
         if time.monotonic() - self._wait_start > self.wait_timeout_s:
-            self.get_logger().error(f"no subscriber after {self.wait_timeout_s:.0f} s; giving up")
-            self.done = True
+            self.get_logger().error(f"no subscriber matched after {self.wait_timeout_s:g} s (none running, or QoS "
+                                    "incompatible: a best-effort publisher cannot serve a reliable subscriber); giving up")
+            self.done = self.gave_up = True
         return False
 
     def _tick(self) -> None:
@@ -101,7 +103,7 @@ def main(args=None) -> int:
         end = time.monotonic() + 2.0
         while rclpy.ok() and time.monotonic() < end:
             rclpy.spin_once(node, timeout_sec=0.05)
-        return 0
+        return 3 if node.gave_up else 0
     except KeyboardInterrupt:
         return 0
     except ValueError as exc:
