@@ -1,0 +1,153 @@
+"""Configuration dataclasses of the in-motion cores (LIEKF, PI-LIEKF, imperfect IEKF, conventional EKF).
+
+Units are in the field names. Defaults are the PI-LIEKF paper's Table 1 / Table 2 values (ship simulation):
+gyro ARW 2.0 deg/sqrt(h), VRW 0.2 m/s/sqrt(h), gyro bias 25.2 deg/h, accelerometer bias 0.2 mg, GPS 1 m,
+rho = 0.01. ``config/<core>.yaml`` holds the same defaults in ROS 2 parameter-file layout
+(``alignment_node: ros__parameters: ...``); ``test/test_liekf_config.py`` checks that they agree.
+
+``from_dict`` validates: unknown keys, wrong types and out-of-range values raise ``ValueError`` with the field
+name and the reason.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, fields
+
+
+@dataclass
+class InMotionConfig:
+    """Shared parameters of the GNSS-aided in-motion cores."""
+
+    #: gyro angle random walk [deg/sqrt(h)] -> process noise of the attitude error (PI-LIEKF Table 2, Q)
+    gyro_arw_deg_sqrt_h: float = 2.0
+    #: accelerometer velocity random walk [m/s/sqrt(h)] -> process noise of the velocity error
+    acc_vrw_m_s_sqrt_h: float = 0.2
+    #: initial 1-sigma attitude errors about the ENU axes [deg] used by the runners to build P_att_n.
+    #: A 179 deg yaw error is not Gaussian in any parametrisation; see docs/inmotion_cores.md for the choice.
+    init_sigma_roll_deg: float = 10.0
+    init_sigma_pitch_deg: float = 10.0
+    init_sigma_yaw_deg: float = 60.0
+    #: initial velocity / position 1-sigma (PI-LIEKF Table 1: GPS velocity 0.1 m/s, position 1.0 m)
+    init_sigma_v_m_s: float = 0.1
+    init_sigma_p_m: float = 1.0
+    #: reject a GNSS fix whose normalised innovation squared exceeds this (0 disables the gate)
+    gnss_nis_gate: float = 0.0
+    #: status ALIGNED once the 3-sigma yaw uncertainty is below this [deg]
+    aligned_yaw_3sigma_deg: float = 1.0
+    #: IMU samples buffered before the batched (vectorised) propagation runs; the buffer is also flushed by
+    #: every update and every estimate() call, so this only bounds latency and memory
+    max_batch_samples: int = 100
+
+    # ------------------------------------------------------------------ validation
+    def validate(self) -> None:
+        for f in fields(self):
+            val = getattr(self, f.name)
+            if f.type in ("float", float) and not (isinstance(val, (int, float)) and math.isfinite(val)):
+                raise ValueError(f"{f.name}: expected a finite number, got {val!r}")
+            if f.type in ("int", int) and not (isinstance(val, int) and not isinstance(val, bool)):
+                raise ValueError(f"{f.name}: expected an integer, got {val!r}")
+        for name in ("gyro_arw_deg_sqrt_h", "acc_vrw_m_s_sqrt_h"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name}: must be >= 0, got {getattr(self, name)}")
+        for name in ("init_sigma_roll_deg", "init_sigma_pitch_deg", "init_sigma_yaw_deg", "init_sigma_v_m_s",
+                     "init_sigma_p_m", "aligned_yaw_3sigma_deg"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name}: must be > 0, got {getattr(self, name)}")
+        if self.gnss_nis_gate < 0:
+            raise ValueError(f"gnss_nis_gate: must be >= 0 (0 = off), got {self.gnss_nis_gate}")
+        if not 1 <= self.max_batch_samples <= 100_000:
+            raise ValueError(f"max_batch_samples: must be in [1, 100000], got {self.max_batch_samples}")
+
+    @classmethod
+    def from_dict(cls, params: dict | None = None):
+        """Build from a (possibly partial) dict; ints are accepted for floats. Raises ValueError."""
+        params = dict(params or {})
+        known = {f.name: f for f in fields(cls)}
+        unknown = sorted(set(params) - set(known))
+        if unknown:
+            raise ValueError(f"unknown parameter(s) {unknown} for {cls.__name__}; known: {sorted(known)}")
+        kwargs = {}
+        for k, v in params.items():
+            ftype = known[k].type
+            if ftype in ("float", float) and isinstance(v, int) and not isinstance(v, bool):
+                v = float(v)
+            if ftype in ("str", str) and not isinstance(v, str):
+                raise ValueError(f"{k}: expected a string, got {v!r}")
+            if ftype in ("float", float) and not isinstance(v, float):
+                raise ValueError(f"{k}: expected a number, got {v!r}")
+            kwargs[k] = v
+        cfg = cls(**kwargs)
+        cfg.validate()
+        return cfg
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+@dataclass
+class LiekfConfig(InMotionConfig):
+    """LIEKF (PI-LIEKF Alg. 1): no bias states."""
+
+
+@dataclass
+class PiLiekfConfig(InMotionConfig):
+    """PI-LIEKF (Alg. 2) with PI gains from the LMI of eqs. (18)-(23)."""
+
+    #: decay-rate parameter of eq. (20) (PI-LIEKF Table 2: 0.01)
+    rho: float = 0.01
+    #: cvxpy solver for the LMI; SCS is tried when this one fails
+    lmi_solver: str = "CLARABEL"
+    #: re-solve the LMI every this many GNSS updates (1 = every update, as Alg. 2 reads); the gains are cached
+    #: in between (A and H are state-independent: the LMI data change only with the IMU input and L_k)
+    lmi_resolve_every_updates: int = 10
+    #: margin of the strict inequalities (LMI <= -eps I, J >= eps I)
+    lmi_eps: float = 1e-6
+    #: integral-innovation clamp [m] per axis: anti-windup while the yaw error is large (0 disables)
+    integral_clamp_m: float = 5.0
+
+    def validate(self) -> None:
+        super().validate()
+        if not 0.0 <= self.rho < 0.5:
+            raise ValueError(f"rho: must be in [0, 0.5) so that 1 - 2 rho > 0, got {self.rho}")
+        if self.lmi_solver not in ("CLARABEL", "SCS"):
+            raise ValueError(f"lmi_solver: must be CLARABEL or SCS, got {self.lmi_solver!r}")
+        if self.lmi_resolve_every_updates < 1:
+            raise ValueError(f"lmi_resolve_every_updates: must be >= 1, got {self.lmi_resolve_every_updates}")
+        if not self.lmi_eps > 0:
+            raise ValueError(f"lmi_eps: must be > 0, got {self.lmi_eps}")
+        if self.integral_clamp_m < 0:
+            raise ValueError(f"integral_clamp_m: must be >= 0, got {self.integral_clamp_m}")
+
+
+@dataclass
+class BiasStatesConfig(InMotionConfig):
+    """Cores with gyro and accelerometer bias states (imperfect IEKF, conventional EKF)."""
+
+    #: initial 1-sigma gyro bias [deg/h] (PI-LIEKF Table 1/2: b_Gyro = 25.2 deg/h)
+    init_sigma_gyro_bias_deg_h: float = 25.2
+    #: initial 1-sigma accelerometer bias [mg] (Table 1/2: b_Acc = 0.2 mg)
+    init_sigma_acc_bias_mg: float = 0.2
+    #: bias random walks (the paper's Q has 0 on the bias block; a small value keeps the filter from locking)
+    gyro_bias_rw_deg_h_sqrt_h: float = 0.5
+    acc_bias_rw_mg_sqrt_h: float = 0.005
+
+    def validate(self) -> None:
+        super().validate()
+        for name in ("init_sigma_gyro_bias_deg_h", "init_sigma_acc_bias_mg"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name}: must be > 0, got {getattr(self, name)}")
+        for name in ("gyro_bias_rw_deg_h_sqrt_h", "acc_bias_rw_mg_sqrt_h"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name}: must be >= 0, got {getattr(self, name)}")
+
+
+@dataclass
+class IekfConfig(BiasStatesConfig):
+    """Imperfect IEKF (15 states): invariant attitude/velocity/position + EKF bias states."""
+
+
+@dataclass
+class EkfConfig(BiasStatesConfig):
+    """Conventional 15-state error-state EKF (multiplicative attitude, additive velocity/position, ECI)."""

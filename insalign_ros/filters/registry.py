@@ -1,0 +1,76 @@
+"""Core registry: ``make_core(name, params) -> AlignmentCore`` and ``CORE_NAMES``.
+
+Registration is a plain dict: ``CORES[name] = (factory, config_class)`` where ``factory(config)`` returns a
+core and ``config_class.from_dict(params)`` validates the parameters (ValueError with the reason). Other
+cores (static PKF/EKF10, coarse, backtracking) add themselves with :func:`register`.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+from .base import AlignmentCore
+from .config import EkfConfig, IekfConfig, LiekfConfig, PiLiekfConfig
+
+
+def _liekf(cfg):
+    from .liekf import Liekf
+
+    return Liekf(cfg)
+
+
+def _pi_liekf(cfg):
+    from .pi_liekf import PiLiekf
+
+    return PiLiekf(cfg)
+
+
+def _iekf(cfg):
+    from .iekf import ImperfectIekf
+
+    return ImperfectIekf(cfg)
+
+
+def _ekf(cfg):
+    from .ekf import ConventionalEkf
+
+    return ConventionalEkf(cfg)
+
+
+#: name -> (factory(config) -> AlignmentCore, config dataclass with from_dict)
+CORES: dict[str, tuple[Callable, type]] = {
+    "liekf": (_liekf, LiekfConfig),
+    "pi_liekf": (_pi_liekf, PiLiekfConfig),
+    "iekf": (_iekf, IekfConfig),
+    "ekf": (_ekf, EkfConfig),
+}
+
+#: the in-motion (GNSS-aided) cores of issue 5
+INMOTION_CORE_NAMES: tuple[str, ...] = ("liekf", "pi_liekf", "iekf", "ekf")
+
+
+def register(name: str, factory: Callable, config_class: type) -> None:
+    """Add a core: ``factory(config_class.from_dict(params))`` must return an AlignmentCore."""
+    CORES[name] = (factory, config_class)
+
+
+def core_names() -> tuple[str, ...]:
+    return tuple(CORES)
+
+
+def make_config(name: str, params: dict | None = None):
+    if name not in CORES:
+        raise ValueError(f"unknown core {name!r}; choose one of {sorted(CORES)}")
+    return CORES[name][1].from_dict(params)
+
+
+def make_core(name: str, params: dict | None = None) -> AlignmentCore:
+    """Build a core by name with validated parameters (ValueError on an unknown name or a bad parameter)."""
+    cfg = make_config(name, params)
+    return CORES[name][0](cfg)
+
+
+def __getattr__(attr):  # CORE_NAMES stays current when others register()
+    if attr == "CORE_NAMES":
+        return core_names()
+    raise AttributeError(attr)

@@ -1,0 +1,105 @@
+"""The per-event loop shared by the offline runner (insalign-align, benchmarks) and the ROS alignment node.
+
+:class:`EventRunner` feeds :class:`ImuSample` / :class:`GnssFix` events to an :class:`AlignmentCore` in time
+order: IMU samples stamped at or before the initialisation stamp are skipped (they cover intervals before
+the initial state), GNSS fixes older than the core's time are skipped (counted, with the reason).
+:func:`initial_guess` builds the initial state from a truth sample plus an Euler error (or a user guess).
+No ROS import.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..core import earth
+from ..core.types import GnssFix, ImuSample
+from .base import AlignmentCore, AlignmentEstimate, UpdateResult
+
+D2R = math.pi / 180.0
+
+
+@dataclass
+class InitialGuess:
+    """Arguments of AlignmentCore.initialize."""
+
+    stamp_s: float
+    lat_rad: float
+    lon_rad: float
+    h_m: float
+    C_b_n: np.ndarray
+    v_n: np.ndarray
+    P_att_n: np.ndarray
+    sigma_v_m_s: float
+    sigma_p_m: float
+
+    def apply(self, core: AlignmentCore) -> None:
+        core.initialize(self.stamp_s, self.lat_rad, self.lon_rad, self.h_m, self.C_b_n, self.v_n, self.P_att_n,
+                        self.sigma_v_m_s, self.sigma_p_m)
+
+
+def initial_P_att_n(sigma_rpy_deg) -> np.ndarray:
+    """Diagonal ENU attitude covariance [rad^2] from roll/pitch/yaw 1-sigma [deg] (small-angle mapping)."""
+    s = np.asarray(sigma_rpy_deg, float) * D2R
+    return np.diag(s * s)
+
+
+def initial_guess(stamp_s, lat_rad, lon_rad, h_m, C_b_n_true, v_n, rpy_error_deg, cfg) -> InitialGuess:
+    """Truth (or a user's guess) plus an Euler-angle error [deg] (roll, pitch, yaw added to the truth's Euler).
+
+    P_att_n: diag of the config's init_sigma_{roll,pitch,yaw}_deg (see docs/inmotion_cores.md).
+    """
+    rpy = earth.rpy_from_C_b_n(np.asarray(C_b_n_true, float)) + np.asarray(rpy_error_deg, float) * D2R
+    C_b_n = earth.C_b_n_from_rpy(*rpy)
+    P_att = initial_P_att_n([cfg.init_sigma_roll_deg, cfg.init_sigma_pitch_deg, cfg.init_sigma_yaw_deg])
+    return InitialGuess(float(stamp_s), float(lat_rad), float(lon_rad), float(h_m), C_b_n,
+                        np.asarray(v_n, float).copy(), P_att, cfg.init_sigma_v_m_s, cfg.init_sigma_p_m)
+
+
+@dataclass
+class EventRunner:
+    """Feeds events to an initialised core. Use ``feed(event)`` per message (node) or ``run(events)`` (offline)."""
+
+    core: AlignmentCore
+    init_stamp_s: float
+    counters: dict = field(default_factory=lambda: {"imu": 0, "imu_skipped_before_init": 0, "gnss": 0,
+                                                    "gnss_accepted": 0, "gnss_skipped_stale": 0})
+    last_update: UpdateResult | None = None
+
+    def feed(self, event) -> UpdateResult | None:
+        if isinstance(event, ImuSample):
+            if event.stamp_s <= self.init_stamp_s:
+                self.counters["imu_skipped_before_init"] += 1
+                return None
+            self.counters["imu"] += 1
+            self.core.propagate(event)
+            return None
+        if isinstance(event, GnssFix):
+            self.counters["gnss"] += 1
+            if event.stamp_s < self.init_stamp_s:
+                self.counters["gnss_skipped_stale"] += 1
+                return None
+            res = self.core.update_gnss(event)
+            self.last_update = res
+            if res.accepted:
+                self.counters["gnss_accepted"] += 1
+            return res
+        raise TypeError(f"unknown event type {type(event).__name__}")
+
+    def run(self, events, output_period_s: float = 0.5, progress=None) -> list[AlignmentEstimate]:
+        """Feed all events; collect an estimate every output_period_s of data time and after each GNSS fix."""
+        out: list[AlignmentEstimate] = []
+        next_out = self.init_stamp_s
+        for ev in events:
+            res = self.feed(ev)
+            if progress is not None and isinstance(ev, ImuSample):
+                progress.update(1)
+            if isinstance(ev, GnssFix) and res is not None:
+                out.append(self.core.estimate())
+                next_out = out[-1].stamp_s + output_period_s
+            elif isinstance(ev, ImuSample) and ev.stamp_s >= next_out and ev.stamp_s > self.init_stamp_s:
+                out.append(self.core.estimate())
+                next_out = ev.stamp_s + output_period_s
+        return out
