@@ -11,6 +11,7 @@ CONSOLE_SCRIPTS = [
     "imu_sim_node = insalign_ros.nodes.imu_sim_node:main",
     "imu_listener_node = insalign_ros.nodes.imu_listener_node:main",
     "insalign-demo = insalign_ros.cli.demo:main",
+    "alignment_node = insalign_ros.nodes.alignment_node:main",
 ]
 
 setup(

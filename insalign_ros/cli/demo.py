@@ -1,8 +1,13 @@
 """insalign-demo: scripted bringup over real DDS, launch-free (the README's main command).
 
-Current stage: starts ``imu_sim_node`` (publisher) and ``imu_listener_node`` (subscriber) as two processes on a
-private ROS_DOMAIN_ID with localhost-only discovery, and prints what crossed. Exit 0 on success, non-zero with a
-reason otherwise; every wait has a timeout and both processes are stopped on every exit path.
+Starts ``imu_sim_node`` and ``alignment_node`` as two processes on a private ROS_DOMAIN_ID with localhost-only
+discovery, runs a scenario (``ship`` by default, 300 s of data at rate factor 6: about a minute) or replays a bag,
+prints a live one-line status and a final table (time to aligned, final Euler errors and 3-sigma per axis, messages
+sent / received / rejected / dropped). Exit 0 on success, 1 with the reason otherwise; every wait has a timeout and
+both processes are stopped on every exit path.
+
+``insalign-demo --count N`` runs the IMU transport check instead (imu_sim_node ``source:=rest`` ->
+imu_listener_node, values checked against gravity and the Earth rate).
 """
 
 from __future__ import annotations
@@ -46,7 +51,7 @@ def run_pub_sub(count: int, rate_hz: float, timeout_s: float, log_dir: Path, dom
                               params={"expected_count": count, "timeout_s": timeout_s, "qos": sub_qos}, log_dir=log_dir)
         nodes.append(listener)
         sim = start_node("insalign_ros.nodes.imu_sim_node", env,
-                         params={"rate_hz": rate_hz, "count": count, "wait_for_subscribers": 1,
+                         params={"source": "rest", "rate_hz": rate_hz, "count": count, "wait_for_subscribers": 1,
                                  "wait_timeout_s": timeout_s, "qos": pub_qos, **(site or {})}, log_dir=log_dir)
         nodes.append(sim)
         rc = wait_for_exit(listener, timeout_s + 10.0)
@@ -65,8 +70,8 @@ def expected_norms(site: dict) -> tuple[float, float]:
     return float(np.linalg.norm(earth.gravity_e(p_e))), earth.OMEGA_IE_RAD_S
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="insalign-demo", description=__doc__.splitlines()[0])
+def transport_check_main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="insalign-demo --count N", description="IMU transport check")
     ap.add_argument("--count", type=int, default=500, help="IMU messages to send (default 500)")
     ap.add_argument("--rate-hz", type=float, default=100.0, help="IMU rate [Hz] (default 100)")
     ap.add_argument("--timeout-s", type=float, default=60.0, help="give up after this many seconds (default 60)")
@@ -127,6 +132,180 @@ def main(argv=None) -> int:
         return 1
     print("[insalign-demo] OK")
     return 0
+
+
+
+
+# ---------------------------------------------------------------------------------------------- alignment demo
+SIM_PREFIX = "SIM_SUMMARY "
+
+
+def _sim_summary(text: str) -> dict:
+    for line in reversed(text.splitlines()):
+        if line.startswith(SIM_PREFIX):
+            return json.loads(line[len(SIM_PREFIX):])
+    return {}
+
+
+def _fmt3(v) -> str:
+    return "  ".join(f"{x:+8.3f}" for x in v) if v is not None else "   -"
+
+
+def run_alignment(args, log_dir: Path, out=None) -> tuple[int, dict]:
+    """imu_sim_node -> alignment_node over DDS; returns (exit code, result dict). Prints status and table."""
+    import os
+
+    out = out or sys.stdout
+    env = isolated_ros_env(args.domain_id)
+    for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
+        os.environ[k] = env[k]  # the in-process monitor joins the same isolated domain
+    from ..nodes.monitor import AlignmentMonitor
+
+    err = [float(x) for x in args.init_error_deg.split(",")]
+    align_params = {"core": args.core, "init_from_ground_truth": not args.bag, "init_rpy_error_deg": str(err),
+                    "imu_qos": "reliable"}
+    if args.bag:
+        align_params["initial_rpy_deg"] = str([float(x) for x in args.initial_rpy_deg.split(",")])
+        align_params["init_from_ground_truth"] = args.bag_truth_init
+    sim_params = {"rate_factor": args.rate_factor, "wait_for_subscribers": 1, "wait_timeout_s": 30.0,
+                  "seed": args.seed, "qos_depth": 1000}
+    if args.bag:
+        sim_params.update(source="bag", bag_path=str(args.bag))
+    else:
+        sim_params.update(source="scenario", scenario=args.scenario, rate_hz=args.rate_hz)
+    if args.duration_s:
+        sim_params["duration_s"] = args.duration_s
+    nodes = []
+    res: dict = {"domain_id": int(env["ROS_DOMAIN_ID"])}
+    t0 = time.monotonic()
+    mon = AlignmentMonitor()
+    try:
+        align = start_node("insalign_ros.nodes.alignment_node", env, params=align_params, log_dir=log_dir)
+        nodes.append(align)
+        sim = start_node("insalign_ros.nodes.imu_sim_node", env, params=sim_params, log_dir=log_dir)
+        nodes.append(sim)
+        deadline = t0 + args.timeout_s
+        last_line = 0.0
+        while sim.alive() and time.monotonic() < deadline:
+            time.sleep(0.1)
+            if not align.alive():
+                break
+            if time.monotonic() - last_line > 0.5:
+                last_line = time.monotonic()
+                out.write("\r" + _status_line(mon, t0))
+                out.flush()
+        out.write("\r" + _status_line(mon, t0) + "\n")
+        if sim.alive():
+            return _fail(out, f"timeout after {args.timeout_s:g} s (imu_sim_node still running)", log_dir), res
+        sim_rc = sim.popen.returncode
+        summary = _sim_summary(sim.output())
+        if sim_rc != 0 or not summary:
+            return _fail(out, f"imu_sim_node exited with {sim_rc}", log_dir), res
+        if not align.alive():
+            return _fail(out, f"alignment_node died (rc {align.popen.returncode})", log_dir), res
+        sent = summary["imu_sent"]
+        # let the node drain its queue and publish a last diagnostics message
+        mon.wait_for(lambda m: m.counter("imu_received") >= sent, 10.0)
+        n0 = mon.diag_count
+        mon.wait_for(lambda m: m.diag_count >= n0 + 2, 5.0)
+        with mon.lock:
+            d = dict(mon.diag)
+            e = None if mon.euler_error is None else mon.euler_error[1].copy()
+            s3 = None if mon.euler_3sigma is None else mon.euler_3sigma[1].copy()
+        res.update(sent=sent, summary=summary, diag=d, euler_error_deg=e, euler_3sigma_deg=s3,
+                   wall_s=time.monotonic() - t0)
+        first_stamp = summary["first_stamp_ns"] * 1e-9 if summary.get("first_stamp_ns") else float("nan")
+        t_al = float(d["aligned_first_raised_at_s"]) - first_stamp if "aligned_first_raised_at_s" in d else None
+        res["time_to_aligned_s"] = t_al
+        received = int(d.get("imu_received", 0))
+        rejected = int(d.get("imu_rejected", 0))
+        rows = [
+            ("core / scenario", f"{args.core} / {args.bag or args.scenario}"),
+            ("time to aligned [s data]", f"{t_al:.1f}" if t_al is not None else "never"),
+            ("aligned at the end", d.get("aligned", "?")),
+            ("final Euler error [deg]  r p y", _fmt3(e) if e is not None else "- (no ground truth)"),
+            ("final 3-sigma [deg]      r p y", _fmt3(s3)),
+            ("IMU sent / received", f"{sent} / {received}"),
+            ("IMU rejected / dropped", f"{rejected} / {max(sent - received, 0)}"),
+            ("GNSS sent / accepted", f"{summary['fix_sent']} / {d.get('gnss_accepted', '0')}"),
+            ("IMU callback median / p99 [us]", f"{d.get('imu_callback_median_us', '-')} / "
+                                               f"{d.get('imu_callback_p99_us', '-')}"),
+            ("wall time [s]", f"{res['wall_s']:.1f}"),
+        ]
+        for k, v in rows:
+            print(f"  {k:<32} {v}", file=out)
+        problems = []
+        if d.get("aligned") != "true":
+            problems.append(f"not aligned at the end ({d.get('aligned_reason', '?')})")
+        if e is not None and s3 is not None and not np.all(np.abs(e) <= s3):
+            problems.append("final Euler error outside the published 3-sigma")
+        if sent - received > 0.01 * sent:
+            problems.append(f"{sent - received} of {sent} IMU messages lost")
+        if problems:
+            return _fail(out, "; ".join(problems), log_dir), res
+        print(f"[insalign-demo] OK (ROS_DOMAIN_ID={res['domain_id']}, node logs in {log_dir})", file=out)
+        return 0, res
+    finally:
+        stop_nodes(nodes)
+        mon.close()
+
+
+def _status_line(mon, t0: float) -> str:
+    with mon.lock:
+        d = mon.diag
+        e = mon.euler_error[1] if mon.euler_error is not None else None
+        s3 = mon.euler_3sigma[1] if mon.euler_3sigma is not None else None
+        state = d.get("state", "starting")
+        yaw = f"yaw err {e[2]:+7.2f} deg" if e is not None else "yaw err    -   "
+        sig = f"3-sigma {s3[2]:6.2f} deg" if s3 is not None else "3-sigma   -   "
+        return (f"[{time.monotonic() - t0:5.1f} s] {state:<16} | {yaw} | {sig} | IMU rx {d.get('imu_received', 0):>6} "
+                f"rej {d.get('imu_rejected', 0):>3} | GNSS {d.get('gnss_accepted', 0):>4}   ")
+
+
+def _fail(out, reason: str, log_dir: Path) -> int:
+    print(f"[insalign-demo] FAILED: {reason}; last lines of the node logs in {log_dir}:", file=out)
+    for log in sorted(Path(log_dir).glob("*.log")):
+        for line in log.read_text(errors="replace").splitlines()[-3:]:
+            print(f"  {log.stem}: {line[:200]}", file=out)
+    return 1
+
+
+def main(argv=None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if any(a.startswith(("--count", "--pub-qos", "--sub-qos")) for a in argv):
+        return transport_check_main(argv)
+    from ..filters.registry import core_names
+
+    ap = argparse.ArgumentParser(prog="insalign-demo", description=__doc__.splitlines()[0])
+    ap.add_argument("--scenario", default="ship", help="simulated scenario (default ship)")
+    ap.add_argument("--core", default="liekf", choices=sorted(core_names()), help="alignment core (default liekf)")
+    ap.add_argument("--rate-factor", type=float, default=6.0, help="data time / wall time (default 6)")
+    ap.add_argument("--duration-s", type=float, default=0.0, help="data time [s] (default: the scenario's)")
+    ap.add_argument("--rate-hz", type=float, default=100.0, help="IMU rate [Hz] (default 100)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--init-error-deg", default="5,-5,30", help="initial roll,pitch,yaw error [deg] added to the "
+                    "truth (default 5,-5,30)")
+    ap.add_argument("--bag", type=Path, default=None, help="replay this contract rosbag2 instead of a scenario")
+    ap.add_argument("--initial-rpy-deg", default="0,0,0", help="bag without truth: initial roll,pitch,yaw guess")
+    ap.add_argument("--bag-truth-init", action="store_true", help="bag with truth: initialise from it + the error")
+    ap.add_argument("--timeout-s", type=float, default=110.0, help="give up after this long (default 110 s)")
+    ap.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: a random one in 1..100)")
+    ap.add_argument("--log-dir", type=Path, default=None, help="keep node logs here (default: a temp dir)")
+    args = ap.parse_args(argv)
+    if not 0 < args.rate_factor <= 1000 or args.timeout_s <= 0 or args.duration_s < 0:
+        ap.error("need 0 < --rate-factor <= 1000, --timeout-s > 0, --duration-s >= 0")
+    try:
+        if len([float(x) for x in args.init_error_deg.split(",")]) != 3:
+            raise ValueError
+    except ValueError:
+        ap.error("--init-error-deg needs three numbers: roll,pitch,yaw")
+    if args.bag is not None and not args.bag.exists():
+        ap.error(f"--bag {args.bag}: no such file or directory")
+    log_dir = args.log_dir or Path(tempfile.mkdtemp(prefix="insalign-demo-"))
+    print(f"[insalign-demo] imu_sim_node ({args.bag or args.scenario}, rate factor {args.rate_factor:g}) -> "
+          f"alignment_node ({args.core}) over Fast DDS, isolated domain, localhost discovery")
+    rc, _ = run_alignment(args, log_dir)
+    return rc
 
 
 if __name__ == "__main__":

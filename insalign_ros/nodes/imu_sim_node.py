@@ -1,31 +1,51 @@
-"""imu_sim_node: publishes sensor_msgs/Imu (and, as the simulators land, NavSatFix and ground truth).
+"""imu_sim_node: publishes sensor_msgs/Imu, sensor_msgs/NavSatFix and the ground-truth pose from a scenario or a bag.
 
-Current source: ``rest`` — a body at rest on the rotating Earth at (lat_deg, lon_deg, h_m) with attitude
-(roll_deg, pitch_deg, yaw_deg): the gyros read the Earth rate, the accelerometers minus gravity (core/earth.py).
+Sources (parameter ``source``):
 
-Topics: ``imu/data`` (sensor_msgs/Imu, frame_id ``imu_link``). QoS (nodes/qos.py, REP 2003): parameter ``qos``,
-``reliable`` by default (serves reliable and best-effort sensor-data subscribers alike) or ``sensor_data`` (best
-effort); volatile, keep-last ``qos_depth`` (200).
+- ``scenario``: ``make_scenario(scenario, seed, duration_s, rate_hz=rate_hz, gnss_rate_hz=gps_rate_hz)``
+  (sim/scenarios.py: ship, car, static, static_navgrade, two_position), generated before publishing (a 300 s ship
+  run at 100 Hz takes ~0.1 s);
+- ``bag``: a contract rosbag2 (docs/bag_contract.md) read with ``io.bag.read_bag(bag_path)``;
+- ``rest``: a body at rest on the rotating Earth at (lat_deg, lon_deg, h_m) with attitude (roll_deg, pitch_deg,
+  yaw_deg), Imu only, timer-driven (the transport check of ``insalign-demo --count``).
 
-Parameters: rate_hz [Hz] (100), count (0: unlimited), duration_s [s] of data time (0: unlimited),
-wait_for_subscribers / wait_timeout_s (start only once that many subscribers matched), frame_id, lat_deg, lon_deg,
-h_m, roll_deg, pitch_deg, yaw_deg, qos, qos_depth. The stamps lie on an exact grid of 1/rate_hz from the first
-message (data time), so the data rate is exact whatever the scheduling jitter.
+Topics (relative, remappable): ``imu/data`` sensor_msgs/Imu (frame ``frame_id``, default ``imu_link``; covariances
+from the IMU specification's noise densities, orientation_covariance[0] = -1), ``gps/fix`` sensor_msgs/NavSatFix
+(frame ``gps_frame_id``, ENU covariance, 1 Hz by default), ``ground_truth/pose`` geometry_msgs/PoseStamped (frame
+``enu``: local ENU at the first truth sample, orientation body FLU -> ENU; only when the source knows the truth; on IMU stamps every 1/
+``truth_rate_hz``, 10 Hz by default: 0 = every IMU sample), ``/clock`` rosgraph_msgs/Clock (data time, every ``clock_period_s``), so ``use_sim_time`` works.
+
+Timing: stamps are data time: ``start_stamp_s`` (0: the wall clock at the first message) + the scenario time.
+Message k is published at wall time ``start + t_k / rate_factor`` (1.0 = real time, > 1 faster).
+
+QoS (nodes/qos.py, REP 2003): ``qos`` = ``reliable`` by default for every data topic: a reliable writer serves both
+the sensor-data (best-effort) subscription of alignment_node and a user's reliable subscriber; a best-effort writer
+would leave a reliable subscriber with nothing. ``sensor_data`` makes the writer best effort.
+
+At the end the node prints ``SIM_SUMMARY {json}`` (messages sent per topic, wall time) and exits 0; 3 when no
+subscriber matched within ``wait_timeout_s``; 2 on a bad parameter.
 """
 
 from __future__ import annotations
 
+import json
 import math
 import sys
 import time
 
 import numpy as np
 import rclpy
+from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
-from sensor_msgs.msg import Imu
+from rosgraph_msgs.msg import Clock
+from scipy.spatial.transform import Rotation
+from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
 
 from ..core import earth
 from .qos import imu_qos
+
+SUMMARY_PREFIX = "SIM_SUMMARY "
+SOURCES = ("scenario", "bag", "rest")
 
 
 def rest_imu(lat_deg: float, lon_deg: float, h_m: float, rpy_deg) -> tuple[np.ndarray, np.ndarray]:
@@ -37,32 +57,133 @@ def rest_imu(lat_deg: float, lon_deg: float, h_m: float, rpy_deg) -> tuple[np.nd
     return C_e_b @ earth.OMEGA_IE_E, -C_e_b @ earth.gravity_e(p_e)
 
 
+def _set_stamp(msg, t_s: float) -> None:
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(round(t_s * 1e9)), 1_000_000_000)
+
+
+def load_data(source: str, scenario: str, seed: int, duration_s: float, rate_hz: float, gps_rate_hz: float,
+              bag_path: str):
+    """ScenarioData of the source (scenario generated, or bag read)."""
+    if source == "bag":
+        from ..io.bag import read_bag
+
+        data = read_bag(bag_path)
+        if duration_s > 0:
+            data = _truncate(data, duration_s)
+        return data
+    from ..sim.scenarios import make_scenario
+
+    kw = {"rate_hz": rate_hz}
+    if gps_rate_hz > 0:
+        kw["gnss_rate_hz"] = gps_rate_hz
+    return make_scenario(scenario, seed=seed, duration_s=duration_s if duration_s > 0 else None, **kw)
+
+
+def _truncate(data, duration_s: float):
+    from dataclasses import replace
+
+    t_end = data.t_s[0] + duration_s
+    k = int(np.searchsorted(data.t_s, t_end, side="right"))
+    j = int(np.searchsorted(data.gnss_t_s, t_end, side="right"))
+    cut = {}
+    for name in ("C_b_n", "lat_rad", "lon_rad", "h_m", "v_n", "omega_ib_b_true", "f_ib_b_true"):
+        v = getattr(data, name)
+        cut[name] = None if v is None else v[:k]
+    return replace(data, t_s=data.t_s[:k], omega_ib_b=data.omega_ib_b[:k], f_ib_b=data.f_ib_b[:k],
+                   gnss_t_s=data.gnss_t_s[:j], gnss_p_e=data.gnss_p_e[:j], gnss_R_e=data.gnss_R_e[:j], **cut)
+
+
 class ImuSimNode(Node):
     def __init__(self, **node_kwargs) -> None:
         super().__init__("imu_sim_node", **node_kwargs)
         p = self.declare_parameter
+        self.source = str(p("source", "scenario").value)
+        self.scenario = str(p("scenario", "ship").value)
+        self.seed = int(p("seed", 0).value)
+        self.bag_path = str(p("bag_path", "").value)
         self.rate_hz = float(p("rate_hz", 100.0).value)
+        self.gps_rate_hz = float(p("gps_rate_hz", 1.0).value)
+        self.rate_factor = float(p("rate_factor", 1.0).value)
+        self.start_stamp_s = float(p("start_stamp_s", 0.0).value)
+        self.clock_period_s = float(p("clock_period_s", 0.01).value)
         self.count = int(p("count", 0).value)  # 0: unlimited
-        self.duration_s = float(p("duration_s", 0.0).value)  # 0: unlimited
+        self.duration_s = float(p("duration_s", 0.0).value)  # 0: unlimited (rest) / the preset's (scenario)
         self.wait_for_subscribers = int(p("wait_for_subscribers", 0).value)
         self.wait_timeout_s = float(p("wait_timeout_s", 20.0).value)
         self.frame_id = str(p("frame_id", "imu_link").value)
+        self.gps_frame_id = str(p("gps_frame_id", "gps_link").value)
+        self.publish_truth = bool(p("publish_ground_truth", True).value)
+        self.truth_rate_hz = float(p("truth_rate_hz", 10.0).value)  # 0: every IMU sample
         lat, lon, h = (float(p(n, d).value) for n, d in (("lat_deg", 49.0), ("lon_deg", 8.4), ("h_m", 120.0)))
         rpy = [float(p(n, 0.0).value) for n in ("roll_deg", "pitch_deg", "yaw_deg")]
+        qos_kind, depth = str(p("qos", "reliable").value), int(p("qos_depth", 200).value)
+        if self.source not in SOURCES:
+            raise ValueError(f"source must be one of {SOURCES}, got {self.source!r}")
         if not (0.0 < self.rate_hz <= 2000.0):
             raise ValueError(f"rate_hz must be in (0, 2000], got {self.rate_hz}")
-        self.omega_ib_b, self.f_ib_b = rest_imu(lat, lon, h, rpy)
-        qos = imu_qos(str(p("qos", "reliable").value), int(p("qos_depth", 200).value))
+        if not (0.0 < self.rate_factor <= 1000.0):
+            raise ValueError(f"rate_factor must be in (0, 1000], got {self.rate_factor}")
+        if self.gps_rate_hz < 0 or self.duration_s < 0 or self.truth_rate_hz < 0 or self.clock_period_s <= 0:
+            raise ValueError("gps_rate_hz and duration_s must be >= 0, clock_period_s > 0")
+        if self.source == "bag" and not self.bag_path:
+            raise ValueError("source bag needs bag_path")
+        qos = imu_qos(qos_kind, depth)
         self.pub = self.create_publisher(Imu, "imu/data", qos)
         self.sent = 0
         self.t_start_ns: int | None = None
         self._wait_start = time.monotonic()
-        self.timer = self.create_timer(1.0 / self.rate_hz, self._tick)
         self.done = False
         self.gave_up = False  # no subscriber matched within wait_timeout_s
+        self.data = None
+        self.sent_fix = self.sent_truth = 0
+        if self.source == "rest":
+            self.omega_ib_b, self.f_ib_b = rest_imu(lat, lon, h, rpy)
+            self.timer = self.create_timer(1.0 / self.rate_hz, self._tick)
+            return
+        t0 = time.monotonic()
+        self.data = load_data(self.source, self.scenario, self.seed, self.duration_s, self.rate_hz,
+                              self.gps_rate_hz, self.bag_path)
+        self.get_logger().info(f"{self.source} {self.data.name!r}: {self.data.n} IMU samples, "
+                               f"{len(self.data.gnss_t_s)} fixes, truth {'yes' if self.data.has_truth else 'no'}; "
+                               f"ready in {time.monotonic() - t0:.2f} s; rate factor {self.rate_factor:g}")
+        self.pub_fix = self.create_publisher(NavSatFix, "gps/fix", qos)
+        self.pub_truth = self.create_publisher(PoseStamped, "ground_truth/pose", qos) if (
+            self.publish_truth and self.data.has_truth) else None
+        self.pub_clock = self.create_publisher(Clock, "/clock", 10)
+        self._prepare()
+
+    # ------------------------------------------------------------------ scenario / bag source
+    def _prepare(self) -> None:
+        d = self.data
+        spec = d.imu_spec
+        self.cov_gyro = self.cov_acc = 0.0  # REP 145: all zeros = unknown
+        if spec is not None:
+            from ..sim.error_model import deg_sqrt_h_to_rad_sqrt_s, m_s_sqrt_h_to_m_s_sqrt_s
+
+            dt = 1.0 / spec.rate_hz
+            self.cov_gyro = deg_sqrt_h_to_rad_sqrt_s(spec.arw_deg_sqrt_h) ** 2 / dt
+            self.cov_acc = m_s_sqrt_h_to_m_s_sqrt_s(spec.vrw_m_s_sqrt_h) ** 2 / dt
+        self.fix_geo = [earth.ecef_to_geodetic(p) for p in d.gnss_p_e]
+        self.fix_cov_n = [earth.C_e_n(la, lo) @ R @ earth.C_e_n(la, lo).T
+                          for (la, lo, _), R in zip(self.fix_geo, d.gnss_R_e)]
+        if d.has_truth:
+            self.anchor = (float(d.lat_rad[0]), float(d.lon_rad[0]), float(d.h_m[0]))
+            self.quat = Rotation.from_matrix(d.C_b_n).as_quat()
+            import pymap3d
+
+            x, y, z = pymap3d.geodetic2ecef(d.lat_rad, d.lon_rad, d.h_m, deg=False)
+            e, n, u = pymap3d.ecef2enu(x, y, z, *self.anchor, deg=False)
+            self.truth_p_n = np.stack([e, n, u], axis=1)
+        self.k = 0
+        self.j = 0
+        self.next_clock_t = -math.inf
+        self.next_truth_t = -math.inf
+
+    def subscribers_ready(self) -> bool:
+        return self.pub.get_subscription_count() >= self.wait_for_subscribers
 
     def _ready(self) -> bool:
-        if self.pub.get_subscription_count() >= self.wait_for_subscribers:
+        if self.subscribers_ready():
             return True
         if time.monotonic() - self._wait_start > self.wait_timeout_s:
             self.get_logger().error(f"no subscriber matched after {self.wait_timeout_s:g} s (none running, or QoS "
@@ -70,6 +191,83 @@ class ImuSimNode(Node):
             self.done = self.gave_up = True
         return False
 
+    def publish_due(self, wall_s: float) -> float | None:
+        """Publish every message whose wall time has come; return the wall time of the next one (None: done)."""
+        d = self.data
+        if self.t_start_ns is None:
+            self.wall0 = wall_s
+            base = self.start_stamp_s if self.start_stamp_s > 0 else time.time()
+            self.t_start_ns = int(round(base * 1e9))
+            self.stamp0_s = self.t_start_ns * 1e-9 - float(d.t_s[0])
+        elapsed_data = (wall_s - self.wall0) * self.rate_factor
+        limit = d.n if not self.count else min(d.n, self.count)
+        while self.k < limit and d.t_s[self.k] - d.t_s[0] <= elapsed_data:
+            self._publish_sample(self.k)
+            self.k += 1
+        if self.k >= limit:
+            self.done = True
+            return None
+        return self.wall0 + (d.t_s[self.k] - d.t_s[0]) / self.rate_factor
+
+    def _publish_sample(self, k: int) -> None:
+        d = self.data
+        t = float(d.t_s[k])
+        stamp = self.stamp0_s + t
+        if self.pub_truth is not None and t >= self.next_truth_t - 1e-9:
+            if self.truth_rate_hz > 0:
+                self.next_truth_t = max(self.next_truth_t + 1.0 / self.truth_rate_hz, t) if self.next_truth_t > -math.inf \
+                    else t + 1.0 / self.truth_rate_hz
+            m = PoseStamped()
+            _set_stamp(m, stamp)
+            m.header.frame_id = "enu"
+            p_n = self.truth_p_n[k]
+            m.pose.position.x, m.pose.position.y, m.pose.position.z = (float(x) for x in p_n)
+            q = self.quat[k]
+            o = m.pose.orientation
+            o.x, o.y, o.z, o.w = (float(x) for x in q)
+            self.pub_truth.publish(m)
+            self.sent_truth += 1
+        msg = Imu()
+        _set_stamp(msg, stamp)
+        msg.header.frame_id = self.frame_id
+        msg.orientation_covariance[0] = -1.0
+        w, f = d.omega_ib_b[k], d.f_ib_b[k]
+        msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = float(w[0]), float(w[1]), float(w[2])
+        a = msg.linear_acceleration
+        a.x, a.y, a.z = float(f[0]), float(f[1]), float(f[2])
+        for i in (0, 4, 8):
+            msg.angular_velocity_covariance[i] = self.cov_gyro
+            msg.linear_acceleration_covariance[i] = self.cov_acc
+        self.pub.publish(msg)
+        self.sent += 1
+        while self.j < len(d.gnss_t_s) and d.gnss_t_s[self.j] <= t:
+            self._publish_fix(self.j)
+            self.j += 1
+        if t >= self.next_clock_t:
+            c = Clock()
+            c.clock.sec, c.clock.nanosec = msg.header.stamp.sec, msg.header.stamp.nanosec
+            self.pub_clock.publish(c)
+            self.next_clock_t = t + self.clock_period_s
+
+    def _publish_fix(self, j: int) -> None:
+        lat, lon, h = self.fix_geo[j]
+        m = NavSatFix()
+        _set_stamp(m, self.stamp0_s + float(self.data.gnss_t_s[j]))
+        m.header.frame_id = self.gps_frame_id
+        m.status.status = NavSatStatus.STATUS_FIX
+        m.status.service = NavSatStatus.SERVICE_GPS
+        m.latitude, m.longitude, m.altitude = math.degrees(lat), math.degrees(lon), float(h)
+        m.position_covariance = [float(x) for x in self.fix_cov_n[j].reshape(-1)]
+        m.position_covariance_type = NavSatFix.COVARIANCE_TYPE_KNOWN
+        self.pub_fix.publish(m)
+        self.sent_fix += 1
+
+    def summary(self) -> dict:
+        return {"source": self.source, "scenario": getattr(self.data, "name", "rest"), "imu_sent": self.sent,
+                "fix_sent": self.sent_fix, "truth_sent": self.sent_truth, "rate_factor": self.rate_factor,
+                "first_stamp_ns": self.t_start_ns, "gave_up": self.gave_up}
+
+    # ------------------------------------------------------------------ rest source (timer)
     def _tick(self) -> None:
         if self.done or (self.t_start_ns is None and not self._ready()):
             return
@@ -92,19 +290,49 @@ class ImuSimNode(Node):
             self.done = True
 
 
+def _run_stream(node: ImuSimNode) -> None:
+    """Scenario/bag source: wait for subscribers, then publish on the wall-time schedule, spinning in between."""
+    while rclpy.ok() and not node.done and not node._ready():
+        rclpy.spin_once(node, timeout_sec=0.05)
+    if node.done:
+        return
+    # give the other topics' subscriptions a moment to match too (they are discovered together)
+    end = time.monotonic() + 0.5
+    while rclpy.ok() and time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    t_report = time.monotonic() + 5.0
+    while rclpy.ok() and not node.done:
+        nxt = node.publish_due(time.monotonic())
+        if nxt is None:
+            break
+        wait = nxt - time.monotonic()
+        if wait > 0.002:
+            rclpy.spin_once(node, timeout_sec=min(wait, 0.05))
+        if time.monotonic() > t_report:
+            t_report += 5.0
+            node.get_logger().info(f"sent {node.sent}/{node.data.n} Imu, {node.sent_fix} fixes")
+    node.get_logger().info(f"published {node.sent} Imu, {node.sent_fix} NavSatFix, {node.sent_truth} truth poses; done")
+
+
 def main(args=None) -> int:
     rclpy.init(args=args)
     node = None
     try:
         node = ImuSimNode()
-        while rclpy.ok() and not node.done:
-            rclpy.spin_once(node, timeout_sec=0.1)
+        if node.data is None:
+            while rclpy.ok() and not node.done:
+                rclpy.spin_once(node, timeout_sec=0.1)
+        else:
+            _run_stream(node)
         # let the reliable writer deliver what is queued before the process goes away
         end = time.monotonic() + 2.0
         while rclpy.ok() and time.monotonic() < end:
             rclpy.spin_once(node, timeout_sec=0.05)
+        print(SUMMARY_PREFIX + json.dumps(node.summary()), flush=True)
         return 3 if node.gave_up else 0
     except KeyboardInterrupt:
+        if node is not None:
+            print(SUMMARY_PREFIX + json.dumps(node.summary()), flush=True)
         return 0
     except ValueError as exc:
         print(f"imu_sim_node: bad parameter: {exc}", file=sys.stderr)

@@ -1,0 +1,182 @@
+"""The "aligned" flag: criteria a user can trust and tune. Pure Python, no ROS (the node and the benchmarks share it).
+
+The flag is raised when, continuously for at least ``hold_s`` of data time:
+
+1. **attitude 3-sigma below thresholds**: ``3 sqrt(P_att_n[0,0])`` and ``3 sqrt(P_att_n[1,1])`` below
+   ``roll_pitch_3sigma_deg`` and ``3 sqrt(P_att_n[2,2])`` (the azimuth error about Up) below ``yaw_3sigma_deg``;
+2. **innovations consistent with the covariance**: the normalized innovation squared (NIS) of the last
+   ``nis_window`` accepted GNSS updates, summed, lies inside the two-sided chi-square band of probability
+   ``1 - nis_alpha`` with ``nis_window * dof`` degrees of freedom (a sum of independent chi-square(dof)
+   variables is chi-square(window*dof)). Too large a sum means the filter is over-confident (the covariance
+   in 1. cannot be trusted); too small means it is pessimistic (harmless for safety, but the model is off, so
+   ``nis_lower_check`` can switch that side off). Cores without innovations (static cores fed with zero-velocity
+   updates only) can use the same test on their ZUPT innovations; with ``nis_window = 0`` the test is off.
+3. **fresh aiding**: an accepted measurement update within ``max_update_age_s`` of data time (a filter coasting
+   on the IMU alone is not declared aligned, whatever its covariance says).
+
+The flag is lowered at once when any criterion stops holding (no hold time on the way down), and the hold
+timer restarts. ``AlignedFlag.reason`` says which criterion is failing, in words a user can act on.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from scipy.stats import chi2
+
+
+@dataclass
+class AlignedCriteria:
+    """Tunable thresholds of the aligned flag (node parameters ``aligned.<field>``)."""
+
+    #: 3-sigma roll and pitch bound [deg]
+    roll_pitch_3sigma_deg: float = 1.0
+    #: 3-sigma azimuth (yaw about Up) bound [deg]
+    yaw_3sigma_deg: float = 2.0
+    #: number of recent accepted updates whose NIS sum is tested (0: no NIS test)
+    nis_window: int = 10
+    #: two-sided probability outside the band (0.01: the 0.5 % and 99.5 % quantiles)
+    nis_alpha: float = 0.01
+    #: also reject a too-small NIS sum (a pessimistic filter)
+    nis_lower_check: bool = False
+    #: the criteria must hold this long [s of data time] before the flag rises
+    hold_s: float = 5.0
+    #: an accepted update must be at most this old [s of data time]
+    max_update_age_s: float = 5.0
+
+    def validate(self) -> None:
+        for name in ("roll_pitch_3sigma_deg", "yaw_3sigma_deg", "nis_alpha", "hold_s", "max_update_age_s"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v)):
+                raise ValueError(f"{name}: expected a finite number, got {v!r}")
+        if not self.roll_pitch_3sigma_deg > 0 or not self.yaw_3sigma_deg > 0:
+            raise ValueError("roll_pitch_3sigma_deg and yaw_3sigma_deg must be > 0")
+        if not 0 < self.nis_alpha < 1:
+            raise ValueError(f"nis_alpha: must be in (0, 1), got {self.nis_alpha}")
+        if not (isinstance(self.nis_window, int) and 0 <= self.nis_window <= 10000):
+            raise ValueError(f"nis_window: must be an integer in [0, 10000], got {self.nis_window!r}")
+        if self.hold_s < 0 or not self.max_update_age_s > 0:
+            raise ValueError("hold_s must be >= 0 and max_update_age_s > 0")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def nis_band(window: int, dof: int, alpha: float) -> tuple[float, float]:
+    """(lower, upper) bounds of a sum of ``window`` NIS values of ``dof`` dof, two-sided probability ``alpha``."""
+    k = window * dof
+    return float(chi2.ppf(alpha / 2.0, k)), float(chi2.ppf(1.0 - alpha / 2.0, k))
+
+
+def attitude_3sigma_deg(P_att_n: np.ndarray) -> np.ndarray:
+    """3-sigma [deg] of the ENU attitude error about East, North, Up (roll, pitch, yaw near level)."""
+    d = np.clip(np.diag(np.asarray(P_att_n, float)), 0.0, None)
+    return 3.0 * np.degrees(np.sqrt(d))
+
+
+class AlignedFlag:
+    """State machine of the aligned flag. Feed ``on_update`` per measurement update and ``on_estimate`` per output."""
+
+    def __init__(self, criteria: AlignedCriteria | None = None) -> None:
+        self.criteria = criteria or AlignedCriteria()
+        self.criteria.validate()
+        self.reset()
+
+    def reset(self) -> None:
+        self.aligned = False
+        self.nis: deque = deque(maxlen=max(self.criteria.nis_window, 1))
+        self.nis_dof = 3
+        self.last_update_s: float | None = None
+        self.holding_since_s: float | None = None
+        self.reason = "no estimate yet"
+        self.sigma3_deg = np.full(3, np.inf)
+        self.nis_sum = float("nan")
+        self.band = (float("nan"), float("nan"))
+        self.raised_at_s: float | None = None  # the last time the flag rose [s data time]
+        self.first_raised_at_s: float | None = None
+
+    def set_criteria(self, criteria: AlignedCriteria) -> None:
+        criteria.validate()
+        keep = list(self.nis)
+        self.criteria = criteria
+        self.nis = deque(keep, maxlen=max(criteria.nis_window, 1))
+        self.holding_since_s = None
+
+    def on_update(self, stamp_s: float, accepted: bool, nis: float, dof: int = 3) -> None:
+        """An accepted measurement update with its NIS (rejected updates do not count)."""
+        if not accepted or not math.isfinite(nis):
+            return
+        self.nis.append(float(nis))
+        self.nis_dof = int(dof)
+        self.last_update_s = float(stamp_s)
+
+    def _failing(self, stamp_s: float, P_att_n: np.ndarray) -> str:
+        c = self.criteria
+        s = self.sigma3_deg = attitude_3sigma_deg(P_att_n)
+        if not np.all(np.isfinite(s)):
+            return "attitude covariance is not finite"
+        if max(s[0], s[1]) >= c.roll_pitch_3sigma_deg:
+            return f"3-sigma roll/pitch {max(s[0], s[1]):.2f} deg >= {c.roll_pitch_3sigma_deg:g} deg"
+        if s[2] >= c.yaw_3sigma_deg:
+            return f"3-sigma yaw {s[2]:.2f} deg >= {c.yaw_3sigma_deg:g} deg"
+        if self.last_update_s is None:
+            return "no accepted measurement update yet"
+        age = stamp_s - self.last_update_s
+        if age > c.max_update_age_s:
+            return f"last accepted update {age:.1f} s ago (> {c.max_update_age_s:g} s)"
+        if c.nis_window > 0:
+            if len(self.nis) < c.nis_window:
+                return f"NIS window filling ({len(self.nis)}/{c.nis_window} updates)"
+            self.band = lo, hi = nis_band(c.nis_window, self.nis_dof, c.nis_alpha)
+            self.nis_sum = total = float(sum(self.nis))
+            if total > hi:
+                return f"NIS sum {total:.1f} above the chi-square band [{lo:.1f}, {hi:.1f}] (over-confident)"
+            if c.nis_lower_check and total < lo:
+                return f"NIS sum {total:.1f} below the chi-square band [{lo:.1f}, {hi:.1f}] (pessimistic)"
+        return ""
+
+    def on_estimate(self, stamp_s: float, P_att_n: np.ndarray) -> bool:
+        """Evaluate the criteria at ``stamp_s`` [s data time]; returns the flag."""
+        failing = self._failing(float(stamp_s), P_att_n)
+        if failing:
+            self.aligned = False
+            self.holding_since_s = None
+            self.reason = failing
+            return False
+        if self.holding_since_s is None:
+            self.holding_since_s = float(stamp_s)
+        held = stamp_s - self.holding_since_s
+        if not self.aligned and held >= self.criteria.hold_s:
+            self.aligned = True
+            self.raised_at_s = float(stamp_s)
+            if self.first_raised_at_s is None:
+                self.first_raised_at_s = float(stamp_s)
+        self.reason = ("criteria hold" if self.aligned
+                       else f"criteria hold for {held:.1f} of {self.criteria.hold_s:g} s")
+        return self.aligned
+
+
+def euler_3sigma_deg(C_b_n: np.ndarray, P_att_n: np.ndarray, eps_rad: float = 1e-6) -> np.ndarray:
+    """3-sigma [deg] of roll, pitch, yaw for an attitude C_b_n with ENU error covariance P_att_n.
+
+    Maps the covariance of ``psi`` (C_true = exp(psi_x) C_est) through the Jacobian of the Euler angles
+    d(rpy)/d(psi) (central differences), so roll and pitch are about the body axes, not East and North.
+    """
+    from scipy.spatial.transform import Rotation
+
+    C = np.asarray(C_b_n, float)
+    J = np.zeros((3, 3))
+    for i in range(3):
+        e = np.zeros(3)
+        e[i] = eps_rad
+        a = Rotation.from_rotvec(e).as_matrix() @ C
+        b = Rotation.from_rotvec(-e).as_matrix() @ C
+        ya, pa, ra = Rotation.from_matrix(a).as_euler("ZYX")
+        yb, pb, rb = Rotation.from_matrix(b).as_euler("ZYX")
+        d = np.array([ra - rb, pa - pb, ya - yb])
+        J[:, i] = (np.mod(d + np.pi, 2 * np.pi) - np.pi) / (2 * eps_rad)
+    cov = J @ np.asarray(P_att_n, float) @ J.T
+    return 3.0 * np.degrees(np.sqrt(np.clip(np.diag(cov), 0.0, None)))

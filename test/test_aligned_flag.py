@@ -1,0 +1,92 @@
+"""The aligned-flag criteria (insalign_ros/eval/aligned.py): pure, no ROS."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from insalign_ros.core import earth
+from insalign_ros.eval.aligned import AlignedCriteria, AlignedFlag, attitude_3sigma_deg, euler_3sigma_deg, nis_band
+
+D2R = math.pi / 180.0
+
+
+def _P(s_roll_deg, s_pitch_deg, s_yaw_deg):
+    return np.diag(np.square(np.array([s_roll_deg, s_pitch_deg, s_yaw_deg]) * D2R))
+
+
+def test_nis_band_is_the_chi_square_quantile_of_the_window_sum():
+    # chi-square with 30 dof: 0.5 % and 99.5 % quantiles (tables: 13.787, 53.672)
+    lo, hi = nis_band(10, 3, 0.01)
+    assert lo == pytest.approx(13.787, abs=1e-3) and hi == pytest.approx(53.672, abs=1e-3)
+
+
+def test_flag_rises_after_the_hold_time_and_falls_at_once():
+    c = AlignedCriteria(roll_pitch_3sigma_deg=1.0, yaw_3sigma_deg=2.0, nis_window=5, hold_s=3.0, max_update_age_s=2.0)
+    f = AlignedFlag(c)
+    good = _P(0.1, 0.1, 0.5)  # 3-sigma 0.3, 0.3, 1.5 deg
+    rng = np.random.default_rng(0)
+    t = 0.0
+    raised = None
+    for k in range(100):  # 10 s at 10 Hz, an update (NIS ~ chi2(3)) every second
+        t = 0.1 * k
+        if k % 10 == 0:
+            f.on_update(t, True, float(rng.chisquare(3)))
+        if f.on_estimate(t, good) and raised is None:
+            raised = t
+    # the NIS window fills at the 5th update (t = 4 s), then the 3 s hold: raised at t = 7 s
+    assert raised == pytest.approx(7.0, abs=1e-9)
+    # yaw 3-sigma above 2 deg: lowered at once, with the reason
+    assert f.on_estimate(t + 0.1, _P(0.1, 0.1, 0.7)) is False
+    assert "3-sigma yaw 2.10 deg" in f.reason
+    # back below: the hold restarts
+    assert f.on_estimate(t + 0.2, good) is False and "criteria hold for 0.0 of 3 s" in f.reason
+
+
+def test_flag_needs_fresh_updates_and_a_consistent_nis():
+    c = AlignedCriteria(nis_window=4, hold_s=0.0, max_update_age_s=2.0)
+    f = AlignedFlag(c)
+    good = _P(0.1, 0.1, 0.3)
+    assert not f.on_estimate(0.0, good) and "no accepted measurement update" in f.reason
+    for k in range(4):
+        f.on_update(float(k), True, 3.0)
+    assert f.on_estimate(3.0, good)
+    assert not f.on_estimate(5.5, good) and "2.5 s ago" in f.reason  # coasting on the IMU alone
+    # an over-confident filter: NIS 20 per update, sum 80 > 99.5 % of chi2(12) = 28.3
+    for k in range(4):
+        f.on_update(6.0 + k, True, 20.0)
+    assert not f.on_estimate(9.5, good) and "over-confident" in f.reason
+    # rejected updates do not count, non-finite NIS neither
+    f.on_update(10.0, False, 1.0)
+    f.on_update(10.0, True, float("nan"))
+    assert len(f.nis) == 4 and f.last_update_s == 9.0
+
+
+def test_roll_pitch_threshold_and_lower_nis_check():
+    f = AlignedFlag(AlignedCriteria(nis_window=3, hold_s=0.0, nis_lower_check=True))
+    for k in range(3):
+        f.on_update(float(k), True, 0.01)
+    assert not f.on_estimate(2.0, _P(0.5, 0.1, 0.1)) and "roll/pitch 1.50 deg" in f.reason
+    assert not f.on_estimate(2.0, _P(0.1, 0.1, 0.1)) and "pessimistic" in f.reason
+
+
+@pytest.mark.parametrize("bad", [dict(yaw_3sigma_deg=0.0), dict(nis_alpha=1.0), dict(nis_window=-1),
+                                 dict(hold_s=-1.0), dict(roll_pitch_3sigma_deg=float("nan"))])
+def test_bad_criteria_are_refused(bad):
+    with pytest.raises(ValueError):
+        AlignedCriteria(**bad).validate()
+
+
+def test_euler_3sigma_maps_enu_covariance_to_body_roll_pitch():
+    P = _P(0.1, 0.4, 1.0)  # East, North, Up
+    C0 = earth.C_b_n_from_rpy(0.0, 0.0, 0.0)  # body x = East: roll about East, pitch about North
+    np.testing.assert_allclose(euler_3sigma_deg(C0, P), attitude_3sigma_deg(P), rtol=1e-5)
+    C90 = earth.C_b_n_from_rpy(0.0, 0.0, 90 * D2R)  # body x = North: roll about North, pitch about -East
+    np.testing.assert_allclose(euler_3sigma_deg(C90, P), [1.2, 0.3, 3.0], rtol=1e-5)
+    # Monte Carlo check of the mapping at a generic attitude
+    C = earth.C_b_n_from_rpy(8 * D2R, -5 * D2R, 130 * D2R)
+    rng = np.random.default_rng(1)
+    psi = rng.multivariate_normal(np.zeros(3), P, 20000)
+    rpy = np.array([earth.euler_error_rad(Rotation.from_rotvec(p).as_matrix() @ C, C) for p in psi])
+    np.testing.assert_allclose(3 * np.degrees(rpy.std(axis=0)), euler_3sigma_deg(C, P), rtol=0.03)
