@@ -1,38 +1,59 @@
-"""Launch imu_sim_node (parameters from config/imu_sim.yaml) and imu_listener_node, for users with a ROS 2 Jazzy
-install: `ros2 launch insalign_ros insalign.launch.py [rate_hz:=200.0]`. The test suite does not import this file
-(launch is not on PyPI; it only checks that it parses); scripts/demo is the launch-free equivalent.
-Argument: rate_hz (IMU rate [Hz], default 100.0)."""
+"""Launch imu_sim_node and alignment_node, for users with a ROS 2 Jazzy install:
+
+    ros2 launch insalign_ros insalign.launch.py [core:=iekf] [scenario:=ship] [rate_factor:=1.0]
+        [source:=scenario|bag] [bag_path:=/path/to/bag] [init_from_ground_truth:=true] [init_rpy_error_deg:=...]
+
+Parameters come from config/imu_sim.yaml, config/alignment_node.yaml and config/<core>.yaml (installed under
+share/insalign_ros/config), then the launch arguments. The test suite does not import this file (launch is not on
+PyPI; a test only parses it); ``insalign-demo`` is the launch-free equivalent. Set ``use_sim_time:=true`` to run
+the alignment node on the simulator's /clock.
+"""
 
 import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
-from launch_ros.parameter_descriptions import ParameterValue
+
+
+def _nodes(context):
+    share = get_package_share_directory("insalign_ros")
+    config = os.path.join(share, "config")
+    arg = lambda name: LaunchConfiguration(name).perform(context)  # noqa: E731
+    core = arg("core")
+    use_sim_time = arg("use_sim_time").lower() == "true"
+    err = [float(x) for x in arg("init_rpy_error_deg").split(",")]
+    return [
+        Node(
+            package="insalign_ros", executable="imu_sim_node", name="imu_sim_node", output="screen",
+            parameters=[os.path.join(config, "imu_sim.yaml"),
+                        {"source": arg("source"), "scenario": arg("scenario"), "bag_path": arg("bag_path"),
+                         "rate_factor": float(arg("rate_factor")), "seed": int(arg("seed"))}],
+        ),
+        Node(
+            package="insalign_ros", executable="alignment_node", name="alignment_node", output="screen",
+            parameters=[os.path.join(config, "alignment_node.yaml"), os.path.join(config, f"{core}.yaml"),
+                        {"core": core, "use_sim_time": use_sim_time,
+                         "init_from_ground_truth": arg("init_from_ground_truth").lower() == "true",
+                         "init_rpy_error_deg": err}],
+        ),
+    ]
 
 
 def generate_launch_description():
-    share = get_package_share_directory("insalign_ros")
-    config = os.path.join(share, "config")
     return LaunchDescription([
-        DeclareLaunchArgument("rate_hz", default_value="100.0", description="IMU rate [Hz]"),
-        Node(
-            package="insalign_ros",
-            executable="imu_sim_node",
-            name="imu_sim_node",
-            parameters=[
-                os.path.join(config, "imu_sim.yaml"),
-                {"rate_hz": ParameterValue(LaunchConfiguration("rate_hz"), value_type=float)},
-            ],
-            output="screen",
-        ),
-        Node(
-            package="insalign_ros",
-            executable="imu_listener_node",
-            name="imu_listener_node",
-            parameters=[{"timeout_s": 0.0, "report_period_s": 5.0}],  # run until Ctrl-C, log a count every 5 s
-            output="screen",
-        ),
+        DeclareLaunchArgument("core", default_value="liekf", description="alignment core (config/<core>.yaml)"),
+        DeclareLaunchArgument("source", default_value="scenario", description="scenario | bag"),
+        DeclareLaunchArgument("scenario", default_value="ship", description="ship | car | static | two_position"),
+        DeclareLaunchArgument("bag_path", default_value="", description="contract rosbag2 for source:=bag"),
+        DeclareLaunchArgument("seed", default_value="0", description="scenario seed"),
+        DeclareLaunchArgument("rate_factor", default_value="1.0", description="1.0 = real time"),
+        DeclareLaunchArgument("use_sim_time", default_value="false", description="alignment_node on /clock"),
+        DeclareLaunchArgument("init_from_ground_truth", default_value="true",
+                              description="initialise from ground_truth/pose plus init_rpy_error_deg"),
+        DeclareLaunchArgument("init_rpy_error_deg", default_value="5.0,-5.0,30.0",
+                              description="roll,pitch,yaw error added to the truth [deg]"),
+        OpaqueFunction(function=_nodes),
     ])

@@ -136,6 +136,8 @@ class AlignmentNode(Node):
         self._reset_state("start")
         self.pub_aligned.publish(Bool(data=False))
         self.timing_s: deque = deque(maxlen=100000)  # per-Imu callback time [s] (benchmarks read it)
+        # receive wall time minus header stamp [s]: the DDS end-to-end latency when stamps are wall-clock times
+        self.stamp_age_s: deque = deque(maxlen=100000)
         self.create_timer(float(self.get_parameter("diagnostics_period_s").value), self._publish_diagnostics)
         self.get_logger().info(f"alignment_node: core {self.core_name}, waiting for imu/data and gps/fix")
 
@@ -274,6 +276,8 @@ class AlignmentNode(Node):
         except Exception as exc:  # never crash: a core failure is a fault, the alignment restarts
             self._fault(exc)
         self.timing_s.append(time.perf_counter() - t_start)
+        st = msg.header.stamp
+        self.stamp_age_s.append(time.time() - (st.sec + 1e-9 * st.nanosec))
 
     def _handle_imu(self, msg: Imu) -> None:
         p = self.params
@@ -530,9 +534,13 @@ class AlignmentNode(Node):
             if age > self.params["gnss_timeout_s"] and self.state != STATE_FAULT:
                 st.level = max(st.level, DiagnosticStatus.WARN)
                 st.message += f"; no GNSS fix for {age:.0f} s"
-        if self.timing_s:
-            tt = np.asarray(self.timing_s)[-2000:] * 1e6
-            vals.update(imu_callback_median_us=f"{np.median(tt):.1f}", imu_callback_p99_us=f"{np.percentile(tt, 99):.1f}")
+        if self.timing_s:  # over the last 100,000 Imu messages
+            tt = np.asarray(self.timing_s) * 1e6
+            age = np.asarray(self.stamp_age_s) * 1e3
+            vals.update(imu_callback_median_us=f"{np.median(tt):.1f}", imu_callback_p99_us=f"{np.percentile(tt, 99):.1f}",
+                        imu_callback_max_us=f"{np.max(tt):.1f}", imu_callback_total_s=f"{np.sum(tt) * 1e-6:.3f}",
+                        imu_stamp_age_median_ms=f"{np.median(age):.3f}",
+                        imu_stamp_age_p99_ms=f"{np.percentile(age, 99):.3f}")
         vals.update({k: str(v) for k, v in self.counters.items()})
         st.values = [KeyValue(key=k, value=str(v)) for k, v in vals.items()]
         arr = DiagnosticArray()

@@ -1,0 +1,101 @@
+"""Monte-Carlo check of the aligned flag (eval/aligned.py) on the ship scenario, no ROS.
+
+Each run: ship scenario (seed k), core initialised from the truth plus a random Euler error (roll, pitch
+U(-5, 5) deg, yaw U(-60, 60) deg), the same per-event loop as the node (filters/runner.EventRunner) and the
+flag evaluated at the node's default output rate (10 Hz data time) with the node's default criteria.
+
+Reported: runs in which the flag was ever up while the true |yaw error| exceeded the yaw threshold (false aligned),
+the number of such 10 Hz epochs, and the delay from the time the true |yaw error| falls below the threshold for
+good to the first rise of the flag (median, max).
+
+    .venv/bin/python benchmarks/aligned_flag_mc.py [--runs 20] [--core liekf] [--duration-s 300]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from insalign_ros.core import earth  # noqa: E402
+from insalign_ros.core.types import GnssFix, ImuSample  # noqa: E402
+from insalign_ros.eval.aligned import AlignedCriteria, AlignedFlag  # noqa: E402
+from insalign_ros.filters.registry import make_core  # noqa: E402
+from insalign_ros.filters.runner import EventRunner, initial_guess  # noqa: E402
+from insalign_ros.sim.scenarios import make_scenario  # noqa: E402
+
+
+def one_run(seed: int, core_name: str, duration_s: float, criteria: AlignedCriteria, rate_s: float = 0.1) -> dict:
+    data = make_scenario("ship", seed=seed, duration_s=duration_s)
+    rng = np.random.default_rng(10_000 + seed)
+    err0 = np.array([rng.uniform(-5, 5), rng.uniform(-5, 5), rng.uniform(-60, 60)])
+    core = make_core(core_name, {})
+    g = initial_guess(data.t_s[0], data.lat_rad[0], data.lon_rad[0], data.h_m[0], data.C_b_n[0], data.v_n[0],
+                      err0, core.cfg)
+    g.apply(core)
+    runner = EventRunner(core, float(data.t_s[0]))
+    flag = AlignedFlag(criteria)
+    next_t = data.t_s[0]
+    rate = data.imu_spec.rate_hz
+    ts, yaw_err, up, s3 = [], [], [], []
+    for ev in data.events(start=0):
+        res = runner.feed(ev)
+        if isinstance(ev, GnssFix) and res is not None:
+            flag.on_update(core.t_s, res.accepted, res.nis, len(res.innovation) or 3)
+        elif isinstance(ev, ImuSample) and ev.stamp_s >= next_t and ev.stamp_s > data.t_s[0]:
+            next_t = ev.stamp_s + rate_s
+            est = core.estimate()
+            k = int(round(ev.stamp_s * rate))
+            ts.append(ev.stamp_s)
+            yaw_err.append(math.degrees(earth.euler_error_rad(est.C_b_n, data.C_b_n[k])[2]))
+            up.append(flag.on_estimate(ev.stamp_s, est.P_att_n))
+            s3.append(flag.sigma3_deg[2])
+    ts, yaw_err, up = np.array(ts), np.abs(np.array(yaw_err)), np.array(up)
+    thr = criteria.yaw_3sigma_deg
+    false_epochs = int(np.sum(up & (yaw_err > thr)))
+    above = np.nonzero(yaw_err > thr)[0]
+    t_below = ts[above[-1] + 1] if len(above) and above[-1] + 1 < len(ts) else (ts[0] if not len(above) else None)
+    t_raise = ts[np.argmax(up)] if up.any() else None
+    delay = (t_raise - t_below) if (t_raise is not None and t_below is not None) else None
+    return {"seed": seed, "err0": err0, "false_epochs": false_epochs, "t_below": t_below, "t_raise": t_raise,
+            "delay": delay, "final_yaw_err": yaw_err[-1], "final_up": bool(up[-1]), "final_s3": s3[-1],
+            "max_err_while_up": float(yaw_err[up].max()) if up.any() else float("nan")}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", type=int, default=20)
+    ap.add_argument("--core", default="liekf")
+    ap.add_argument("--duration-s", type=float, default=300.0)
+    ap.add_argument("--yaw-3sigma-deg", type=float, default=AlignedCriteria.yaw_3sigma_deg)
+    args = ap.parse_args(argv)
+    crit = AlignedCriteria(yaw_3sigma_deg=args.yaw_3sigma_deg)
+    t0 = time.monotonic()
+    rows = [one_run(s, args.core, args.duration_s, crit) for s in range(args.runs)]
+    print(f"aligned flag, {args.runs} ship runs x {args.duration_s:g} s, core {args.core}, criteria {crit.to_dict()}")
+    print("| seed | initial error r/p/y [deg] | true |yaw err| < thr from [s] | flag first up [s] | delay [s] | "
+          "false-aligned epochs | max |yaw err| while up [deg] | final |yaw err| / 3-sigma [deg] |")
+    print("|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        f = lambda v: "-" if v is None else f"{v:.1f}"  # noqa: E731
+        print(f"| {r['seed']} | {r['err0'][0]:+.1f} / {r['err0'][1]:+.1f} / {r['err0'][2]:+.1f} | {f(r['t_below'])} | "
+              f"{f(r['t_raise'])} | {f(r['delay'])} | {r['false_epochs']} | {r['max_err_while_up']:.2f} | "
+              f"{r['final_yaw_err']:.2f} / {r['final_s3']:.2f} |")
+    n_false = sum(r["false_epochs"] > 0 for r in rows)
+    delays = [r["delay"] for r in rows if r["delay"] is not None]
+    never = sum(r["t_raise"] is None for r in rows)
+    print(f"\nthreshold |yaw err| {crit.yaw_3sigma_deg:g} deg: false-aligned runs {n_false}/{len(rows)} "
+          f"({sum(r['false_epochs'] for r in rows)} epochs at 10 Hz); flag never up in {never} runs; "
+          f"delay median {np.median(delays) if delays else float('nan'):.1f} s, "
+          f"max {max(delays) if delays else float('nan'):.1f} s; {time.monotonic() - t0:.0f} s wall")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

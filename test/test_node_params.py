@@ -1,0 +1,107 @@
+"""alignment_node parameters: config files match the declared parameters, run-time changes are validated."""
+
+import math
+from pathlib import Path
+
+import pytest
+import yaml
+
+from insalign_ros.cli.bringup import isolated_ros_env
+
+pytestmark = pytest.mark.ros
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture
+def node_factory(monkeypatch):
+    import rclpy
+
+    for k, v in isolated_ros_env(base={}).items():
+        monkeypatch.setenv(k, v)
+    made = []
+
+    def make(args):
+        from insalign_ros.nodes.alignment_node import AlignmentNode
+
+        ctx = rclpy.Context()
+        rclpy.init(args=["--ros-args", *args], context=ctx)
+        made.append(ctx)
+        try:
+            node = AlignmentNode(context=ctx)
+        except Exception:
+            raise
+        made.append(node)
+        return node
+
+    yield make
+    for obj in reversed(made):
+        if isinstance(obj, rclpy.Context):
+            rclpy.shutdown(context=obj)
+        else:
+            obj.destroy_node()
+
+
+@pytest.mark.timeout(60)
+def test_config_files_set_declared_parameters(node_factory):
+    common = ROOT / "config" / "alignment_node.yaml"
+    core = ROOT / "config" / "liekf.yaml"
+    node = node_factory(["--params-file", str(common), "--params-file", str(core), "-p", "aligned.hold_s:=7.5"])
+    want = yaml.safe_load(common.read_text())["alignment_node"]["ros__parameters"]
+    flat = {}
+    for k, v in want.items():
+        if isinstance(v, dict):
+            flat.update({f"{k}.{kk}": vv for kk, vv in v.items()})
+        else:
+            flat[k] = v
+    assert set(flat) <= set(node._parameters), sorted(set(flat) - set(node._parameters))
+    for k, v in flat.items():
+        got = node.get_parameter(k).value
+        if k == "aligned.hold_s":
+            assert got == 7.5  # the command line overrides the file
+        elif isinstance(v, list):
+            assert len(got) == len(v) and all((math.isnan(a) and math.isnan(b)) or a == b for a, b in zip(got, v)), k
+        else:
+            assert got == v, k
+    assert node.criteria.hold_s == 7.5
+    core_want = yaml.safe_load(core.read_text())["alignment_node"]["ros__parameters"]
+    for k, v in core_want.items():
+        assert node.get_parameter(k).value == v, k
+
+
+@pytest.mark.timeout(60)
+def test_run_time_changes_are_validated_and_bad_values_refused(node_factory):
+    from rclpy.parameter import Parameter
+
+    node = node_factory(["-p", "core:=iekf"])
+    cases = [
+        (Parameter("aligned.yaw_3sigma_deg", value=-1.0), "yaw_3sigma_deg"),
+        (Parameter("aligned.nis_alpha", value=2.0), "nis_alpha"),
+        (Parameter("gyro_arw_deg_sqrt_h", value=-2.0), "gyro_arw_deg_sqrt_h"),
+        (Parameter("core", value="no_such_core"), "unknown"),
+        (Parameter("max_rate_rad_s", value=float("nan")), "max_rate_rad_s"),
+        (Parameter("initial_rpy_deg", value=[1.0, 2.0]), "initial_rpy_deg"),
+        (Parameter("pose_rate_hz", value="fast"), "type"),  # rclpy refuses a type change itself
+        (Parameter("imu_qos", value="reliable"), "read-only"),
+    ]
+    for prm, word in cases:
+        old = node.get_parameter(prm.name).value
+        res = node.set_parameters([prm])[0]
+        assert not res.successful and word in res.reason.lower() + res.reason, (prm.name, res.reason)
+        new = node.get_parameter(prm.name).value
+        assert new == old or (isinstance(old, list) and list(new) == list(old)), prm.name  # the old value is kept
+    # good values are taken, the criteria apply at once
+    res = node.set_parameters([Parameter("aligned.yaw_3sigma_deg", value=1.5), Parameter("pose_rate_hz", value=20.0)])
+    assert all(r.successful for r in res)
+    assert node.criteria.yaw_3sigma_deg == 1.5 and node.flag.criteria.yaw_3sigma_deg == 1.5
+    assert node.pose_period_s == pytest.approx(0.05)
+    # switching the core resets the alignment
+    assert node.set_parameters([Parameter("core", value="liekf")])[0].successful
+    assert node.core_name == "liekf" and node.state == "waiting for data"
+
+
+@pytest.mark.timeout(60)
+def test_bad_start_up_parameter_is_an_error_with_the_reason(node_factory):
+    with pytest.raises(ValueError, match="unknown 'nope'|unknown core 'nope'"):
+        node_factory(["-p", "core:=nope"])
+    with pytest.raises(ValueError, match="hold_s"):
+        node_factory(["-p", "aligned.hold_s:=-3.0"])
