@@ -107,6 +107,11 @@ class AlignmentCore(ABC):
         """Fuse the zero-velocity condition (vehicle at rest relative to Earth) with std sigma_v [m/s]."""
         return UpdateResult(False, reason=f"{self.name} does not use zero-velocity updates")
 
+    def propagate_backward(self, imu: ImuSample, t_prev_s: float) -> None:
+        """Optional (``supports_backtracking``): inverse step from ``imu.stamp_s`` (the core's current time) back
+        to ``t_prev_s`` with the sample covering ``(t_prev_s, imu.stamp_s]`` (filters/backtrack.py)."""
+        raise NotImplementedError(f"{self.name} does not support backward propagation")
+
     @abstractmethod
     def estimate(self) -> AlignmentEstimate:
         """A copy of the current estimate."""
