@@ -12,6 +12,7 @@ CONSOLE_SCRIPTS = [
     "imu_listener_node = insalign_ros.nodes.imu_listener_node:main",
     "insalign-demo = insalign_ros.cli.demo:main",
     "alignment_node = insalign_ros.nodes.alignment_node:main",
+    "insalign-simulate = insalign_ros.cli.simulate:main",
 ]
 
 setup(

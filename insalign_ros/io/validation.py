@@ -1,0 +1,86 @@
+"""Input validation shared by the bag reader (io/bag.py), the KITTI converter and the ROS node. No ROS import.
+
+Every check is a pure function returning ``None`` when the sample is acceptable, else a short reason string
+(the callers count rejections per reason and report the counts). Bounds are physical, not tuned:
+
+* angular rate: |omega| <= MAX_RATE_RAD_S = 2000 deg/s (the largest common MEMS full-scale range);
+* specific force: |f| <= MAX_SPECIFIC_FORCE_M_S2 = 50 g (beyond any vehicle IMU's range here);
+* stamps: finite, strictly increasing (a repeated stamp is a duplicate, a smaller one is non-monotonic);
+* covariance: finite, symmetric (rel. 1e-9), positive semi-definite (eigenvalues >= -1e-12 * trace),
+  and for a GNSS fix a non-zero diagonal (a zero covariance would make a filter trust the fix infinitely).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+MAX_RATE_RAD_S = math.radians(2000.0)
+MAX_SPECIFIC_FORCE_M_S2 = 50.0 * 9.80665
+MAX_GNSS_SIGMA_M = 1.0e4  #: a fix with a larger 1-sigma is useless for alignment
+
+
+def check_stamp(t_s: float, prev_t_s: float | None) -> str | None:
+    if not math.isfinite(t_s):
+        return "non-finite stamp"
+    if prev_t_s is not None:
+        if t_s == prev_t_s:
+            return "duplicate stamp"
+        if t_s < prev_t_s:
+            return "non-monotonic stamp"
+    return None
+
+
+def check_vector(v, name: str, max_norm: float) -> str | None:
+    a = np.asarray(v, dtype=float)
+    if a.shape != (3,):
+        return f"{name}: shape {a.shape} != (3,)"
+    if not np.all(np.isfinite(a)):
+        return f"{name}: non-finite value"
+    if float(np.linalg.norm(a)) > max_norm:
+        return f"{name}: magnitude {np.linalg.norm(a):.3g} > {max_norm:.3g}"
+    return None
+
+
+def check_imu(omega_ib_b, f_ib_b) -> str | None:
+    return check_vector(omega_ib_b, "angular_velocity", MAX_RATE_RAD_S) or check_vector(
+        f_ib_b, "linear_acceleration", MAX_SPECIFIC_FORCE_M_S2)
+
+
+def check_covariance(cov, name: str = "covariance", require_positive_diag: bool = False) -> str | None:
+    c = np.asarray(cov, dtype=float)
+    if c.shape == (9,):
+        c = c.reshape(3, 3)
+    if c.shape != (3, 3):
+        return f"{name}: shape {c.shape} != (3, 3)"
+    if not np.all(np.isfinite(c)):
+        return f"{name}: non-finite value"
+    scale = max(float(np.max(np.abs(c))), 1e-300)
+    if float(np.max(np.abs(c - c.T))) > 1e-9 * scale:
+        return f"{name}: not symmetric"
+    ev = np.linalg.eigvalsh(0.5 * (c + c.T))
+    if ev[0] < -1e-12 * max(float(np.trace(c)), 1e-300):
+        return f"{name}: not positive semi-definite (min eigenvalue {ev[0]:.3g})"
+    if require_positive_diag and not np.all(np.diag(c) > 0):
+        return f"{name}: zero or negative variance on the diagonal"
+    return None
+
+
+def check_fix(lat_deg: float, lon_deg: float, alt_m: float, cov_enu=None, status: int = 0) -> str | None:
+    """A WGS84 fix (NavSatFix semantics: status < 0 = no fix)."""
+    if status < 0:
+        return "no fix (status < 0)"
+    if not all(math.isfinite(x) for x in (lat_deg, lon_deg, alt_m)):
+        return "non-finite lat/lon/alt"
+    if abs(lat_deg) > 90.0 or abs(lon_deg) > 180.0:
+        return "lat/lon out of range"
+    if not -1.0e4 < alt_m < 1.0e5:
+        return f"altitude {alt_m:.3g} m out of range"
+    if cov_enu is not None:
+        r = check_covariance(cov_enu, "position_covariance", require_positive_diag=True)
+        if r:
+            return r
+        if float(np.sqrt(np.max(np.diag(np.asarray(cov_enu, float).reshape(3, 3))))) > MAX_GNSS_SIGMA_M:
+            return "position sigma > 10 km"
+    return None
