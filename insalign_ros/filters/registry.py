@@ -37,6 +37,18 @@ def _ekf(cfg):
     return ConventionalEkf(cfg)
 
 
+def _earth_iekf(cfg):
+    from .earth_iekf import EarthIekf
+
+    return EarthIekf(cfg)
+
+
+def _liekf_backtrack(cfg):
+    from .backtrack import BacktrackLiekf
+
+    return BacktrackLiekf(cfg)
+
+
 #: name -> (factory(config) -> AlignmentCore, config dataclass with from_dict)
 CORES: dict[str, tuple[Callable, type]] = {
     "liekf": (_liekf, LiekfConfig),
@@ -44,6 +56,11 @@ CORES: dict[str, tuple[Callable, type]] = {
     "iekf": (_iekf, IekfConfig),
     "ekf": (_ekf, EkfConfig),
 }
+# forward-backward alignment (issue 8): the Earth-frame IEKF and the LIEKF with backward propagation
+from .earth_iekf import EarthIekfConfig  # noqa: E402
+
+CORES["earth_iekf"] = (_earth_iekf, EarthIekfConfig)
+CORES["liekf_backtrack"] = (_liekf_backtrack, LiekfConfig)
 
 #: the in-motion (GNSS-aided) cores of issue 5
 INMOTION_CORE_NAMES: tuple[str, ...] = ("liekf", "pi_liekf", "iekf", "ekf")
