@@ -91,3 +91,17 @@ def __getattr__(attr):  # CORE_NAMES stays current when others register()
     if attr == "CORE_NAMES":
         return core_names()
     raise AttributeError(attr)
+
+
+# ------------------------------------------------------------------ static cores (issue 6)
+def _register_static() -> None:
+    from .coarse import CoarseAlignment, CoarseConfig
+    from .ekf10 import Ekf10, Ekf10Config
+    from .pkf import Pkf, PkfConfig
+
+    register("pkf", Pkf, PkfConfig)
+    register("ekf10", Ekf10, Ekf10Config)
+    register("coarse", CoarseAlignment, CoarseConfig)
+
+
+_register_static()

@@ -1,0 +1,75 @@
+"""10-state EKF baseline of the PKF paper (sec. 5): the 5 states of eq. (34) plus residual accelerometer
+(north, east) and gyro (north, east, down) errors in n', modelled as random constants (random walks), with
+zero-velocity updates (eq. (32)) and closed-loop feedback of all states into the mechanization.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .static_model import DEG_H, MG, StaticConfig, StaticModelInputs, StaticZuptCore, f_model  # noqa: F401
+
+
+@dataclass
+class Ekf10Config(StaticConfig):
+    """10-state EKF: initial bias sigmas (PKF Table 1 bias stability) and bias random walks."""
+
+    init_sigma_gyro_bias_deg_h: float = 5.1
+    init_sigma_acc_bias_mg: float = 0.07
+    gyro_bias_rw_deg_h_sqrt_h: float = 0.0
+    acc_bias_rw_mg_sqrt_h: float = 0.0
+
+    def validate(self) -> None:
+        super().validate()
+        for name in ("init_sigma_gyro_bias_deg_h", "init_sigma_acc_bias_mg"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name}: must be > 0, got {getattr(self, name)}")
+
+
+class Ekf10(StaticZuptCore):
+    """10-state closed-loop EKF: [dvN dvE phiN phiE phiD DfN DfE DwN DwE DwD] (NED, n')."""
+
+    name = "ekf10"
+    n_bias = 5
+
+    def _init_bias_cov(self) -> None:
+        sa = self.cfg.init_sigma_acc_bias_mg * MG
+        sg = self.cfg.init_sigma_gyro_bias_deg_h * DEG_H
+        self.P[5:7, 5:7] = np.eye(2) * sa**2
+        self.P[7:10, 7:10] = np.eye(3) * sg**2
+
+    def _full_jacobian(self, F5: np.ndarray) -> np.ndarray:
+        # G = df/dm' at the current state (velocity rows: I; attitude rows: -[Rz^T E]), numerically from eq. (34)
+        u = self._u_last
+        x5 = self.x[:5]
+        G = np.zeros((5, 5))
+        for j in range(5):
+            e = np.zeros(5)
+            e[j] = 1e-6
+            G[:, j] = (f_model(x5, u, e) - f_model(x5, u, -e)) / 2e-6
+        F = np.zeros((10, 10))
+        F[:5, :5] = F5
+        F[:5, 5:] = G
+        return F
+
+    def _process_noise(self, dt: float) -> np.ndarray:
+        Q = np.zeros((10, 10))
+        Q[:5, :5] = super()._process_noise(dt)
+        qa = (self.cfg.acc_bias_rw_mg_sqrt_h * MG / 60.0) ** 2
+        qg = (self.cfg.gyro_bias_rw_deg_h_sqrt_h * DEG_H / 60.0) ** 2
+        Q[5:7, 5:7] = np.eye(2) * qa * dt
+        Q[7:10, 7:10] = np.eye(3) * qg * dt
+        return Q
+
+    def _feedback_bias(self) -> None:
+        x = self.x
+        self.mech.acc_correction_b = self.mech.acc_correction_b + self.body_from_ned(np.array([x[5], x[6], 0.0]))
+        self.mech.gyro_correction_b = self.mech.gyro_correction_b + self.body_from_ned(x[7:10])
+        self.x[5:] = 0.0
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        return ("dvN", "dvE", "phiN", "phiE", "phiD", "DfN", "DfE", "DwN", "DwE", "DwD")

@@ -1,0 +1,401 @@
+"""Nonlinear large-azimuth static alignment error model (PKF paper eqs. (18)-(35)) and the shared
+zero-velocity error-state machinery of the static cores (PKF, 10-state EKF).
+
+The paper works in NED; the package works in ENU/FLU. The conversion happens here once, in
+:func:`ned_from_enu` / :func:`enu_psi_from_ned_phi` (tested in test/test_static_model.py).
+
+State (paper order, NED, n' = computed frame): ``x = [dvN, dvE, phiN, phiE, phiD]`` [m/s, m/s, rad, rad, rad].
+Misalignment (eq. (23)): ``C_n'^n = Rz(phiD) (I + [rho x])``, rho = [phiN, phiE, 0], so that the true attitude is
+``C_b^n = C_n'^n C_b^n'`` (eq. (22)). The eq. (23) matrix is exactly Rz(phiD)(I + [rho x]) (checked in the test),
+which lets the cores feed back the level angles at every update and keep the large azimuth in the state.
+
+Dynamics (derived from eqs. (22)-(25), (27)-(30); see docs/static_alignment.md for why we do not copy the
+scalar eqs. (26)/(34) literally): with ``E = C_n'^n``, ``f' = C_b^n' f_meas`` (NED), ``omega_ie = [wN, 0, wD]``,
+  ``d(dv)/dt   = [(I - E) f']_NE - [2 omega_ie x dv]_NE + Df``         (eq. (31); identical to the paper)
+  ``zeta       = E (omega_ie + d_omega_in(dv) - Domega) - omega_ie``    (E' E^T = [zeta x], eq. (24))
+  ``[phiN', phiE'] = [Rz^T zeta]_NE``,  ``phiD' = zeta_D``              (eq. (26), exact for the eq. (23) form)
+To first order in the level angles this equals the paper's eq. (26) except the phiD row, which the paper
+writes with the level angles rotated by phiD (second order at small phiD, see docs).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, fields
+
+import numpy as np
+from scipy.linalg import expm
+
+from ..core import earth, lie
+from ..core.mechanization_n import LocalLevelMechanization
+from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, ImuSample, UpdateResult
+
+#: NED <-> ENU axis swap (a proper rotation, its own inverse): v_ned = T v_enu
+T_NED_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+H_ZUPT = np.hstack([np.eye(2), np.zeros((2, 3))])  #: eq. (32)
+D2R = math.pi / 180.0
+DEG_H = D2R / 3600.0
+MG = 9.80665e-3
+
+
+def ned_from_enu(v_enu: np.ndarray) -> np.ndarray:
+    """A vector in ENU -> the same vector in NED (and back: T is its own inverse)."""
+    return T_NED_ENU @ np.asarray(v_enu, dtype=float)
+
+
+def enu_psi_from_ned_phi(phi_ned: np.ndarray) -> np.ndarray:
+    """Paper misalignment [phiN, phiE, phiD] (small level, any azimuth) -> interface rotation vector psi in ENU,
+    ``C_true = exp(psi_x) C_est`` (first order in the level angles; psi_U = -phiD)."""
+    return T_NED_ENU @ np.asarray(phi_ned, dtype=float)
+
+
+def Rz(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def misalignment_matrix(phi_ned: np.ndarray) -> np.ndarray:
+    """``C_n'^n`` of eq. (23) (NED): [[c,-s,phiE c+phiN s],[s,c,phiE s-phiN c],[-phiE,phiN,1]]."""
+    pN, pE, pD = phi_ned
+    c, s = math.cos(pD), math.sin(pD)
+    return np.array([[c, -s, pE * c + pN * s], [s, c, pE * s - pN * c], [-pE, pN, 1.0]])
+
+
+def misalignment_rotation_enu(phi_ned: np.ndarray) -> np.ndarray:
+    """Orthonormal version of eq. (23) in ENU: ``T Rz(phiD) exp([phiN, phiE, 0]) T`` (for feedback)."""
+    E_ned = Rz(phi_ned[2]) @ lie.so3_exp(np.array([phi_ned[0], phi_ned[1], 0.0]))
+    return T_NED_ENU @ E_ned @ T_NED_ENU
+
+
+@dataclass
+class StaticModelInputs:
+    """Inputs of eq. (34) over one filter step: f' (NED, [m/s^2]), latitude [rad], Earth radius r [m]."""
+
+    f_np_ned: np.ndarray
+    lat_rad: float
+    r_m: float
+
+    @property
+    def omega_ie_ned(self) -> np.ndarray:
+        return np.array([earth.OMEGA_IE_RAD_S * math.cos(self.lat_rad), 0.0,
+                         -earth.OMEGA_IE_RAD_S * math.sin(self.lat_rad)])
+
+
+def f_model(x: np.ndarray, u: StaticModelInputs, m_prime: np.ndarray | None = None) -> np.ndarray:
+    """Continuous nonlinear model f(x, m') of eq. (34) (derivation in the module docstring).
+
+    m' = [DfN, DfE, DwN, DwE, DwD]: residual accelerometer [m/s^2] and gyro [rad/s] errors in n' (NED).
+    """
+    m = np.zeros(5) if m_prime is None else m_prime
+    dvN, dvE, pN, pE, pD = x
+    E = misalignment_matrix(x[2:5])
+    w = u.omega_ie_ned
+    dv3 = np.array([dvN, dvE, 0.0])
+    acc = (np.eye(3) - E) @ u.f_np_ned - 2.0 * np.cross(w, dv3)
+    d_w_in = np.array([dvE / u.r_m, -dvN / u.r_m, -dvE * math.tan(u.lat_rad) / u.r_m])  # eq. (25)
+    zeta = E @ (w + d_w_in - m[2:5]) - w
+    rot = Rz(pD).T @ zeta
+    return np.array([acc[0] + m[0], acc[1] + m[1], rot[0], rot[1], zeta[2]])
+
+
+def jacobian(x: np.ndarray, u: StaticModelInputs) -> np.ndarray:
+    """F_t = df/dx (eq. (35)) of :func:`f_model`, by central differences (exact to ~1e-9 relative)."""
+    F = np.zeros((5, 5))
+    for j in range(5):
+        h = 1e-6 if j < 2 else 1e-7
+        e = np.zeros(5)
+        e[j] = h
+        F[:, j] = (f_model(x + e, u) - f_model(x - e, u)) / (2 * h)
+    return F
+
+
+# ---------------------------------------------------------------------------------------------- config
+@dataclass
+class StaticConfig:
+    """Shared parameters of the static (zero-velocity) cores. Units in the names.
+
+    Defaults: PKF paper Table 1 (ADIS16488A): ARW 0.26 deg/sqrt(h), VRW 0.029 m/s/sqrt(h); bias stability 5.1 deg/h,
+    0.07 mg used as the initial bias sigma of the 10-state EKF.
+    """
+
+    gyro_arw_deg_sqrt_h: float = 0.26
+    acc_vrw_m_s_sqrt_h: float = 0.029
+    #: extra velocity process noise for the engine vibration the model does not describe [m/s/sqrt(s)]
+    vibration_vrw_m_s_sqrt_s: float = 1e-3
+    init_sigma_v_m_s: float = 0.01
+    #: feed the azimuth estimate back into the mechanization once its 1-sigma is below this [deg]; before that
+    #: the large azimuth stays in the state and the nonlinear model (eq. (34)) carries it
+    azimuth_feedback_sigma_deg: float = 5.0
+    #: status ALIGNED once the 3-sigma azimuth uncertainty is below this [deg]
+    aligned_yaw_3sigma_deg: float = 1.0
+    #: 1-sigma sensor biases the 5-state cores do not estimate: added to the reported attitude covariance as the
+    #: physical floor ((b_acc/g)^2 level, (eps/(omega_ie cos lat))^2 azimuth) so P_att_n stays honest
+    consider_gyro_bias_deg_h: float = 5.1
+    consider_acc_bias_mg: float = 0.07
+
+    def validate(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ValueError(f"{f.name}: expected a finite number, got {v!r}")
+            if f.type in ("int", int) and not isinstance(v, int):
+                raise ValueError(f"{f.name}: expected an integer, got {v!r}")
+            if v < 0:
+                raise ValueError(f"{f.name}: must be >= 0, got {v}")
+        for name in ("init_sigma_v_m_s", "aligned_yaw_3sigma_deg", "azimuth_feedback_sigma_deg"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name}: must be > 0, got {getattr(self, name)}")
+
+    @classmethod
+    def from_dict(cls, params: dict | None = None):
+        """Build from a (partial) dict; ints accepted for floats. ValueError with the reason on bad input."""
+        params = dict(params or {})
+        known = {f.name: f for f in fields(cls)}
+        unknown = sorted(set(params) - set(known))
+        if unknown:
+            raise ValueError(f"unknown parameter(s) {unknown} for {cls.__name__}; known: {sorted(known)}")
+        kw = {}
+        for k, v in params.items():
+            if known[k].type in ("float", float):
+                if isinstance(v, bool) or not isinstance(v, (int, float)):
+                    raise ValueError(f"{k}: expected a number, got {v!r}")
+                v = float(v)
+            kw[k] = v
+        cfg = cls(**kw)
+        cfg.validate()
+        return cfg
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+# ---------------------------------------------------------------------------------------------- core
+class StaticZuptCore(AlignmentCore):
+    """Error-state filter on the eq. (34) model with zero-velocity updates (eq. (32)) and feedback (Fig. 2).
+
+    State: the 5 paper states, plus (``n_bias = 5``) residual accelerometer N/E [m/s^2] and gyro N/E/D [rad/s]
+    errors in n' (the 10-state EKF). ``propagate`` runs the mechanization at the IMU rate (cheap) and accumulates
+    the interval; ``update_zero_velocity`` predicts the error state over the accumulated interval with the
+    nonlinear model and the Jacobian, fuses eq. (32), and feeds back: velocity and level angles (and biases) every
+    update, the azimuth once ``sigma(phiD) < azimuth_feedback_sigma_deg``. Recommended ZUPT rate: 10 Hz.
+    """
+
+    name = "static"
+    supports_zero_velocity = True
+    n_bias = 0
+
+    def __init__(self, cfg: StaticConfig):
+        self.cfg = cfg
+        self._init = False
+
+    # ------------------------------------------------------------------ interface
+    def initialize(self, stamp_s, lat_rad, lon_rad, h_m, C_b_n, v_n, P_att_n, sigma_v_m_s, sigma_p_m):
+        self.mech = LocalLevelMechanization(lat_rad, lon_rad, h_m, C_b_n, v_n)
+        self.t_s = float(stamp_s)
+        self.t_last_update_s = float(stamp_s)
+        n = 5 + self.n_bias
+        self.x = np.zeros(n)
+        self.P = np.zeros((n, n))
+        self.P[0:2, 0:2] = np.eye(2) * max(sigma_v_m_s, 1e-6) ** 2
+        P_ned = T_NED_ENU @ np.asarray(P_att_n, dtype=float) @ T_NED_ENU
+        self.P[2:5, 2:5] = P_ned
+        self._init_bias_cov()
+        self._f_sum_n = np.zeros(3)
+        self._dt_acc = 0.0
+        self.status = AlignmentStatus.CONVERGING
+        self.reason = "zero-velocity alignment running"
+        self.r_m = math.sqrt(self.mech.R_N_m * self.mech.R_E_m)
+        self._init = True
+
+    def _init_bias_cov(self) -> None:
+        pass
+
+    @property
+    def initialized(self) -> bool:
+        return self._init
+
+    def propagate(self, imu: ImuSample) -> None:
+        if not self._init:
+            return
+        dt = float(imu.stamp_s) - self.t_s
+        if not (dt > 0.0) or dt > 1.0:
+            self.t_s = float(imu.stamp_s) if dt > 0 else self.t_s
+            return
+        f_n = self.mech.step(imu.omega_ib_b, imu.f_ib_b, dt)
+        self._f_sum_n += f_n * dt
+        self._dt_acc += dt
+        self.t_s = float(imu.stamp_s)
+
+    def _process_noise(self, dt: float) -> np.ndarray:
+        q = np.zeros(5)
+        vrw = (self.cfg.acc_vrw_m_s_sqrt_h / 60.0) ** 2 + self.cfg.vibration_vrw_m_s_sqrt_s**2
+        q[0:2] = vrw
+        q[2:5] = (self.cfg.gyro_arw_deg_sqrt_h * D2R / 60.0) ** 2
+        return np.diag(q) * dt
+
+    def _full_jacobian(self, F5: np.ndarray) -> np.ndarray:
+        return F5
+
+    def body_from_ned(self, v_ned: np.ndarray) -> np.ndarray:
+        """A vector in n' (NED) -> body FLU with the current mechanised attitude (C_n'^b = (C_b^n')^T)."""
+        return self.mech.C_b_n.T @ ned_from_enu(v_ned)
+
+    def update_zero_velocity(self, stamp_s: float, sigma_v_m_s: float) -> UpdateResult:
+        if not self._init:
+            return UpdateResult(False, reason="not initialized")
+        if not (math.isfinite(sigma_v_m_s) and sigma_v_m_s > 0):
+            return UpdateResult(False, reason=f"sigma_v_m_s must be > 0, got {sigma_v_m_s}")
+        dt = self._dt_acc
+        if dt <= 0:
+            return UpdateResult(False, reason="no IMU data since the last update")
+        f_np_ned = ned_from_enu(self._f_sum_n / dt)
+        self._f_sum_n[:] = 0.0
+        self._dt_acc = 0.0
+        u = StaticModelInputs(f_np_ned, self.mech.lat_rad, self.r_m)
+        self._u_last = u
+        # ---- predict the error state over the interval with eq. (34) (RK2) and its Jacobian eq. (35)
+        m_prime = self._model_error_prime()
+        x_start = self.x.copy()
+        x5 = self.x[:5].copy()
+        k1 = f_model(x5, u, m_prime)
+        k2 = f_model(x5 + dt * k1, u, m_prime)
+        F = self._full_jacobian(jacobian(x5, u))
+        Phi = expm(F * dt)
+        self.P = Phi @ self.P @ Phi.T + self._process_noise(dt)
+        self.x[:5] = x5 + 0.5 * dt * (k1 + k2)
+        # ---- update with eq. (32): the measured velocity error is the mechanised velocity (truth is zero)
+        n = self.x.shape[0]
+        H = np.zeros((2, n))
+        H[:, 0:2] = np.eye(2)
+        z = ned_from_enu(self.mech.v_n)[0:2]
+        Rm = np.eye(2) * sigma_v_m_s**2
+        S = H @ self.P @ H.T + Rm
+        K = self.P @ H.T @ np.linalg.inv(S)
+        innov = z - H @ self.x
+        self.x = self.x + K @ innov
+        I_KH = np.eye(n) - K @ H
+        self.P = I_KH @ self.P @ I_KH.T + K @ Rm @ K.T
+        self.P = 0.5 * (self.P + self.P.T)
+        nis = float(innov @ np.linalg.solve(S, innov))
+        self._after_update(x_start, dt)
+        self._feedback()
+        self.t_last_update_s = float(stamp_s)
+        return UpdateResult(True, innovation=innov, S=S, nis=nis)
+
+    def _model_error_prime(self) -> np.ndarray | None:
+        return None
+
+    def _after_update(self, x_start: np.ndarray, dt: float) -> None:
+        """Hook after the measurement update, before feedback; x_start = state at the start of the step."""
+
+    def _feedback(self) -> None:
+        x = self.x
+        # velocity (NED error -> ENU) and vertical channel (zero-velocity condition, delta v_D = 0)
+        dv_enu = ned_from_enu(np.array([x[0], x[1], 0.0]))
+        self.mech.v_n = self.mech.v_n - dv_enu
+        self.mech.v_n[2] = 0.0
+        sigma_D = math.sqrt(max(self.P[4, 4], 0.0))
+        feed_az = sigma_D < self.cfg.azimuth_feedback_sigma_deg * D2R
+        phi = np.array([x[2], x[3], x[4] if feed_az else 0.0])
+        if feed_az:
+            E = misalignment_rotation_enu(phi)
+            self.mech.correct_attitude(E)
+            self.x[4] = 0.0
+        else:
+            # level only: C_true = Rz(phiD) exp(rho) C_est -> C_est <- exp(rho) C_est, phiD stays in the state
+            E = misalignment_rotation_enu(np.array([x[2], x[3], 0.0]))
+            self.mech.correct_attitude(E)
+        self.x[0:4] = 0.0
+        self._feedback_bias()
+
+    def _feedback_bias(self) -> None:
+        pass
+
+    def attitude_estimate(self) -> np.ndarray:
+        """C_b_n with the azimuth still held in the state applied."""
+        E = misalignment_rotation_enu(np.array([self.x[2], self.x[3], self.x[4]]))
+        return E @ self.mech.C_b_n
+
+    def estimate(self) -> AlignmentEstimate:
+        if not self._init:
+            return AlignmentEstimate(float("nan"), np.eye(3), np.zeros(3), float("nan"), float("nan"),
+                                     float("nan"), np.eye(3) * np.pi**2, np.eye(5 + self.n_bias),
+                                     self.state_names, status=AlignmentStatus.WAITING_FOR_DATA,
+                                     reason="not initialized")
+        P_att = T_NED_ENU @ self.P[2:5, 2:5] @ T_NED_ENU
+        if self.n_bias == 0:
+            g = float(np.linalg.norm(self.mech.g_n))
+            w_h = earth.OMEGA_IE_RAD_S * math.cos(self.mech.lat_rad)
+            lvl = (self.cfg.consider_acc_bias_mg * MG / g) ** 2
+            P_att = P_att + np.diag([lvl, lvl, (self.cfg.consider_gyro_bias_deg_h * DEG_H / w_h) ** 2])
+        yaw3 = 3.0 * math.sqrt(max(P_att[2, 2], 0.0))
+        status = AlignmentStatus.ALIGNED if yaw3 < self.cfg.aligned_yaw_3sigma_deg * D2R else AlignmentStatus.CONVERGING
+        reason = ("3-sigma azimuth %.3g deg" % (yaw3 / D2R))
+        return AlignmentEstimate(
+            self.t_s, self.attitude_estimate(), self.mech.v_n.copy(), self.mech.lat_rad, self.mech.lon_rad,
+            self.mech.h_m, P_att, self.P.copy(), self.state_names,
+            bias_gyro_b=self.mech.gyro_correction_b.copy(), bias_acc_b=self.mech.acc_correction_b.copy(),
+            status=status, reason=reason)
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        return ("dvN", "dvE", "phiN", "phiE", "phiD")
+
+
+# ---------------------------------------------------------------------------------------------- runner helpers
+def physical_floor(C_b_n_true: np.ndarray, bias_gyro_b: np.ndarray, bias_acc_b: np.ndarray, lat_rad: float,
+                   g_m_s2: float = 9.80665) -> dict:
+    """The static-alignment floor from the biases actually present (papers README):
+    level ~ b_acc_horizontal / g (roll from the north... per ENU axis), azimuth ~ eps_east / (omega_ie cos(lat)).
+
+    Returns {'roll_rad', 'pitch_rad', 'azimuth_rad'} (magnitudes): roll/pitch use the accelerometer bias
+    resolved in ENU (east -> tilt about north, north -> tilt about east) -- the level floor is the larger of the two.
+    """
+    b_a_n = C_b_n_true @ np.asarray(bias_acc_b)
+    b_g_n = C_b_n_true @ np.asarray(bias_gyro_b)
+    level = np.abs(b_a_n[0:2]) / g_m_s2
+    az = abs(b_g_n[0]) / (earth.OMEGA_IE_RAD_S * math.cos(lat_rad))
+    return {"east_acc_tilt_rad": float(level[0]), "north_acc_tilt_rad": float(level[1]),
+            "level_rad": float(max(level)), "azimuth_rad": float(az), "eps_east_rad_s": float(b_g_n[0])}
+
+
+def config_for_imu(config_class, spec, **overrides):
+    """Config of a static core with the noise (and for the EKF10 the bias priors) of an ImuSpec (datasheet)."""
+    params = {"gyro_arw_deg_sqrt_h": spec.arw_deg_sqrt_h, "acc_vrw_m_s_sqrt_h": spec.vrw_m_s_sqrt_h}
+    names = {f.name for f in fields(config_class)}
+    if "consider_gyro_bias_deg_h" in names:
+        params["consider_gyro_bias_deg_h"] = spec.gyro_bias_deg_h
+        params["consider_acc_bias_mg"] = spec.acc_bias_mg
+    if "init_sigma_gyro_bias_deg_h" in names:
+        params["init_sigma_gyro_bias_deg_h"] = spec.gyro_bias_deg_h
+        params["init_sigma_acc_bias_mg"] = spec.acc_bias_mg
+    params.update(overrides)
+    return config_class.from_dict(params)
+
+
+def run_static(core: AlignmentCore, sc, az0_rad: float, sigma_R_m_s: float, zupt_hz: float = 10.0,
+               init_sigma_yaw_deg: float = 100.0, init_sigma_level_deg: float = 2.0, record_hz: float = 1.0):
+    """Run a static core on a ScenarioData from the true attitude turned by az0 about Up.
+
+    Returns (t_s, err_rad (K, 3): psi = heading_error_enu_rad(est, true) [E, N, U], sigma3_rad (K, 3)).
+    The zero-velocity update runs every round(rate/zupt_hz) IMU samples.
+    """
+    C0 = earth.C_b_n_from_rpy(0.0, 0.0, az0_rad) @ sc.C_b_n[0]
+    P0 = np.diag(np.radians([init_sigma_level_deg, init_sigma_level_deg, init_sigma_yaw_deg]) ** 2)
+    core.initialize(float(sc.t_s[0]), float(sc.lat_rad[0]), float(sc.lon_rad[0]), float(sc.h_m[0]), C0,
+                    np.zeros(3), P0, 0.01, 1.0)
+    rate = 1.0 / float(sc.t_s[1] - sc.t_s[0])
+    every = max(1, int(round(rate / zupt_hz)))
+    rec = max(1, int(round(rate / record_hz)))
+    ts, errs, sig = [], [], []
+    for k in range(1, sc.n):
+        core.propagate(ImuSample(float(sc.t_s[k]), sc.omega_ib_b[k], sc.f_ib_b[k]))
+        if k % every == 0 and core.supports_zero_velocity:
+            core.update_zero_velocity(float(sc.t_s[k]), sigma_R_m_s)
+        if k % rec == 0:
+            e = core.estimate()
+            ts.append(float(sc.t_s[k]))
+            errs.append(earth.heading_error_enu_rad(e.C_b_n, sc.C_b_n[k]))
+            sig.append(3.0 * np.sqrt(np.maximum(np.diag(e.P_att_n), 0.0)))
+    return np.array(ts), np.array(errs), np.array(sig)
