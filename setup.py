@@ -13,6 +13,7 @@ CONSOLE_SCRIPTS = [
     "insalign-demo = insalign_ros.cli.demo:main",
     "alignment_node = insalign_ros.nodes.alignment_node:main",
     "insalign-simulate = insalign_ros.cli.simulate:main",
+    "insalign-kitti2bag = insalign_ros.cli.kitti2bag:main",
 ]
 
 setup(

@@ -7,8 +7,8 @@ Topics (names configurable in read_bag for bags from other sources):
                                                     orientation = body FLU -> ENU
   /insalign/metadata  std_msgs/msg/String           JSON, written once before the first sample
 
-Stamps: header.stamp = bag timestamp = round(t_s * 1e9) ns (+ ``stamp_offset_s`` from the metadata, 0 for the
-simulators). The IMU covariances follow REP 145: white-noise variance of one sample = noise density^2 * rate
+Stamps: header.stamp = bag timestamp = stamp_offset_ns + round(t_s * 1e9) ns (``stamp_offset_ns`` in the
+metadata: 0 for the simulators, the first absolute stamp for converted drives; integer, so no float rounding). The IMU covariances follow REP 145: white-noise variance of one sample = noise density^2 * rate
 (ARW [rad/sqrt(s)]^2 * rate_hz on each axis, VRW likewise); biases are not included.
 """
 
@@ -48,8 +48,8 @@ def typestore():
     return get_typestore(store)
 
 
-def _stamp(ts, t_s: float):
-    ns = int(round(t_s * 1e9))
+def _stamp(ts, t_s: float, off_ns: int = 0):
+    ns = off_ns + int(round(t_s * 1e9))
     return ts.types["builtin_interfaces/msg/Time"](sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000), ns
 
 
@@ -62,7 +62,7 @@ def metadata_of(data: ScenarioData) -> dict:
     f = lambda a: None if a is None else [float(x) for x in np.asarray(a)]  # noqa: E731
     return {
         "contract": "insalign_ros bag contract v1",
-        "scenario": data.name, "seed": int(data.seed), "t0_s": float(data.t0_s), "stamp_offset_s": 0.0,
+        "scenario": data.name, "seed": int(data.seed), "t0_s": float(data.t0_s), "stamp_offset_ns": int(p.get("stamp_offset_ns", 0)),
         "bias_gyro_b_rad_s": f(data.bias_gyro_b), "bias_acc_b_m_s2": f(data.bias_acc_b),
         "imu_spec": _spec_dict(data.imu_spec), "gnss_sigma_m": float(data.gnss_sigma_m),
         "ref_lat_deg": float(p.get("ref_lat_deg", math.degrees(data.lat_rad[0]) if data.has_truth else float("nan"))),
@@ -94,6 +94,7 @@ def write_bag(data: ScenarioData, path, storage: str = "sqlite3", write_truth: b
     ts = typestore()
     T = ts.types
     meta = metadata_of(data)
+    off_ns = meta["stamp_offset_ns"]
     lat0, lon0, h0 = meta["ref_lat_deg"], meta["ref_lon_deg"], meta["ref_h_m"]
     plugin = StoragePlugin.SQLITE3 if storage == "sqlite3" else StoragePlugin.MCAP
     var_g, var_a = imu_covariance_diag(data.imu_spec)
@@ -104,7 +105,7 @@ def write_bag(data: ScenarioData, path, storage: str = "sqlite3", write_truth: b
 
     events = []  # (ns, order, topic, msg)
     for k in range(data.n):
-        st, ns = _stamp(ts, float(data.t_s[k]))
+        st, ns = _stamp(ts, float(data.t_s[k]), off_ns)
         hdr = T["std_msgs/msg/Header"](stamp=st, frame_id=IMU_FRAME)
         w, f = data.omega_ib_b[k], data.f_ib_b[k]
         msg = T["sensor_msgs/msg/Imu"](
@@ -116,7 +117,7 @@ def write_bag(data: ScenarioData, path, storage: str = "sqlite3", write_truth: b
             linear_acceleration_covariance=np.diag([var_a] * 3).ravel().astype(float))
         events.append((ns, 0, IMU_TOPIC, msg))
     for j in range(data.gnss_t_s.shape[0]):
-        st, ns = _stamp(ts, float(data.gnss_t_s[j]))
+        st, ns = _stamp(ts, float(data.gnss_t_s[j]), off_ns)
         C_en = earth.C_e_n(math.radians(glat[j]), math.radians(glon[j]))
         R_n = C_en @ data.gnss_R_e[j] @ C_en.T
         R_n = 0.5 * (R_n + R_n.T)
@@ -133,7 +134,7 @@ def write_bag(data: ScenarioData, path, storage: str = "sqlite3", write_truth: b
                                         math.radians(lon0), h0, deg=False)
         q = Rotation.from_matrix(data.C_b_n).as_quat()  # x y z w
         for k in range(data.n):
-            st, ns = _stamp(ts, float(data.t_s[k]))
+            st, ns = _stamp(ts, float(data.t_s[k]), off_ns)
             msg = T["geometry_msgs/msg/PoseStamped"](
                 header=T["std_msgs/msg/Header"](stamp=st, frame_id=TRUTH_FRAME),
                 pose=T["geometry_msgs/msg/Pose"](
@@ -198,7 +199,8 @@ def read_bag(path, imu_topic: str = IMU_TOPIC, gps_topic: str = GPS_TOPIC, truth
                     except (ValueError, AttributeError) as exc:
                         rep["warnings"].append(f"metadata not JSON ({exc}); ignored")
                 continue
-            t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+            t_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            t = t_ns * 1e-9
             frames[conn.topic].add(msg.header.frame_id)
             reason = validation.check_stamp(t, prev[conn.topic])
             if conn.topic == imu_topic:
@@ -206,7 +208,7 @@ def read_bag(path, imu_topic: str = IMU_TOPIC, gps_topic: str = GPS_TOPIC, truth
                 f = np.array([msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z])
                 reason = reason or validation.check_imu(w, f)
                 if not reason:
-                    imu_t.append(t), imu_w.append(w), imu_f.append(f)
+                    imu_t.append(t_ns), imu_w.append(w), imu_f.append(f)
             elif conn.topic == gps_topic:
                 cov = np.asarray(msg.position_covariance, float).reshape(3, 3)
                 if msg.position_covariance_type == 0:
@@ -214,7 +216,7 @@ def read_bag(path, imu_topic: str = IMU_TOPIC, gps_topic: str = GPS_TOPIC, truth
                 reason = reason or validation.check_fix(msg.latitude, msg.longitude, msg.altitude, cov,
                                                         msg.status.status)
                 if not reason:
-                    g_t.append(t), g_llh.append((msg.latitude, msg.longitude, msg.altitude)), g_cov.append(cov)
+                    g_t.append(t_ns), g_llh.append((msg.latitude, msg.longitude, msg.altitude)), g_cov.append(cov)
             else:
                 p = msg.pose.position
                 q = msg.pose.orientation
@@ -222,7 +224,7 @@ def read_bag(path, imu_topic: str = IMU_TOPIC, gps_topic: str = GPS_TOPIC, truth
                 if not np.all(np.isfinite(qa)) or abs(np.linalg.norm(qa) - 1.0) > 1e-6:
                     reason = reason or "orientation not a unit quaternion"
                 if not reason:
-                    tr_t.append(t), tr_p.append((p.x, p.y, p.z)), tr_q.append(qa)
+                    tr_t.append(t_ns), tr_p.append((p.x, p.y, p.z)), tr_q.append(qa)
             if reason:
                 rejected[conn.topic][reason] += 1
             else:
@@ -242,8 +244,9 @@ def read_bag(path, imu_topic: str = IMU_TOPIC, gps_topic: str = GPS_TOPIC, truth
         log.warning("%s: %s", path, wmsg)
     if not imu_t:
         raise ValueError(f"{path}: no valid IMU sample on {imu_topic}")
-    off = float(meta.get("stamp_offset_s", 0.0))
-    t_s = np.array(imu_t) - off
+    off = int(meta.get("stamp_offset_ns", 0))
+    rel = lambda a: (np.array(a, dtype=np.int64) - off) * 1e-9  # noqa: E731
+    t_s = rel(imu_t)
     # GNSS -> ECEF position and ECEF covariance
     if g_t:
         llh = np.array(g_llh)
@@ -260,7 +263,7 @@ def read_bag(path, imu_topic: str = IMU_TOPIC, gps_topic: str = GPS_TOPIC, truth
     truth = dict(C_b_n=None, lat_rad=None, lon_rad=None, h_m=None)
     if tr_t:
         lat0, lon0, h0 = (meta.get(k, float("nan")) for k in ("ref_lat_deg", "ref_lon_deg", "ref_h_m"))
-        tr_t_a = np.array(tr_t) - off
+        tr_t_a = rel(tr_t)
         if not all(math.isfinite(v) for v in (lat0, lon0, h0)):
             rep["warnings"].append("truth present but no reference lat/lon/h in metadata: truth dropped")
         elif tr_t_a.shape != t_s.shape or np.max(np.abs(tr_t_a - t_s)) > 1e-9:
@@ -281,7 +284,7 @@ def read_bag(path, imu_topic: str = IMU_TOPIC, gps_topic: str = GPS_TOPIC, truth
     return ScenarioData(
         name=meta.get("scenario", Path(path).name), seed=int(meta.get("seed", -1)),
         t0_s=float(meta.get("t0_s", t_s[0])), t_s=t_s, omega_ib_b=np.array(imu_w), f_ib_b=np.array(imu_f),
-        v_n=None, gnss_t_s=np.array(g_t) - off if g_t else np.zeros(0), gnss_p_e=gnss_p_e, gnss_R_e=R_e,
+        v_n=None, gnss_t_s=rel(g_t) if g_t else np.zeros(0), gnss_p_e=gnss_p_e, gnss_R_e=R_e,
         imu_spec=spec, gnss_sigma_m=float(meta.get("gnss_sigma_m", float("nan"))),
         bias_gyro_b=arr(meta.get("bias_gyro_b_rad_s")), bias_acc_b=arr(meta.get("bias_acc_b_m_s2")),
         params=params, **truth)
