@@ -72,7 +72,8 @@ SCENARIOS: dict[str, Preset] = {
             "heading_deg": (20.0, "deg", "initial yaw (from East, CCW)"),
             "cruise_speed_m_s": (15.0, "m/s", "urban/suburban cruise"),
             "hill_amp_m": (3.0, "m", "road height variation amplitude"),
-            "hill_period_s": (120.0, "s", "road height variation period"),
+            "hill_length_m": (1800.0, "m", "road height variation wavelength along the path (h is a function of "
+                              "distance, so the car does not move vertically when stopped)"),
             "gnss_sigma_v_m": (2.0, "m", "typical single-frequency vertical accuracy"),
         },
     ),
@@ -156,11 +157,13 @@ def _car(t, p):
     ve_f, vn_f = speed_f * np.cos(head_f), speed_f * np.sin(head_f)
     pe_f = cumulative_simpson(ve_f, x=tf, initial=0.0)
     pn_f = cumulative_simpson(vn_f, x=tf, initial=0.0)
-    pe, pn = pe_f[::4], pn_f[::4]
+    s_f = cumulative_simpson(speed_f, x=tf, initial=0.0)  # distance along the path [m]
+    pe, pn, s = pe_f[::4], pn_f[::4], s_f[::4]
     speed, heading = _car_profiles(t, p)
-    wz = 2 * np.pi / p["hill_period_s"]
-    pu = p["hill_amp_m"] * np.sin(wz * t)
-    vu = p["hill_amp_m"] * wz * np.cos(wz * t)
+    k = 2 * np.pi / p["hill_length_m"]
+    pu = p["hill_amp_m"] * np.sin(k * s)
+    slope = p["hill_amp_m"] * k * np.cos(k * s)  # dh/ds
+    vu = slope * speed
     p_n = np.stack([pe, pn, pu], -1)
     v_n = np.stack([speed * np.cos(heading), speed * np.sin(heading), vu], -1)
     # attitude: pitch follows the grade (nose up uphill -> negative pitch in REP 103) plus squat under
@@ -169,7 +172,7 @@ def _car(t, p):
     dt = t[1] - t[0]
     a_long = np.gradient(speed, dt)
     a_lat = speed * np.gradient(np.unwrap(heading), dt)
-    grade = np.arctan2(vu, np.maximum(speed, 0.5))
+    grade = np.arctan(slope)
     pitch = -grade - 0.004 * a_long
     roll = -0.008 * a_lat
     return p_n, v_n, np.stack([roll, pitch, heading], -1)
