@@ -19,9 +19,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import expm
 
-from .static_model import H_ZUPT, StaticConfig, StaticZuptCore
+from .static_model import H_ZUPT, expm_taylor, StaticConfig, StaticZuptCore
 
 
 @dataclass
@@ -83,7 +82,7 @@ class Pkf(StaticZuptCore):
 
     def _after_update(self, x_start: np.ndarray, dt: float) -> None:
         dx = self.x - x_start
-        F_k = expm(self._F_last * dt)
+        F_k = expm_taylor(self._F_last * dt)
         K = pkf_gain(F_k, H_ZUPT, self.cfg.horizon_p, self._R_e, self._Q_m)
         dm = K[:5] @ dx
         self.m_rate = self.m_rate + dm / dt
