@@ -114,3 +114,17 @@ def test_real_drive_0042(tmp_path):
     assert abs(yaw - first[IDX["yaw"]]) < 1e-12
     # at highway speed the RT3003's az is about +g (specific force, z up)
     assert 9.0 < np.median(data.f_ib_b[:, 2]) < 10.5
+
+
+def test_extract_layout_100hz_with_jitter(tmp_path):
+    """The ~100 Hz 'extract' layout (same files, drive_dir/oxts/...), with the small stamp jitter of real logs."""
+    d = make_scenario("car", seed=2, duration_s=5.0, noise=False)
+    jitter = np.random.default_rng(0).integers(-200_000, 200_000, d.n)  # +-0.2 ms
+    stamps = T0_NS + np.round(d.t_s * 1e9).astype(np.int64) + jitter
+    write_drive(tmp_path / "drv" / "oxts", stamps, oxts_rows_from_scenario(d))
+    data, rep = convert_drive(tmp_path / "drv", gnss_rate_hz=5.0)
+    assert rep["valid"] == d.n and rep["rejected"] == {} and abs(rep["rate_hz"] - 100.0) < 0.5
+    # 0.2 s windows from the first stamp; the jittered last stamp may fall just short of the 26th window
+    assert data.gnss_t_s.shape[0] in (25, 26) and rep["gaps"] == 0
+    assert np.all(np.abs(np.diff(data.gnss_t_s) - 0.2) < 0.011)
+    np.testing.assert_allclose(data.t_s, (stamps - stamps[0]) * 1e-9, atol=1e-12)
