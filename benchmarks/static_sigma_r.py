@@ -45,13 +45,17 @@ def convergence_time(t, err, floor):
     return float(t[bad[-1] + 1])
 
 
+PKF_PARAMS: dict = {}
+
+
 def run_case(args):
-    scen, seed, dur, az0, sig_r, core = args
+    scen, seed, dur, az0, sig_r, core, pkf_params = args
     sc = make_scenario(scen, seed=seed, duration_s=dur)
     fl = physical_floor(sc.C_b_n[0], sc.bias_gyro_b, sc.bias_acc_b, sc.lat_rad[0])
     cls, cc = CORES[core]
     t0 = time.time()
-    t, err, sig3 = run_static(cls(config_for_imu(cc, sc.imu_spec)), sc, math.radians(az0), sig_r)
+    extra = pkf_params if core == "pkf" else {}
+    t, err, sig3 = run_static(cls(config_for_imu(cc, sc.imu_spec, **extra)), sc, math.radians(az0), sig_r)
     wall = time.time() - t0
     half = len(t) // 2
     out = {"scen": scen, "seed": seed, "az0": az0, "sig_r": sig_r, "core": core, "wall_s": wall,
@@ -139,9 +143,15 @@ def main(argv=None):
     ap.add_argument("--sigma-r", type=float, nargs="+", default=[1e-3, 1e-2, 1e-1])
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--no-write", action="store_true")
+    ap.add_argument("--pkf-params", default="{}", help="JSON dict of PkfConfig overrides (e.g. the Q_m weights)")
+    ap.add_argument("--scenarios", nargs="+", default=["static", "static_navgrade"])
     a = ap.parse_args(argv)
-    cases = [(scen, seed, dur, az0, sr, core)
-             for scen, dur in (("static", a.duration_static), ("static_navgrade", a.duration_navgrade))
+    import json
+
+    pkf_params = json.loads(a.pkf_params)
+    durs = {"static": a.duration_static, "static_navgrade": a.duration_navgrade}
+    cases = [(scen, seed, durs[scen], az0, sr, core, pkf_params)
+             for scen in a.scenarios
              for seed in range(a.seeds) for az0 in a.az0 for sr in a.sigma_r for core in CORES]
     t0 = time.time()
     with ProcessPoolExecutor(a.workers) as ex:
