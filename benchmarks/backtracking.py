@@ -83,6 +83,18 @@ def scheme_coarse_kf(d, zupt_hz=10.0):
     return yaw_err_deg(e, d.C_b_n[-1]), math.degrees(math.sqrt(max(e.P_att_n[2, 2], 0.0))), 0.0
 
 
+def vrw_floor_deg(window_s, spec, lat_rad, g=9.80665):
+    """Noise floor of two-position gyrocompassing set by the accelerometer VRW (derivation in docs/backtracking.md):
+    per position (T/2 s) the tilt rate r = omega_ie cos(lat) psi +- eps is the slope of the level tilt, observed
+    through the specific force with white noise PSD q_a: var(r) = 12 q_a / (g^2 (T/2)^3); the two positions cancel
+    eps: psi = (r1 + r2) / (2 omega_ie cos lat) -> sigma_psi = sqrt(6 q_a / (g^2 (T/2)^3)) / (omega_ie cos lat)."""
+    from insalign_ros.sim.error_model import m_s_sqrt_h_to_m_s_sqrt_s
+
+    q_a = m_s_sqrt_h_to_m_s_sqrt_s(spec.vrw_m_s_sqrt_h) ** 2
+    half = 0.5 * window_s
+    return math.degrees(math.sqrt(6.0 * q_a / (g * g * half**3)) / (earth.OMEGA_IE_RAD_S * math.cos(lat_rad)))
+
+
 def time_to_level(windows, rms, level):
     for W, r in zip(windows, rms):
         if r <= level:
@@ -122,8 +134,8 @@ def part_a(args, out):
     out.append("Table 3 layout: yaw error at the end of the window, RMS over seeds [deg] (mean filter 1-sigma) "
                f"| floor {floor_deg:.4f} deg")
     out.append("")
-    out.append("| window [s] | " + " | ".join(schemes) + " | single-position floor |")
-    out.append("|---|" + "---|" * (len(schemes) + 1))
+    out.append("| window [s] | " + " | ".join(schemes) + " | single-position floor | two-position VRW floor |")
+    out.append("|---|" + "---|" * (len(schemes) + 2))
     rms = {s: [] for s in schemes}
     for W in args.windows:
         cells = []
@@ -132,7 +144,7 @@ def part_a(args, out):
             r = float(np.sqrt(np.nanmean(a[:, 0] ** 2)))
             rms[s].append(r)
             cells.append(f"{r:.4f} ({np.nanmean(a[:, 1]):.4f})")
-        out.append(f"| {W:.0f} | " + " | ".join(cells) + f" | {floor_deg:.4f} |")
+        out.append(f"| {W:.0f} | " + " | ".join(cells) + f" | {floor_deg:.4f} | {vrw_floor_deg(W, spec, lat):.4f} |")
     out.append("")
     out.append("Table 4 layout: shortest window [s] (of the grid) whose RMS yaw error reaches the level "
                "(paper point 1: scheme 1 300/340/390, scheme 2 146/200/300, scheme 3 134/180/230)")
@@ -164,7 +176,7 @@ def part_timing(out):
     t0 = time.perf_counter()
     c.propagate_arrays(d.t_s[1:], d.omega_ib_b[1:], d.f_ib_b[1:])
     t_cu = time.perf_counter() - t0
-    out.append(f"Wall time, 300 s of 100 Hz data (30,000 samples, ZUPT every {c.cfg.zupt_period_s} s), one core: "
+    out.append(f"Wall time, 300 s of 100 Hz data (30,000 samples, ZUPT every {c.cfg.auto_zupt_period_s} s), one core: "
                f"forward {t_fwd:.2f} s, backward {t_bwd:.2f} s, catch-up {t_cu:.2f} s; "
                f"**backward + catch-up {t_bwd + t_cu:.2f} s** (target < 3 s).\n")
 
@@ -208,7 +220,15 @@ def main(argv=None):
     ap.add_argument("--ship-windows", type=float, nargs="+", default=[20, 40, 60])
     ap.add_argument("--skip-ship", action="store_true")
     ap.add_argument("--md-out", type=Path)
+    ap.add_argument("--floors-only", action="store_true", help="print the two-position VRW floor per window, exit")
     args = ap.parse_args(argv)
+    if args.floors_only:
+        p = scenario_parameters("two_position")
+        spec = make_scenario("two_position", duration_s=1.0).imu_spec
+        for W in args.windows:
+            print(f"window {W:.0f} s: two-position VRW floor "
+                  f"{vrw_floor_deg(W, spec, math.radians(p['lat_deg'])):.4f} deg")
+        return
     out = [f"Command: `nice .venv/bin/python benchmarks/backtracking.py {' '.join(sys.argv[1:])}`\n"]
     part_timing(out)
     print(out[-1], flush=True)

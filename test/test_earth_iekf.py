@@ -70,7 +70,7 @@ def test_zupt_observation_matrix_eqs_50_55_first_order():
 
 def test_backward_filter_propagation_returns_to_start_noise_free():
     d = make_scenario("two_position", seed=0, noise=False, duration_s=60.0)
-    c = EarthIekf(EarthIekfConfig(zupt_period_s=0.0))
+    c = EarthIekf(EarthIekfConfig(auto_zupt_period_s=0.0))
     c.initialize(d.t_s[0], d.lat_rad[0], d.lon_rad[0], d.h_m[0], d.C_b_n[0], d.v_n[0], np.eye(3) * 1e-4, 0.01, 1.0)
     C0, p0 = c.C.copy(), c.p.copy()
     for s in d.imu_samples(1):
@@ -82,7 +82,7 @@ def test_backward_filter_propagation_returns_to_start_noise_free():
     assert np.linalg.norm(lie.so3_log(C0.T @ c.C)) < 1e-9
     assert np.linalg.norm(c.p - p0) < 1e-4
     # the per-sample backward path agrees with the array path
-    c2 = EarthIekf(EarthIekfConfig(zupt_period_s=0.0))
+    c2 = EarthIekf(EarthIekfConfig(auto_zupt_period_s=0.0))
     c2.initialize(d.t_s[0], d.lat_rad[0], d.lon_rad[0], d.h_m[0], d.C_b_n[0], d.v_n[0], np.eye(3) * 1e-4, 0.01, 1.0)
     c2.propagate_arrays(d.t_s[1:], d.omega_ib_b[1:], d.f_ib_b[1:])
     P_end = c2.estimate().P
@@ -116,7 +116,7 @@ def test_two_position_alignment_accuracy_and_consistency():
 
 def test_config_validation():
     with pytest.raises(ValueError):
-        EarthIekfConfig.from_dict({"zupt_sigma_m_s": 0.0})
+        EarthIekfConfig.from_dict({"auto_zupt_sigma_m_s": 0.0})
     with pytest.raises(ValueError):
         EarthIekfConfig.from_dict({"no_such": 1.0})
     assert OMEGA_IE_E[2] > 0

@@ -15,7 +15,7 @@ Inverse-alignment paper (Liu et al. 2025), sec. 2.3-3.3. docs/backtracking.md ha
 * Zero-velocity observation, eqs. (50)-(55), transformed by ``C_b_e^T`` (eq. (54)):
   ``z = C^T v_e_hat - omega_ib_b x L_hat = H xi + n`` with
   ``H = [0, -I, C^T (omega_ie)_x C, 0, 0, (omega_ib_b)_x]`` (our sign convention: truth = estimate + error).
-  The core applies it itself every ``zupt_period_s`` (the vehicle is static during alignment), and on
+  The core applies it itself every ``auto_zupt_period_s`` (the vehicle is static during alignment), and on
   ``update_zero_velocity``.
 * P0, eq. (56): ``P_l0 = T P0 T^T`` with ``T = [[C_b_n^T, 0, 0], [0, C_b_n^T, C_e_b (omega_ie)_x C_n_e],
   [0, 0, C_b_n^T]]`` from ENU (attitude psi_n, dv_n, dp_n). The paper's T has I on the attitude block because its
@@ -70,19 +70,19 @@ class EarthIekfConfig(InMotionConfig):
     #: initial 1-sigma of each lever-arm component [m] (eq. (47))
     init_sigma_lever_arm_m: float = 0.05
     #: zero-velocity observation: period [s] of the automatic update (0: only on update_zero_velocity) and std [m/s]
-    zupt_period_s: float = 0.5
-    zupt_sigma_m_s: float = 0.001
+    auto_zupt_period_s: float = 0.5
+    auto_zupt_sigma_m_s: float = 0.001
     aligned_yaw_3sigma_deg: float = 0.05
     fading_nis_threshold: float = 0.0
 
     def validate(self) -> None:
         super().validate()
         for name in ("init_sigma_gyro_bias_deg_h", "init_sigma_acc_bias_ug", "init_sigma_lever_arm_m",
-                     "zupt_sigma_m_s"):
+                     "auto_zupt_sigma_m_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}: must be > 0, got {getattr(self, name)}")
-        if not self.zupt_period_s >= 0:
-            raise ValueError(f"zupt_period_s: must be >= 0 (0 = external updates only), got {self.zupt_period_s}")
+        if not self.auto_zupt_period_s >= 0:
+            raise ValueError(f"auto_zupt_period_s: must be >= 0 (0 = external updates only), got {self.auto_zupt_period_s}")
 
 
 def bias_transitions(Phi_nav: np.ndarray, dt: np.ndarray) -> np.ndarray:
@@ -170,7 +170,7 @@ class EarthIekf(AlignmentCore):
         self.P = P
         self._buf: list[tuple[float, np.ndarray, np.ndarray]] = []
         self._dir = 0  # +1 forward, -1 backward (direction of the last sample)
-        self._t_next_zupt = self.t_s + self.cfg.zupt_period_s
+        self._t_next_zupt = self.t_s + self.cfg.auto_zupt_period_s
         self._init = True
 
     # ------------------------------------------------------------------ propagation
@@ -188,7 +188,7 @@ class EarthIekf(AlignmentCore):
         if self._dir < 0:
             self.flush()
         if self._dir <= 0:
-            self._t_next_zupt = t_last + self.cfg.zupt_period_s
+            self._t_next_zupt = t_last + self.cfg.auto_zupt_period_s
         self._dir = 1
         self.counters["imu"] += 1
         self._buf.append((float(imu.stamp_s), np.asarray(imu.omega_ib_b, float), np.asarray(imu.f_ib_b, float)))
@@ -212,14 +212,14 @@ class EarthIekf(AlignmentCore):
         if self._dir > 0:
             self.flush()
         if self._dir >= 0:
-            self._t_next_zupt = t_cur - self.cfg.zupt_period_s
+            self._t_next_zupt = t_cur - self.cfg.auto_zupt_period_s
         self._dir = -1
         self.counters["backward"] += 1
         self._buf.append((float(t_prev_s), np.asarray(imu.omega_ib_b, float), np.asarray(imu.f_ib_b, float)))
         self._maybe_zupt(float(t_prev_s), forward=False)
 
     def _maybe_zupt(self, t: float, forward: bool) -> None:
-        per = self.cfg.zupt_period_s
+        per = self.cfg.auto_zupt_period_s
         if per <= 0:
             if len(self._buf) >= self.cfg.max_batch_samples:
                 self.flush()
@@ -227,7 +227,7 @@ class EarthIekf(AlignmentCore):
         due = t >= self._t_next_zupt - 1e-9 if forward else t <= self._t_next_zupt + 1e-9
         if due:
             self.flush()
-            self._zupt(self.cfg.zupt_sigma_m_s)
+            self._zupt(self.cfg.auto_zupt_sigma_m_s)
             self._t_next_zupt = t + per if forward else t - per
         elif len(self._buf) >= self.cfg.max_batch_samples:
             self.flush()
@@ -284,7 +284,7 @@ class EarthIekf(AlignmentCore):
         if n == 0:
             return
         d = -1 if backward else 1
-        per = self.cfg.zupt_period_s
+        per = self.cfg.auto_zupt_period_s
         if self._dir != d:
             self._t_next_zupt = self.t_s + d * per
         self._dir = d
@@ -303,7 +303,7 @@ class EarthIekf(AlignmentCore):
                     j, zupt = k + 1, True
             self._flush_arrays(t_s[i:j], omega_ib_b[i:j], f_ib_b[i:j], d)
             if zupt:
-                self._zupt(self.cfg.zupt_sigma_m_s)
+                self._zupt(self.cfg.auto_zupt_sigma_m_s)
                 self._t_next_zupt = self.t_s + d * per
             i = j
 
