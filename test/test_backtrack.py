@@ -72,15 +72,16 @@ def test_driver_live_feed_budgeted_passes_handover_and_catch_up():
 
 
 def test_backward_and_catch_up_300s_wall_time():
-    """Issue 8: backward + catch-up over 300 s of 100 Hz data < 3 s on one core (benchmark prints it; the test
-    allows 2x for a loaded machine)."""
+    """Issue 8: backward + catch-up over 300 s of 100 Hz data < 3 s on one core (the benchmark prints it; measured
+    1.8-2.2 s wall on an idle core; the test allows 1.5x on CPU time)."""
     d = make_scenario("two_position", seed=0, duration_s=300.0)
     c = EarthIekf(EarthIekfConfig())
     initial_guess(d.t_s[0], d.lat_rad[0], d.lon_rad[0], d.h_m[0], d.C_b_n[0], d.v_n[0], [0, 0, 5.0], c.cfg).apply(c)
     c.propagate_arrays(d.t_s[1:], d.omega_ib_b[1:], d.f_ib_b[1:])
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     c.propagate_arrays(d.t_s[:-1][::-1], d.omega_ib_b[1:][::-1], d.f_ib_b[1:][::-1], backward=True)
     c.propagate_arrays(d.t_s[1:], d.omega_ib_b[1:], d.f_ib_b[1:])
-    wall = time.perf_counter() - t0
-    print(f"backward + catch-up over 300 s at 100 Hz: {wall:.2f} s")
-    assert wall < 6.0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    print(f"backward + catch-up over 300 s at 100 Hz: {wall:.2f} s wall, {cpu:.2f} s CPU")
+    # CPU time of this process = the one-core cost even when other jobs share the 2 cores (wall time then is not)
+    assert cpu < 4.5
