@@ -34,6 +34,12 @@ class InMotionConfig:
     init_sigma_p_m: float = 1.0
     #: reject a GNSS fix whose normalised innovation squared exceeds this (0 disables the gate)
     gnss_nis_gate: float = 0.0
+    #: adaptive fading memory: when a GNSS innovation's NIS exceeds this, the prior covariance is multiplied by
+    #: NIS/threshold before the gain is computed (0 disables; 16.27 = chi-square 3 dof, 99.9 %).
+    #: Keeps P honest while the linearisation of a large initial attitude error is poor; see docs.
+    fading_nis_threshold: float = 16.27
+    #: upper bound of one update's attitude-variance inflation factor
+    fading_max_factor: float = 4.0
     #: status ALIGNED once the 3-sigma yaw uncertainty is below this [deg]
     aligned_yaw_3sigma_deg: float = 1.0
     #: IMU samples buffered before the batched (vectorised) propagation runs; the buffer is also flushed by
@@ -55,6 +61,10 @@ class InMotionConfig:
                      "init_sigma_p_m", "aligned_yaw_3sigma_deg"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}: must be > 0, got {getattr(self, name)}")
+        if self.fading_nis_threshold < 0:
+            raise ValueError(f"fading_nis_threshold: must be >= 0 (0 = off), got {self.fading_nis_threshold}")
+        if not self.fading_max_factor >= 1.0:
+            raise ValueError(f"fading_max_factor: must be >= 1, got {self.fading_max_factor}")
         if self.gnss_nis_gate < 0:
             raise ValueError(f"gnss_nis_gate: must be >= 0 (0 = off), got {self.gnss_nis_gate}")
         if not 1 <= self.max_batch_samples <= 100_000:
@@ -97,11 +107,17 @@ class PiLiekfConfig(InMotionConfig):
 
     #: decay-rate parameter of eq. (20) (PI-LIEKF Table 2: 0.01)
     rho: float = 0.01
-    #: cvxpy solver for the LMI; SCS is tried when this one fails
+    #: cvxpy solver for the LMI; SCS is tried only when this one raises
     lmi_solver: str = "CLARABEL"
     #: re-solve the LMI every this many GNSS updates (1 = every update, as Alg. 2 reads); the gains are cached
     #: in between (A and H are state-independent: the LMI data change only with the IMU input and L_k)
-    lmi_resolve_every_updates: int = 10
+    lmi_resolve_every_updates: int = 60
+    #: "paper": unstructured J, N of eq. (22) and the least-squares solution of eq. (23) (its residual and the
+    #: structured closed loop are checked); "structured": static-output-feedback form with K = M K_PI built in
+    #: (exact eq. (23), Crusius-Trofino constraint; see docs/inmotion_cores.md)
+    lmi_structure: str = "paper"
+    #: safe fallback gains when the LMI is infeasible: k_P = I, k_I = safe_k_I_per_s I [1/s] (0 = the LIEKF)
+    safe_k_I_per_s: float = 0.0
     #: margin of the strict inequalities (LMI <= -eps I, J >= eps I)
     lmi_eps: float = 1e-6
     #: integral-innovation clamp [m] per axis: anti-windup while the yaw error is large (0 disables)
@@ -113,6 +129,10 @@ class PiLiekfConfig(InMotionConfig):
             raise ValueError(f"rho: must be in [0, 0.5) so that 1 - 2 rho > 0, got {self.rho}")
         if self.lmi_solver not in ("CLARABEL", "SCS"):
             raise ValueError(f"lmi_solver: must be CLARABEL or SCS, got {self.lmi_solver!r}")
+        if self.safe_k_I_per_s < 0:
+            raise ValueError(f"safe_k_I_per_s: must be >= 0, got {self.safe_k_I_per_s}")
+        if self.lmi_structure not in ("structured", "paper"):
+            raise ValueError(f"lmi_structure: must be 'structured' or 'paper', got {self.lmi_structure!r}")
         if self.lmi_resolve_every_updates < 1:
             raise ValueError(f"lmi_resolve_every_updates: must be >= 1, got {self.lmi_resolve_every_updates}")
         if not self.lmi_eps > 0:

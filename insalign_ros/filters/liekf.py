@@ -246,6 +246,7 @@ class BatchedEciCore(AlignmentCore):
         self.b_a = np.zeros(3)
         C_b_n = np.asarray(C_b_n, float)
         self.P = self._P0(C_b_n, np.asarray(P_att_n, float), float(sigma_v_m_s), float(sigma_p_m))
+        self._P0_att = self.P[0:3, 0:3].copy()
         self._buf_t, self._buf_w, self._buf_f = [], [], []
         self._Phi_since_update = np.eye(self._n_states)
         self._t_last_update = self.t0_s
@@ -348,8 +349,24 @@ class BatchedEciCore(AlignmentCore):
         p_i = Cei @ np.asarray(fix.p_e, float)
         R_i = Cei @ np.asarray(fix.R_e, float) @ Cei.T
         z, H, N = self._gnss_model(p_i, R_i)
+        self._P_prior = self.P
         L, P_new, S = joseph_update(self.P, H, N)
         nis = float(z @ np.linalg.solve(S, z))
+        fading = self.cfg.fading_nis_threshold
+        self.last_fading_factor = 1.0
+        if fading > 0 and nis > fading:
+            # adaptive fading memory: the innovation says P is too small (linearisation error of a large
+            # initial attitude error); inflate the prior by NIS/threshold and redo the gain (docs/inmotion_cores.md)
+            # never above the initial attitude uncertainty: beyond it the linear update only adds damage
+            room = float(np.min(np.diag(self._P0_att) / np.maximum(np.diag(self.P)[0:3], 1e-30)))
+            lam = max(1.0, min(nis / fading, self.cfg.fading_max_factor, room))
+            self.last_fading_factor = lam
+            D = np.ones(self._n_states)
+            D[0:9] = math.sqrt(lam)  # navigation block, by congruence D P D (stays SPD, keeps correlations)
+            self.P = self.P * np.outer(D, D)
+            self._P_prior = self.P
+            self.counters["fading"] = self.counters.get("fading", 0) + 1
+            L, P_new, S = joseph_update(self.P, H, N)
         if self.cfg.gnss_nis_gate > 0 and nis > self.cfg.gnss_nis_gate:
             self.counters["gnss_rejected"] += 1
             self.last_reject_reason = f"GNSS: NIS {nis:.1f} above gate {self.cfg.gnss_nis_gate}"

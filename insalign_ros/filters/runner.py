@@ -103,3 +103,25 @@ class EventRunner:
                 out.append(self.core.estimate())
                 next_out = ev.stamp_s + output_period_s
         return out
+
+
+def run_offline(core, data, rpy_error_deg, output_period_s: float = 0.5, init_index: int = 0, progress=None,
+                initial_C_b_n=None):
+    """Initialise ``core`` from the truth of ``data`` (a ScenarioData) at ``init_index`` plus an Euler error
+    (or from ``initial_C_b_n`` when the data have no truth), feed all later events, return the estimates."""
+    k = init_index
+    if data.has_truth:
+        C0, v0 = data.C_b_n[k], data.v_n[k]
+        lat, lon, h = data.lat_rad[k], data.lon_rad[k], data.h_m[k]
+    else:
+        if initial_C_b_n is None:
+            raise ValueError("the data have no truth: give an initial attitude guess")
+        C0 = np.asarray(initial_C_b_n, float)
+        j = int(np.searchsorted(data.gnss_t_s, data.t_s[k]))
+        lat, lon, h = earth.ecef_to_geodetic(data.gnss_p_e[min(j, len(data.gnss_t_s) - 1)])
+        v0 = np.zeros(3)
+    guess = initial_guess(data.t_s[k], lat, lon, h, C0, v0, rpy_error_deg, core.cfg)
+    guess.apply(core)
+    runner = EventRunner(core, float(data.t_s[k]))
+    ests = runner.run(data.events(start=k), output_period_s=output_period_s, progress=progress)
+    return ests, runner

@@ -1,0 +1,247 @@
+#!/usr/bin/env python3
+"""Yaw-sweep benchmark of the in-motion cores (issue 5, item 7). Not a unit test.
+
+Scenario (default ship), initial roll/pitch error 10 deg, yaw error in --yaws, N Monte-Carlo seeds, every core.
+Prints and writes a markdown section: the paper's Table 3 layout at 60 deg (RMSE over the run) next to the
+paper's numbers, time to |yaw error| < 1 deg (and stays), steady-state error (mean |error| over the last 60 s),
+averaged attitude NEES after 30 s with its 95 % chi-square band, throughput side by side, physical floors;
+and figures like the paper's Figs. 3-6.
+
+    nice .venv/bin/python benchmarks/yaw_sweep.py --scenario ship --seeds 20 --md-out /tmp/ship.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from insalign_ros.core import earth  # noqa: E402
+from insalign_ros.eval import metrics as MT  # noqa: E402
+from insalign_ros.filters.registry import make_core  # noqa: E402
+from insalign_ros.filters.runner import run_offline  # noqa: E402
+from insalign_ros.sim.error_model import ImuErrorSI  # noqa: E402
+from insalign_ros.sim.scenarios import make_scenario  # noqa: E402
+
+PAPER_TABLE3 = {"iekf": (1.59, 1.20, 4.8), "pi_liekf": (1.61, 1.24, 4.4)}
+
+
+def run_one(core_name, data, yaw, params=None, period=1.0):
+    core = make_core(core_name, params)
+    t0 = time.perf_counter()
+    ests, runner = run_offline(core, data, [10.0, 10.0, yaw], output_period_s=period)
+    wall = time.perf_counter() - t0
+    r = MT.evaluate(core_name, ests, data.t_s, data.C_b_n, float(data.t_s[0]))
+    s = MT.summary(r)
+    s["wall_s"] = wall
+    s["samples"] = runner.counters["imu"]
+    if hasattr(core, "diagnostics"):
+        hist = getattr(core, "lmi_history", [])
+        s["lmi_solves"] = len(hist)
+        s["lmi_fallbacks"] = sum(1 for _, h in hist if h.used_fallback)
+        s["lmi_solve_time_s"] = float(sum(h.solve_time_s for _, h in hist))
+        s["lmi_last_reason"] = hist[-1][1].reason if hist else ""
+    return r, s
+
+
+def throughput(scenario, cores=("liekf", "iekf"), duration=120.0, reps=3):
+    """Samples/s per core, measured interleaved on the same data (the machine is shared and noisy)."""
+    d = make_scenario(scenario, seed=0, duration_s=duration)
+    rates = {c: [] for c in cores}
+    for _ in range(reps):
+        for c in cores:
+            core = make_core(c)
+            t0 = time.perf_counter()
+            ests, runner = run_offline(core, d, [10.0, 10.0, 60.0], output_period_s=1.0)
+            rates[c].append(runner.counters["imu"] / (time.perf_counter() - t0))
+    return {c: (float(np.median(v)), float(np.max(v))) for c, v in rates.items()}
+
+
+def fmt(x, nd=2):
+    return "n/a" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{nd}f}"
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scenario", default="ship")
+    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--yaws", default="-179,-90,-60,-30,0,30,60,90,179")
+    ap.add_argument("--cores", default="liekf,pi_liekf,iekf,ekf")
+    ap.add_argument("--duration", type=float, default=300.0)
+    ap.add_argument("--md-out", default="")
+    ap.add_argument("--json-out", default="")
+    ap.add_argument("--fig-prefix", default="")
+    ap.add_argument("--throughput-only", action="store_true")
+    args = ap.parse_args(argv)
+    cores = args.cores.split(",")
+    yaws = [float(y) for y in args.yaws.split(",")]
+    cmd = "nice .venv/bin/python benchmarks/yaw_sweep.py " + " ".join(argv if argv is not None else sys.argv[1:])
+
+    tp = throughput(args.scenario)
+    tp_lines = [f"| {c} | {m:,.0f} | {mx:,.0f} |" for c, (m, mx) in tp.items()]
+    print("throughput (samples/s, median / best of 3, interleaved):", tp, flush=True)
+    if args.throughput_only:
+        return
+
+    from tqdm import tqdm
+
+    results = {}  # (core, yaw) -> list of summaries
+    series = {}  # (core, yaw) -> list of (t, err) for figures
+    nees_series = {}
+    total = len(cores) * len(yaws) * args.seeds
+    bar = tqdm(total=total, desc=f"{args.scenario} sweep", file=sys.stderr, mininterval=5)
+    for seed in range(args.seeds):
+        data = make_scenario(args.scenario, seed=seed, duration_s=args.duration)
+        for yaw in yaws:
+            for c in cores:
+                r, s = run_one(c, data, yaw)
+                results.setdefault((c, yaw), []).append(s)
+                series.setdefault((c, yaw), []).append((r.t_s, r.rpy_err_deg))
+                nees_series.setdefault((c, yaw), []).append((r.t_s, r.nees))
+                bar.update(1)
+    bar.close()
+    spec = data.imu_spec
+    e = ImuErrorSI(spec)
+    g = 9.8
+    a_h = None
+    if data.omega_ib_b_true is not None:
+        # horizontal specific-force RMS (excitation) from the truth
+        f_n = np.einsum("nij,nj->ni", data.C_b_n, data.f_ib_b_true)
+        a_h = float(np.sqrt(np.mean(np.sum(f_n[:, :2] ** 2, axis=1))))
+    floor_level = math.degrees(e.sigma_ba_m_s2 / g)
+    floor_yaw = math.degrees(e.sigma_ba_m_s2 / a_h) if a_h else float("nan")
+
+    L = []
+    L.append(f"Command: `{cmd}`  ")
+    L.append(f"Scenario `{args.scenario}`, {args.duration:.0f} s, IMU `{spec.name}` (gyro bias {spec.gyro_bias_deg_h} deg/h, "
+             f"ARW {spec.arw_deg_sqrt_h} deg/sqrt(h), acc bias {spec.acc_bias_mg} mg, VRW {spec.vrw_m_s_sqrt_h} m/s/sqrt(h), "
+             f"{spec.rate_hz:.0f} Hz), GNSS {data.gnss_sigma_m} m at 1 Hz; {args.seeds} seeds; initial roll/pitch error "
+             f"10 deg.  ")
+    L.append(f"Physical floors (1 sigma): level b_acc/g = {floor_level:.4f} deg; yaw b_acc/a_h = {floor_yaw:.4f} deg "
+             f"(a_h = RMS horizontal specific force {fmt(a_h)} m/s^2).\n")
+    if 60.0 in yaws:
+        L.append("**Table 3 layout**: RMSE [deg] over the whole run at 60 deg initial yaw error, mean over seeds "
+                 "(paper: one run).\n")
+        L.append("| core | roll | pitch | yaw | paper roll | paper pitch | paper yaw |")
+        L.append("|---|---|---|---|---|---|---|")
+        for c in cores:
+            rm = np.mean([s["rmse_rpy_deg"] for s in results[(c, 60.0)]], axis=0)
+            p = PAPER_TABLE3.get(c, (None, None, None))
+            L.append(f"| {c} | {rm[0]:.2f} | {rm[1]:.2f} | {rm[2]:.2f} | {fmt(p[0])} | {fmt(p[1])} | {fmt(p[2], 1)} |")
+        L.append("")
+    L.append("**Time to |yaw error| < 1 deg and stays** [s]: median / max over seeds (never = runs that end above 1 deg).\n")
+    L.append("| core | " + " | ".join(f"{y:+.0f}" for y in yaws) + " |")
+    L.append("|---|" + "---|" * len(yaws))
+    for c in cores:
+        cells = []
+        for y in yaws:
+            tt = np.array([s["time_yaw_below_deg_s"] for s in results[(c, y)]])
+            never = int(np.isnan(tt).sum())
+            ok = tt[~np.isnan(tt)]
+            cell = f"{np.median(ok):.0f} / {np.max(ok):.0f}" if len(ok) else "-"
+            cells.append(cell + (f" ({never} never)" if never else ""))
+        L.append(f"| {c} | " + " | ".join(cells) + " |")
+    L.append("")
+    L.append("**Steady-state |yaw error|** [deg], mean over the last 60 s: mean / max over seeds.\n")
+    L.append("| core | " + " | ".join(f"{y:+.0f}" for y in yaws) + " |")
+    L.append("|---|" + "---|" * len(yaws))
+    for c in cores:
+        cells = []
+        for y in yaws:
+            ss = np.array([s["steady_state_abs_err_rpy_deg"][2] for s in results[(c, y)]])
+            cells.append(f"{ss.mean():.2f} / {ss.max():.2f}")
+        L.append(f"| {c} | " + " | ".join(cells) + " |")
+    L.append("")
+    lo, hi = MT.nees_band(args.seeds)
+    L.append(f"**Averaged attitude NEES** (3 dof) over t >= 30 s: NEES averaged over the {args.seeds} seeds at each "
+             f"output time, then the mean over time and the fraction of output times inside the 95 % band "
+             f"[{lo:.2f}, {hi:.2f}].\n")
+    L.append("| core | " + " | ".join(f"{y:+.0f}" for y in yaws) + " |")
+    L.append("|---|" + "---|" * len(yaws))
+    for c in cores:
+        cells = []
+        for y in yaws:
+            arr = nees_series[(c, y)]
+            n = min(len(a[0]) for a in arr)
+            t = arr[0][0][:n]
+            avg = np.mean([a[1][:n] for a in arr], axis=0)
+            m = t >= 30.0
+            inside = float(np.mean((avg[m] >= lo) & (avg[m] <= hi)))
+            cells.append(f"{np.mean(avg[m]):.2f} ({100 * inside:.0f} % in)")
+        L.append(f"| {c} | " + " | ".join(cells) + " |")
+    L.append("")
+    if "pi_liekf" in cores:
+        allpi = [s for y in yaws for s in results[("pi_liekf", y)]]
+        nsol = sum(s.get("lmi_solves", 0) for s in allpi)
+        nfb = sum(s.get("lmi_fallbacks", 0) for s in allpi)
+        tsol = sum(s.get("lmi_solve_time_s", 0.0) for s in allpi)
+        L.append(f"PI-LIEKF LMI: {nsol} solves, {nfb} fell back to the safe gains; mean solve time "
+                 f"{1000 * tsol / max(nsol, 1):.0f} ms. Last reason (seed {args.seeds - 1}, yaw {yaws[-1]:+.0f}): "
+                 f"{allpi[-1].get('lmi_last_reason', '')}\n")
+    L.append("**Throughput** (samples/s, single-threaded, the cores run interleaved on the same 120 s of data, "
+             "median and best of 3, including the runner and an estimate every 1 s):\n")
+    L.append("| core | median | best |")
+    L.append("|---|---|---|")
+    L.extend(tp_lines)
+    L.append("")
+    md = "\n".join(L)
+    print(md)
+    if args.md_out:
+        Path(args.md_out).write_text(md + "\n")
+    if args.json_out:
+        Path(args.json_out).write_text(json.dumps({f"{c}|{y}": v for (c, y), v in results.items()}, default=float))
+    if args.fig_prefix:
+        figures(series, cores, yaws, args.fig_prefix, args.scenario)
+
+
+def figures(series, cores, yaws, prefix, scenario):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    # Fig. 3 analogue: Euler errors at 60 deg initial yaw error, seed 0, every core
+    if 60.0 in yaws:
+        fig, ax = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
+        for c in cores:
+            t, e = series[(c, 60.0)][0]
+            for i in range(3):
+                ax[i].plot(t, e[:, i], label=c)
+        for i, nm in enumerate(("roll", "pitch", "yaw")):
+            ax[i].set_ylabel(f"{nm} error [deg]")
+            ax[i].grid(True)
+            ax[i].set_ylim(-5, 5) if i == 2 else ax[i].set_ylim(-3, 3)
+        ax[0].legend()
+        ax[-1].set_xlabel("time [s]")
+        fig.suptitle(f"{scenario}: Euler errors, initial error 10/10/60 deg (seed 0)")
+        fig.tight_layout()
+        fig.savefig(f"{prefix}_fig3.png", dpi=90)
+        plt.close(fig)
+    # Figs. 4-6 analogue: per axis, per core, error vs time for every initial yaw error (seed 0)
+    for i, nm in enumerate(("roll", "pitch", "yaw")):
+        fig, axs = plt.subplots(len(cores), 1, figsize=(8, 2.2 * len(cores)), sharex=True)
+        for ax, c in zip(np.atleast_1d(axs), cores):
+            for y in yaws:
+                t, e = series[(c, y)][0]
+                ax.plot(t, e[:, i], lw=0.8, label=f"{y:+.0f}")
+            ax.set_ylabel(f"{c}\n{nm} err [deg]")
+            ax.set_ylim(-10, 10)
+            ax.grid(True)
+        np.atleast_1d(axs)[0].legend(ncol=5, fontsize=7)
+        np.atleast_1d(axs)[-1].set_xlabel("time [s]")
+        fig.suptitle(f"{scenario}: {nm} error for initial yaw errors (seed 0)")
+        fig.tight_layout()
+        fig.savefig(f"{prefix}_{nm}.png", dpi=80)
+        plt.close(fig)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,200 @@
+"""PI gains of the PI-LIEKF from the LMI of eqs. (18)-(23), solved with cvxpy (CLARABEL, SCS fallback).
+
+Augmented error system (eq. (18); A_bar is not written in the paper: derived in docs/inmotion_cores.md).
+With the error after the k-th update ``e_k`` (n = 9) and the integral innovation ``Z_I_k`` (m = 3),
+``Z_p = H A e_{k-1} + noise`` (eq. (16) with the error reset of eq. (15)),
+``e_k = A e_{k-1} - L (k_P Z_p + Z_I_{k-1})`` and ``Z_I_k = Z_I_{k-1} + k_I T_s Z_p``, so
+
+    x_k = (A_bar - K B_bar) x_{k-1} + u_k,  A_bar = [[A, -L], [0, I]],  B_bar = [H A, 0],
+    K = M K_PI,  M = [[L, 0], [0, T_s I]]  ((n+m) x 2m),  K_PI = [k_P; -k_I]  (2m x m).
+
+A is the error transition over the interval between two GNSS updates (product of the per-sample
+transitions), T_s that interval. The LMI of eq. (22) in (J, N = J K) with J normalised (eps I <= J <= I,
+the LMI is homogeneous) is solved for any K; eq. (23) then needs M^-1, which is not square: K_PI is its
+least-squares solution and the relative residual ||M K_PI - K|| / ||K|| is reported, together with whether
+the *structured* closed loop ``A_bar - M K_PI B_bar`` still satisfies the rate condition of eq. (20) with
+the same J and its spectral radius. When the LMI is infeasible or the structured gains do not stabilise,
+the safe gains ``k_P = I, k_I = safe`` are returned (the PI-LIEKF then reduces to the LIEKF) with the reason.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class LmiResult:
+    status: str  # cvxpy status of the solve ("optimal", "infeasible", ...)
+    k_P: np.ndarray  # (m, m)
+    k_I: np.ndarray  # (m, m)
+    used_fallback: bool
+    reason: str
+    residual_eq23: float = float("nan")  # ||M K_PI - K|| / ||K||
+    lmi_max_eig: float = float("nan")  # largest eigenvalue of the eq. (22) matrix at the solution (< 0 wanted)
+    rate_margin_structured: float = float("nan")  # max eig of (A_cl^T J A_cl - (1-2 rho) J) with structured K
+    spectral_radius_structured: float = float("nan")
+    solver: str = ""
+    solve_time_s: float = 0.0
+    extra: dict = field(default_factory=dict)
+
+
+class StructuredPiGainSolver:
+    """Eq. (20) with the gain structure K = M K_PI of eq. (23) built in (no non-square inverse needed).
+
+    Dual (equivalent) form of eq. (20): ``A_cl X A_cl^T < (1 - 2 rho) X`` with ``X = J^-1``. With the
+    static-output-feedback constraint ``B_bar X = X_m B_bar`` (Crusius & Trofino 1999, linear in X, X_m),
+    ``M K_PI B_bar X = M Y B_bar`` with ``Y = K_PI X_m``, so the Schur complement
+
+        [[(1 - 2 rho) X, A_bar X - M Y B_bar], [(.)^T, X]] > 0,   X > 0
+
+    is an LMI in (X, X_m, Y); then ``K_PI = Y X_m^-1`` exactly (eq. (23) residual 0) and J = X^-1 certifies the
+    rate of eq. (20). Solved in whitened error coordinates ``e = T e'``, ``P_k = T T^T`` (k_P, k_I act on the
+    measurement and are the same in both coordinates).
+    """
+
+    def __init__(self, n: int = 9, m: int = 3, rho: float = 0.01, solver: str = "CLARABEL", eps: float = 1e-6,
+                 safe_k_I_per_s: float = 0.0):
+        import cvxpy as cp
+
+        self.cp, self.n, self.m, self.rho, self.solver, self.eps = cp, n, m, rho, solver, eps
+        self.safe_k_P, self.safe_k_I = np.eye(m), safe_k_I_per_s * np.eye(m)
+        q = n + m
+        self.Abar = cp.Parameter((q, q))
+        self.Bbar = cp.Parameter((m, q))
+        self.MBL = cp.Parameter((q, 2 * m))  # M (whitened)
+        self.X = cp.Variable((q, q), symmetric=True)
+        self.Xm = cp.Variable((m, m))
+        self.Y = cp.Variable((2 * m, m))
+        AX = self.Abar @ self.X - self.MBL @ self.Y @ self.Bbar
+        lmi = cp.bmat([[(1.0 - 2.0 * rho) * self.X, AX], [AX.T, self.X]])
+        lmi = 0.5 * (lmi + lmi.T)
+        cons = [lmi >> eps * np.eye(2 * q), self.X >> eps * np.eye(q), self.X << np.eye(q),
+                self.Bbar @ self.X == self.Xm @ self.Bbar]
+        self.prob = cp.Problem(cp.Minimize(1e-3 * cp.sum_squares(self.Y)), cons)
+        self._lmi_expr = lmi
+
+    def solve(self, A, H, L, Ts, P_prior) -> LmiResult:
+        n, m, q = self.n, self.m, self.n + self.m
+        T = np.linalg.cholesky(0.5 * (P_prior + P_prior.T))
+        Ti = np.linalg.inv(T)
+        Aw, Lw = Ti @ A @ T, Ti @ L
+        Abar_w = np.zeros((q, q))
+        Abar_w[:n, :n] = Aw
+        Abar_w[:n, n:] = -Lw
+        Abar_w[n:, n:] = np.eye(m)
+        Bbar_w = np.zeros((m, q))
+        Bbar_w[:, :n] = H @ A @ T
+        M = np.zeros((q, 2 * m))
+        M[:n, :m] = Lw
+        M[n:, m:] = Ts * np.eye(m)
+        self.Abar.value, self.Bbar.value, self.MBL.value = Abar_w, Bbar_w, M
+        t0 = time.perf_counter()
+        status, used = _solve(self.prob, self.solver)
+        dt = time.perf_counter() - t0
+        safe = LmiResult(status, self.safe_k_P, self.safe_k_I, True, "", 0.0, solver=used, solve_time_s=dt)
+        if status not in ("optimal", "optimal_inaccurate") or self.X.value is None:
+            safe.reason = f"LMI infeasible ({status}): safe gains"
+            return safe
+        K_PI = self.Y.value @ np.linalg.inv(self.Xm.value)
+        k_P, k_I = K_PI[:m], -K_PI[m:]
+        X = self.X.value
+        J = np.linalg.inv(X)
+        lmi_val = np.asarray(self._lmi_expr.value)
+        lmi_min = float(np.linalg.eigvalsh(0.5 * (lmi_val + lmi_val.T)).min())
+        Acl = Abar_w - M @ K_PI @ Bbar_w
+        margin = float(np.linalg.eigvalsh(Acl.T @ J @ Acl - (1.0 - 2.0 * self.rho) * J).max())
+        srad = float(np.max(np.abs(np.linalg.eigvals(Acl))))
+        res = LmiResult(status, k_P, k_I, False, "", 0.0, -lmi_min, margin, srad, used, dt)
+        if lmi_min < 0.5 * self.eps or srad >= 1.0 or not np.all(np.isfinite(K_PI)):
+            res.k_P, res.k_I, res.used_fallback = self.safe_k_P, self.safe_k_I, True
+            res.reason = (f"LMI infeasible: solver returned '{status}' on the boundary (min eig {lmi_min:.2g}, "
+                          f"spectral radius {srad:.4f}): safe gains")
+        else:
+            res.reason = f"LMI solved: eq. (20) rate certified (margin {margin:.2g}, spectral radius {srad:.4f})"
+        return res
+
+
+def _solve(prob, first: str):
+    status, used = "not solved", ""
+    for solver in dict.fromkeys([first, "SCS"]):
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                prob.solve(solver=solver)
+            status, used = prob.status, solver
+        except Exception as exc:  # solver failure: try the next one
+            status, used = f"error: {exc}", solver
+            continue
+        break  # SCS only when the first solver raised: a status (even "infeasible") is an answer
+    return status, used
+
+
+class PiGainSolver:
+    """Builds the DPP-parametrised cvxpy problem once (n, m fixed); each solve only sets A_bar and B_bar."""
+
+    def __init__(self, n: int = 9, m: int = 3, rho: float = 0.01, solver: str = "CLARABEL", eps: float = 1e-6,
+                 safe_k_I_per_s: float = 0.0):
+        import cvxpy as cp
+
+        self.cp, self.n, self.m, self.rho, self.solver, self.eps = cp, n, m, rho, solver, eps
+        self.safe_k_P, self.safe_k_I = np.eye(m), safe_k_I_per_s * np.eye(m)
+        q = n + m
+        self.Abar = cp.Parameter((q, q))
+        self.Bbar = cp.Parameter((m, q))
+        self.J = cp.Variable((q, q), symmetric=True)
+        self.N = cp.Variable((q, m))
+        JA = self.J @ self.Abar - self.N @ self.Bbar
+        lmi = cp.bmat([[-(1.0 - 2.0 * rho) * self.J, JA.T], [JA, -self.J]])
+        lmi = 0.5 * (lmi + lmi.T)
+        cons = [lmi << -eps * np.eye(2 * q), self.J >> eps * np.eye(q), self.J << np.eye(q)]
+        # feasibility; the small penalty on N keeps the gains moderate among the feasible ones
+        self.prob = cp.Problem(cp.Minimize(1e-3 * cp.sum_squares(self.N)), cons)
+        self._lmi_expr = lmi
+
+    def solve(self, A: np.ndarray, H: np.ndarray, L: np.ndarray, Ts: float, P_prior=None) -> LmiResult:
+        n, m, q = self.n, self.m, self.n + self.m
+        Abar = np.zeros((q, q))
+        Abar[:n, :n] = A
+        Abar[:n, n:] = -L
+        Abar[n:, n:] = np.eye(m)
+        Bbar = np.zeros((m, q))
+        Bbar[:, :n] = H @ A
+        self.Abar.value, self.Bbar.value = Abar, Bbar
+        t0 = time.perf_counter()
+        status, used = _solve(self.prob, self.solver)
+        dt = time.perf_counter() - t0
+        safe = LmiResult(status, self.safe_k_P, self.safe_k_I, True, "", solver=used, solve_time_s=dt)
+        if status not in ("optimal", "optimal_inaccurate") or self.J.value is None:
+            safe.reason = f"LMI not solved ({status}): safe gains k_P = I, k_I = safe"
+            return safe
+        J, Nv = self.J.value, self.N.value
+        lmi_val = np.asarray(self._lmi_expr.value)
+        lmi_max = float(np.linalg.eigvalsh(0.5 * (lmi_val + lmi_val.T)).max())
+        K = np.linalg.solve(J, Nv)
+        M = np.zeros((q, 2 * m))
+        M[:n, :m] = L
+        M[n:, m:] = Ts * np.eye(m)
+        K_PI, *_ = np.linalg.lstsq(M, K, rcond=None)
+        resid = float(np.linalg.norm(M @ K_PI - K) / max(np.linalg.norm(K), 1e-300))
+        Acl = Abar - M @ K_PI @ Bbar
+        margin = float(np.linalg.eigvalsh(Acl.T @ J @ Acl - (1.0 - 2.0 * self.rho) * J).max())
+        srad = float(np.max(np.abs(np.linalg.eigvals(Acl))))
+        res = LmiResult(status, K_PI[:m].copy(), -K_PI[m:].copy(), False, "", resid, lmi_max, margin, srad, used, dt)
+        if lmi_max > -0.5 * self.eps:
+            res.k_P, res.k_I, res.used_fallback = self.safe_k_P, self.safe_k_I, True
+            res.reason = (f"LMI infeasible: solver returned '{status}' on the boundary (max eig {lmi_max:.2g} > "
+                          f"-eps): safe gains")
+        elif srad >= 1.0 or not np.all(np.isfinite(K_PI)):
+            res.k_P, res.k_I, res.used_fallback = self.safe_k_P, self.safe_k_I, True
+            res.reason = (f"structured gains from eq. (23) (residual {resid:.2g}) do not stabilise the augmented "
+                          f"system (spectral radius {srad:.4f}): safe gains k_P = I, k_I = safe")
+        elif margin >= 0:
+            res.reason = (f"structured gains stable (spectral radius {srad:.4f}) but the eq. (20) rate is not "
+                          f"certified with this J (margin {margin:.3g}); eq. (23) residual {resid:.2g}")
+        else:
+            res.reason = f"LMI solved, eq. (20) rate certified; eq. (23) residual {resid:.2g}"
+        return res

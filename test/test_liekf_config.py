@@ -1,0 +1,57 @@
+"""Config dataclasses and registry: validation with clear reasons, YAML files agree with the defaults."""
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from insalign_ros.filters import registry
+from insalign_ros.filters.base import AlignmentCore
+from insalign_ros.filters.config import IekfConfig, PiLiekfConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.parametrize("name", registry.INMOTION_CORE_NAMES)
+def test_yaml_matches_dataclass_defaults_and_builds_the_core(name):
+    doc = yaml.safe_load((ROOT / "config" / f"{name}.yaml").read_text())
+    params = dict(doc["alignment_node"]["ros__parameters"])
+    assert params.pop("core") == name
+    defaults = registry.CORES[name][1]().to_dict()
+    assert params == defaults
+    core = registry.make_core(name, params)
+    assert isinstance(core, AlignmentCore) and core.name == name
+
+
+def test_registry_names_and_errors():
+    assert set(registry.INMOTION_CORE_NAMES) <= set(registry.CORE_NAMES)
+    with pytest.raises(ValueError, match="unknown core"):
+        registry.make_core("nope")
+    with pytest.raises(ValueError, match="unknown parameter"):
+        registry.make_core("liekf", {"gyro_arw": 1.0})
+    registry.register("liekf_copy", registry.CORES["liekf"][0], registry.CORES["liekf"][1])
+    try:
+        assert "liekf_copy" in registry.CORE_NAMES
+        assert registry.make_core("liekf_copy").name == "liekf"
+    finally:
+        del registry.CORES["liekf_copy"]
+
+
+@pytest.mark.parametrize("params, match", [
+    ({"gyro_arw_deg_sqrt_h": -1.0}, "gyro_arw_deg_sqrt_h: must be >= 0"),
+    ({"init_sigma_yaw_deg": 0}, "init_sigma_yaw_deg: must be > 0"),
+    ({"init_sigma_yaw_deg": "60"}, "init_sigma_yaw_deg: expected a number"),
+    ({"max_batch_samples": 0}, "max_batch_samples"),
+    ({"init_sigma_p_m": float("nan")}, "init_sigma_p_m"),
+])
+def test_from_dict_rejects_bad_values_with_the_reason(params, match):
+    with pytest.raises(ValueError, match=match):
+        IekfConfig.from_dict(params)
+
+
+def test_pi_config_validation():
+    assert PiLiekfConfig.from_dict({"rho": 0}).rho == 0.0  # ints accepted for floats
+    for bad, match in (({"rho": 0.5}, "rho"), ({"lmi_solver": "MOSEK"}, "lmi_solver"),
+                       ({"lmi_structure": "x"}, "lmi_structure"), ({"lmi_resolve_every_updates": 0}, "resolve")):
+        with pytest.raises(ValueError, match=match):
+            PiLiekfConfig.from_dict(bad)
