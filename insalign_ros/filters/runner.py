@@ -111,8 +111,15 @@ def run_offline(core, data, rpy_error_deg, output_period_s: float = 0.5, init_in
     (or from ``initial_C_b_n`` when the data have no truth), feed all later events, return the estimates."""
     k = init_index
     if data.has_truth:
-        C0, v0 = data.C_b_n[k], data.v_n[k]
+        C0 = data.C_b_n[k]
         lat, lon, h = data.lat_rad[k], data.lon_rad[k], data.h_m[k]
+        if data.v_n is not None:
+            v0 = data.v_n[k]
+        else:  # truth without velocity (e.g. a bag's truth topic): central difference of the truth positions
+            a, b = max(k - 1, 0), min(k + 1, data.n - 1)
+            pa = earth.geodetic_to_ecef(data.lat_rad[a], data.lon_rad[a], data.h_m[a])
+            pb = earth.geodetic_to_ecef(data.lat_rad[b], data.lon_rad[b], data.h_m[b])
+            v0 = earth.C_e_n(lat, lon) @ (pb - pa) / (data.t_s[b] - data.t_s[a])
     else:
         if initial_C_b_n is None:
             raise ValueError("the data have no truth: give an initial attitude guess")
