@@ -134,7 +134,7 @@ class StaticConfig:
     gyro_arw_deg_sqrt_h: float = 0.26
     acc_vrw_m_s_sqrt_h: float = 0.029
     #: extra velocity process noise for the engine vibration the model does not describe [m/s/sqrt(s)]
-    vibration_vrw_m_s_sqrt_s: float = 1e-3
+    vibration_vrw_m_s_sqrt_s: float = 1e-2
     init_sigma_v_m_s: float = 0.01
     #: feed the azimuth estimate back into the mechanization once its 1-sigma is below this [deg]; before that
     #: the large azimuth stays in the state and the nonlinear model (eq. (34)) carries it
