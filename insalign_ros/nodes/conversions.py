@@ -13,10 +13,11 @@ import math
 import numpy as np
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from scipy.spatial.transform import Rotation
-from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
+from sensor_msgs.msg import Imu, NavSatFix
 
 from ..core import earth
 from ..core.types import GnssFix, ImuSample
+from ..io import validation
 
 
 def stamp_s(msg) -> float:
@@ -35,21 +36,16 @@ def _finite(*vals) -> bool:
 
 
 def check_covariance(cov, n: int, what: str) -> str:
-    """A row-major n x n covariance from a message: "" when usable. All zeros = "unknown" (REP 145), accepted.
+    """A row-major 3x3 covariance from a message: "" when usable. All zeros = "unknown" (REP 145), accepted.
 
-    Rejected: non-finite entries, a negative or zero diagonal (when not all zeros), a non-symmetric matrix.
+    Otherwise io/validation.check_covariance with a positive diagonal required (finite, symmetric, PSD).
     """
-    c = np.asarray(cov, float).reshape(n, n)
+    c = np.asarray(cov, float)
     if not np.all(np.isfinite(c)):
-        return f"{what} covariance has NaN/Inf"
+        return f"{what} covariance: non-finite value"
     if not np.any(c):
         return ""
-    d = np.diag(c)
-    if np.any(d <= 0.0):
-        return f"{what} covariance diagonal {d.tolist()} has zero or negative entries"
-    if not np.allclose(c, c.T, rtol=1e-6, atol=1e-12 * float(np.max(d))):
-        return f"{what} covariance is not symmetric"
-    return ""
+    return validation.check_covariance(c, f"{what} covariance", require_positive_diag=True) or ""
 
 
 def imu_from_msg(msg: Imu, max_rate_rad_s: float, max_acc_m_s2: float,
@@ -59,25 +55,26 @@ def imu_from_msg(msg: Imu, max_rate_rad_s: float, max_acc_m_s2: float,
         return None, f"frame_id {msg.header.frame_id!r} is not {frame_id!r}"
     w, a, q = msg.angular_velocity, msg.linear_acceleration, msg.orientation
     t = stamp_s(msg)
-    if not _finite(w.x, w.y, w.z, a.x, a.y, a.z, q.x, q.y, q.z, q.w):
-        return None, "NaN/Inf in angular_velocity, linear_acceleration or orientation"
+    omega = np.array([w.x, w.y, w.z])
+    f = np.array([a.x, a.y, a.z])
+    reason = (validation.check_vector(omega, "angular_velocity", max_rate_rad_s)
+              or validation.check_vector(f, "linear_acceleration", max_acc_m_s2))
+    if reason:
+        return None, reason
+    if not _finite(q.x, q.y, q.z, q.w):
+        return None, "orientation: non-finite value"
     if not t > 0.0:
         return None, f"stamp {t:.6f} s is not positive"
     for cov, name in ((msg.angular_velocity_covariance, "angular_velocity"),
-                      (msg.linear_acceleration_covariance, "linear_acceleration")):
+                      (msg.linear_acceleration_covariance, "linear_acceleration"),
+                      (msg.orientation_covariance, "orientation")):
+        if name == "orientation" and cov[0] == -1.0:  # REP 145: no orientation estimate
+            if not np.all(np.isfinite(np.asarray(cov, float))):
+                return None, "orientation covariance: non-finite value"
+            continue
         reason = check_covariance(cov, 3, name)
         if reason:
             return None, reason
-    oc = np.asarray(msg.orientation_covariance, float)
-    if not np.all(np.isfinite(oc)):
-        return None, "orientation covariance has NaN/Inf"
-    omega = np.array([w.x, w.y, w.z])
-    f = np.array([a.x, a.y, a.z])
-    wn, fn = float(np.linalg.norm(omega)), float(np.linalg.norm(f))
-    if wn > max_rate_rad_s:
-        return None, f"|angular_velocity| {wn:.3g} rad/s above max_rate_rad_s {max_rate_rad_s:g}"
-    if fn > max_acc_m_s2:
-        return None, f"|linear_acceleration| {fn:.3g} m/s^2 above max_acc_m_s2 {max_acc_m_s2:g}"
     return ImuSample(t, omega, f), ""
 
 
@@ -104,29 +101,23 @@ def fix_from_msg(msg: NavSatFix, default_sigma_m: float, frame_id: str = "") -> 
     """
     if frame_id and msg.header.frame_id != frame_id:
         return None, f"frame_id {msg.header.frame_id!r} is not {frame_id!r}"
-    if msg.status.status < NavSatStatus.STATUS_FIX:
-        return None, f"status {msg.status.status} (NO_FIX)"
     lat, lon, h = msg.latitude, msg.longitude, msg.altitude
     t = stamp_s(msg)
-    if not _finite(lat, lon, h):
-        return None, "NaN/Inf in latitude, longitude or altitude"
-    if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0 and -1000.0 < h < 100000.0):
-        return None, f"position lat {lat:g} deg, lon {lon:g} deg, h {h:g} m out of range"
+    known = msg.position_covariance_type != NavSatFix.COVARIANCE_TYPE_UNKNOWN
+    cov = np.asarray(msg.position_covariance, float).reshape(3, 3)
+    reason = validation.check_fix(lat, lon, h, cov if known else None, int(msg.status.status))
+    if reason:
+        return None, reason
     if not t > 0.0:
         return None, f"stamp {t:.6f} s is not positive"
-    if msg.position_covariance_type == NavSatFix.COVARIANCE_TYPE_UNKNOWN:
-        R_n = np.eye(3) * default_sigma_m**2
-    else:
-        reason = check_covariance(msg.position_covariance, 3, "position")
-        if reason:
-            return None, reason
-        R_n = np.asarray(msg.position_covariance, float).reshape(3, 3)
-        if not np.any(R_n):
-            return None, "position covariance is all zeros with a known covariance type"
+    if known:
+        R_n = cov
         try:
             np.linalg.cholesky(R_n)
         except np.linalg.LinAlgError:
             return None, "position covariance is not positive definite"
+    else:
+        R_n = np.eye(3) * default_sigma_m**2
     lat_r, lon_r = math.radians(lat), math.radians(lon)
     C = earth.C_n_e(lat_r, lon_r)
     return GnssFix(t, earth.geodetic_to_ecef(lat_r, lon_r, h), C @ R_n @ C.T), ""

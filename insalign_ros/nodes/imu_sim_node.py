@@ -324,6 +324,12 @@ def main(args=None) -> int:
                 rclpy.spin_once(node, timeout_sec=0.1)
         else:
             _run_stream(node)
+        if node.data is not None:  # reliable readers: wait until they acknowledged everything (10 s at most)
+            from rclpy.duration import Duration
+
+            for pub in (node.pub, node.pub_fix, node.pub_truth):
+                if pub is not None and not pub.wait_for_all_acked(Duration(seconds=10.0)):
+                    node.get_logger().warning(f"{pub.topic_name}: not all messages acknowledged within 10 s")
         # let the reliable writer deliver what is queued before the process goes away
         end = time.monotonic() + 2.0
         while rclpy.ok() and time.monotonic() < end:

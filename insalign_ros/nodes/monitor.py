@@ -48,6 +48,7 @@ class AlignmentMonitor:
         n.create_subscription(Vector3Stamped, f"{node_name}/euler_error", self._on_err, 100)
         n.create_subscription(Vector3Stamped, f"{node_name}/euler_error_3sigma", self._on_err3, 100)
         n.create_subscription(PoseWithCovarianceStamped, f"{node_name}/pose", self._on_pose, 100)
+        self.node_name = node_name
         n.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 10)
         self.executor = SingleThreadedExecutor(context=self.ctx)
         self.executor.add_node(n)
@@ -88,7 +89,7 @@ class AlignmentMonitor:
 
     def _on_diag(self, msg: DiagnosticArray) -> None:
         for st in msg.status:
-            if st.name.startswith("alignment_node"):
+            if st.name == f"{self.node_name}: alignment":
                 with self.lock:
                     self.diag = {kv.key: kv.value for kv in st.values}
                     self.diag["level"] = int.from_bytes(st.level, "little") if isinstance(st.level, bytes) else int(st.level)
