@@ -100,7 +100,7 @@ class BacktrackingAligner:
     """
 
     def __init__(self, core: AlignmentCore, init_stamp_s: float, window_s: float, passes: int = 1,
-                 chunk_samples: int = 500):
+                 chunk_samples: int = 200):
         if passes < 0 or not window_s > 0:
             raise ValueError(f"passes must be >= 0 and window_s > 0 (got {passes}, {window_s})")
         if passes > 0:
