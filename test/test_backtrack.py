@@ -85,3 +85,20 @@ def test_backward_and_catch_up_300s_wall_time():
     print(f"backward + catch-up over 300 s at 100 Hz: {wall:.2f} s wall, {cpu:.2f} s CPU")
     # CPU time of this process = the one-core cost even when other jobs share the 2 cores (wall time then is not)
     assert cpu < 4.5
+
+
+def test_offline_runner_backtrack_option(tmp_path, capsys):
+    """insalign-align --backtrack N: runs the passes at the window end and writes the usual outputs."""
+    import json
+
+    from insalign_ros.cli.align import main
+
+    rc = main(["--scenario", "two_position", "--duration", "30", "--core", "earth_iekf", "--rpy-error", "0.5", "-0.5",
+               "5", "--backtrack", "1", "--backtrack-window", "20", "--out-dir", str(tmp_path), "--no-progress"])
+    assert rc == 0
+    err = capsys.readouterr().err
+    assert "backtracking: 2000 samples x 1 passes" in err
+    summ = json.loads((tmp_path / "two_position_s0_earth_iekf_metrics.json").read_text())
+    assert abs(summ["final_err_rpy_deg"][2]) < 1.0
+    assert main(["--scenario", "two_position", "--duration", "5", "--core", "ekf", "--backtrack", "1",
+                 "--out-dir", str(tmp_path), "--no-progress"]) == 2

@@ -36,6 +36,11 @@ def main(argv=None) -> int:
     ap.add_argument("--out-dir", default=".")
     ap.add_argument("--output-period", type=float, default=0.5)
     ap.add_argument("--no-progress", action="store_true")
+    ap.add_argument("--backtrack", type=int, default=0, metavar="N",
+                    help="forward-backward alignment: N backward+forward passes over the stored window "
+                         "(filters/backtrack.py; earth_iekf, liekf)")
+    ap.add_argument("--backtrack-window", type=float, default=60.0, metavar="S",
+                    help="stored alignment window after initialisation [s] (with --backtrack)")
     args = ap.parse_args(argv)
     if bool(args.bag) == bool(args.scenario):
         ap.error("give exactly one of BAG or --scenario")
@@ -85,9 +90,26 @@ def main(argv=None) -> int:
         init_C = earth.C_b_n_from_rpy(*np.radians(args.initial_rpy))
     from tqdm import tqdm
 
-    with tqdm(total=data.n, desc=f"{args.core}", disable=args.no_progress, file=sys.stderr, mininterval=1) as bar:
-        ests, runner = run_offline(core, data, args.rpy_error if data.has_truth else [0, 0, 0],
-                                   output_period_s=args.output_period, progress=bar, initial_C_b_n=init_C)
+    if args.backtrack > 0:
+        from ..filters.backtrack import make_backtrackable, run_offline_backtrack
+
+        if not data.has_truth:
+            ap.error("--backtrack needs data with truth for the initial guess (not implemented for truth-free bags)")
+        try:
+            make_backtrackable(core)
+        except ValueError as exc:
+            print(f"insalign-align: {exc}", file=sys.stderr)
+            return 2
+        ests, bt = run_offline_backtrack(core, data, args.rpy_error, args.backtrack_window, args.backtrack,
+                                         output_period_s=args.output_period)
+        runner, core = bt.runner, bt.live
+        print(f"backtracking: {bt.stats['window_samples']} samples x {args.backtrack} passes in "
+              f"{bt.stats['pass_wall_s']:.2f} s", file=sys.stderr)
+    else:
+        with tqdm(total=data.n, desc=f"{args.core}", disable=args.no_progress, file=sys.stderr,
+                  mininterval=1) as bar:
+            ests, runner = run_offline(core, data, args.rpy_error if data.has_truth else [0, 0, 0],
+                                       output_period_s=args.output_period, progress=bar, initial_C_b_n=init_C)
     out = Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     stem = out / f"{name}_{args.core}"
