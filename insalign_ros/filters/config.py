@@ -32,9 +32,6 @@ class InMotionConfig:
     #: initial velocity / position 1-sigma (PI-LIEKF Table 1: GPS velocity 0.1 m/s, position 1.0 m)
     init_sigma_v_m_s: float = 0.1
     init_sigma_p_m: float = 1.0
-    #: lower bound of the GNSS position sigma [m] (0 = trust the fix covariance; KITTI's 2 cm RT3003 accuracy is
-    #: far below the model error of 10 Hz instantaneous IMU samples)
-    gnss_sigma_floor_m: float = 0.0
     #: reject a GNSS fix whose normalised innovation squared exceeds this (0 disables the gate)
     gnss_nis_gate: float = 0.0
     #: adaptive fading memory: when a GNSS innovation's NIS exceeds this, the prior covariance is multiplied by
@@ -64,8 +61,6 @@ class InMotionConfig:
                      "init_sigma_p_m", "aligned_yaw_3sigma_deg"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}: must be > 0, got {getattr(self, name)}")
-        if self.gnss_sigma_floor_m < 0:
-            raise ValueError(f"gnss_sigma_floor_m: must be >= 0, got {self.gnss_sigma_floor_m}")
         if self.fading_nis_threshold < 0:
             raise ValueError(f"fading_nis_threshold: must be >= 0 (0 = off), got {self.fading_nis_threshold}")
         if not self.fading_max_factor >= 1.0:
@@ -102,12 +97,26 @@ class InMotionConfig:
 
 
 @dataclass
-class LiekfConfig(InMotionConfig):
+class InMotionGnssConfig(InMotionConfig):
+    """InMotionConfig plus options of the batched ECI cores (kept out of the base class that other cores share)."""
+
+    #: lower bound of the GNSS position sigma [m] (0 = trust the fix covariance; KITTI's 2 cm RT3003 accuracy is
+    #: far below the model error of 10 Hz instantaneous IMU samples)
+    gnss_sigma_floor_m: float = 0.0
+
+    def validate(self) -> None:
+        super().validate()
+        if self.gnss_sigma_floor_m < 0:
+            raise ValueError(f"gnss_sigma_floor_m: must be >= 0, got {self.gnss_sigma_floor_m}")
+
+
+@dataclass
+class LiekfConfig(InMotionGnssConfig):
     """LIEKF (PI-LIEKF Alg. 1): no bias states."""
 
 
 @dataclass
-class PiLiekfConfig(InMotionConfig):
+class PiLiekfConfig(InMotionGnssConfig):
     """PI-LIEKF (Alg. 2) with PI gains from the LMI of eqs. (18)-(23)."""
 
     #: decay-rate parameter of eq. (20) (PI-LIEKF Table 2: 0.01)
@@ -147,7 +156,7 @@ class PiLiekfConfig(InMotionConfig):
 
 
 @dataclass
-class BiasStatesConfig(InMotionConfig):
+class BiasStatesConfig(InMotionGnssConfig):
     """Cores with gyro and accelerometer bias states (imperfect IEKF, conventional EKF)."""
 
     #: initial 1-sigma gyro bias [deg/h] (PI-LIEKF Table 1/2: b_Gyro = 25.2 deg/h)

@@ -348,7 +348,7 @@ class BatchedEciCore(AlignmentCore):
         Cei = earth.C_e_i(self.t_s, self.t0_s)
         p_i = Cei @ np.asarray(fix.p_e, float)
         R_i = Cei @ np.asarray(fix.R_e, float) @ Cei.T
-        floor2 = self.cfg.gnss_sigma_floor_m ** 2
+        floor2 = getattr(self.cfg, "gnss_sigma_floor_m", 0.0) ** 2
         if floor2 > 0:
             lo = float(np.linalg.eigvalsh(0.5 * (R_i + R_i.T)).min())
             if lo < floor2:
