@@ -34,13 +34,22 @@ from insalign_ros.sim.scenarios import make_scenario  # noqa: E402
 PAPER_TABLE3 = {"iekf": (1.59, 1.20, 4.8), "pi_liekf": (1.61, 1.24, 4.4)}
 
 
-def run_one(core_name, data, yaw, params=None, period=1.0):
-    core = make_core(core_name, params)
+def parse_core(label):
+    """'iekf' -> ('iekf', None); 'iekf:mh8' -> ('iekf', {'yaw_hypotheses': 8}) (a bank of 8 yaw hypotheses)."""
+    name, _, k = label.partition(":mh")
+    return name, ({"yaw_hypotheses": int(k)} if k else None)
+
+
+def run_one(core_label, data, yaw, params=None, period=1.0):
+    core_name, bank = parse_core(core_label)
+    core = make_core(core_name, {**(bank or {}), **(params or {})})
     t0 = time.perf_counter()
     ests, runner = run_offline(core, data, [10.0, 10.0, yaw], output_period_s=period)
     wall = time.perf_counter() - t0
-    r = MT.evaluate(core_name, ests, data.t_s, data.C_b_n, float(data.t_s[0]))
+    r = MT.evaluate(core_label, ests, data.t_s, data.C_b_n, float(data.t_s[0]))
     s = MT.summary(r)
+    if bank:
+        s["hypotheses_collapsed_at_s"] = core.diagnostics().get("yaw_hypotheses_collapsed_at_s")
     s["wall_s"] = wall
     s["samples"] = runner.counters["imu"]
     if hasattr(core, "diagnostics"):
@@ -74,7 +83,8 @@ def main(argv=None):
     ap.add_argument("--scenario", default="ship")
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--yaws", default="-179,-90,-60,-30,0,30,60,90,179")
-    ap.add_argument("--cores", default="liekf,pi_liekf,iekf,ekf")
+    ap.add_argument("--cores", default="liekf,pi_liekf,iekf,ekf",
+                    help="comma-separated; 'name:mhK' runs the core in a bank of K yaw hypotheses (filters/hypotheses.py)")
     ap.add_argument("--duration", type=float, default=300.0)
     ap.add_argument("--md-out", default="")
     ap.add_argument("--json-out", default="")
@@ -150,6 +160,24 @@ def main(argv=None):
             cells.append(cell + (f" ({never} never)" if never else ""))
         L.append(f"| {c} | " + " | ".join(cells) + " |")
     L.append("")
+    L.append("**Gross failures**: runs whose final |yaw error| exceeds 5 deg (count over seeds).\n")
+    L.append("| core | " + " | ".join(f"{y:+.0f}" for y in yaws) + " |")
+    L.append("|---|" + "---|" * len(yaws))
+    for c in cores:
+        L.append(f"| {c} | " + " | ".join(
+            str(sum(abs(s["final_err_rpy_deg"][2]) > 5.0 for s in results[(c, y)])) for y in yaws) + " |")
+    L.append("")
+    banks = [c for c in cores if parse_core(c)[1]]
+    if banks:
+        L.append("**Yaw-hypothesis banks**: data time at which one hypothesis was left [s], median / max over seeds "
+                 "and yaws.\n")
+        for c in banks:
+            tc = [s.get("hypotheses_collapsed_at_s") for y in yaws for s in results[(c, y)]]
+            tcv = np.array([x for x in tc if x is not None], float)
+            never = sum(x is None for x in tc)
+            L.append(f"- {c}: {np.median(tcv):.0f} / {np.max(tcv):.0f} s" + (f" ({never} runs ended with several)"
+                                                                              if never else ""))
+        L.append("")
     L.append("**Steady-state |yaw error|** [deg], mean over the last 60 s: mean / max over seeds.\n")
     L.append("| core | " + " | ".join(f"{y:+.0f}" for y in yaws) + " |")
     L.append("|---|" + "---|" * len(yaws))

@@ -143,20 +143,30 @@ def test_covariance_spd_through_1e5_steps(name):
     assert np.all(np.isfinite(core.estimate().P))
 
 
+#: seeds on which a single invariant filter started 179 deg off ends 20-140 deg off on ship (docs/results.md)
+_HARD_SEEDS = (4, 6, 9)
+
+
 @pytest.mark.parametrize("name", ("liekf", "pi_liekf", "iekf"))
-def test_invariant_cores_converge_from_179_deg_yaw_error_on_ship(name):
-    """Shortened case, fixed seed. NOT a general guarantee: in benchmarks/yaw_sweep.py (10 seeds) the invariant
-    cores fail to converge from +-179 deg in about half of the seeds (docs/results.md); this seed converges."""
+@pytest.mark.parametrize("yaw0", (179.0, -179.0))
+def test_invariant_cores_converge_from_179_deg_yaw_error_on_ship(name, yaw0):
+    """Shortened ship case (90 s), the seeds on which a *single* invariant filter fails from +-179 deg: with the
+    bank of 8 yaw hypotheses (filters/hypotheses.py) every one ends within a few degrees. Thresholds: the IEKF
+    estimates the 25 deg/h gyro bias (< 1.5 deg after 60 s); the LIEKF/PI-LIEKF do not, and their bias-induced
+    yaw error on these seeds is 1-2 deg (docs/results.md), so 3 deg -- against an initial 179 deg."""
     from insalign_ros.sim.scenarios import make_scenario
 
-    d = make_scenario("ship", seed=1, duration_s=90.0)
-    _, ests = _run(name, d, [10.0, 10.0, 179.0])
-    err = _errors_deg(d, ests)
-    t = np.array([e.stamp_s for e in ests])
-    late = t >= 60.0
-    assert np.max(np.abs(err[late, 2])) < 2.0, np.max(np.abs(err[late, 2]))
-    assert np.max(np.abs(err[late, :2])) < 1.0
-    assert abs(err[-1, 2]) < 1.5
+    tol = 1.5 if name == "iekf" else 3.0
+    for seed in _HARD_SEEDS:
+        d = make_scenario("ship", seed=seed, duration_s=90.0)
+        core, ests = _run(name, d, [10.0, 10.0, yaw0], params={**(FAST.get(name) or {}), "yaw_hypotheses": 8})
+        err = _errors_deg(d, ests)
+        t = np.array([e.stamp_s for e in ests])
+        late = t >= 60.0
+        assert np.max(np.abs(err[late, 2])) < tol, (seed, np.max(np.abs(err[late, 2])))
+        assert np.max(np.abs(err[late, :2])) < 1.0, seed
+        dg = core.diagnostics()
+        assert dg["yaw_hypotheses_alive"] == 1 and dg["yaw_hypotheses_collapsed_at_s"] < 30.0, dg
 
 
 def test_attitude_covariance_mapping_to_enu_by_monte_carlo():

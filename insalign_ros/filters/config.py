@@ -103,11 +103,27 @@ class InMotionGnssConfig(InMotionConfig):
     #: lower bound of the GNSS position sigma [m] (0 = trust the fix covariance; KITTI's 2 cm RT3003 accuracy is
     #: far below the model error of 10 Hz instantaneous IMU samples)
     gnss_sigma_floor_m: float = 0.0
+    #: yaw hypotheses (filters/hypotheses.py): 1 = a single filter; K >= 2 runs K copies of the core at yaw offsets
+    #: 360/K deg apart, weighted by their GNSS likelihoods, for a heading that is unknown (docs/inmotion_cores.md)
+    yaw_hypotheses: int = 1
+    #: drop a hypothesis whose normalised weight falls below this (after hypothesis_min_updates fixes)
+    hypothesis_prune_weight: float = 1e-3
+    hypothesis_min_updates: int = 3
+    #: merge two hypotheses whose attitudes are closer than this [deg] (the less probable one is dropped)
+    hypothesis_merge_deg: float = 2.0
 
     def validate(self) -> None:
         super().validate()
         if self.gnss_sigma_floor_m < 0:
             raise ValueError(f"gnss_sigma_floor_m: must be >= 0, got {self.gnss_sigma_floor_m}")
+        if not 1 <= self.yaw_hypotheses <= 36:
+            raise ValueError(f"yaw_hypotheses: must be in [1, 36], got {self.yaw_hypotheses}")
+        if not 0.0 <= self.hypothesis_prune_weight < 1.0:
+            raise ValueError(f"hypothesis_prune_weight: must be in [0, 1), got {self.hypothesis_prune_weight}")
+        if self.hypothesis_min_updates < 0:
+            raise ValueError(f"hypothesis_min_updates: must be >= 0, got {self.hypothesis_min_updates}")
+        if not 0.0 <= self.hypothesis_merge_deg < 90.0:
+            raise ValueError(f"hypothesis_merge_deg: must be in [0, 90), got {self.hypothesis_merge_deg}")
 
 
 @dataclass

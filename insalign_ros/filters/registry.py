@@ -84,7 +84,12 @@ def make_config(name: str, params: dict | None = None):
 def make_core(name: str, params: dict | None = None) -> AlignmentCore:
     """Build a core by name with validated parameters (ValueError on an unknown name or a bad parameter)."""
     cfg = make_config(name, params)
-    return CORES[name][0](cfg)
+    factory = CORES[name][0]
+    if getattr(cfg, "yaw_hypotheses", 1) > 1:  # unknown heading: a bank of yaw hypotheses (filters/hypotheses.py)
+        from .hypotheses import YawHypothesisBank
+
+        return YawHypothesisBank(factory, cfg)
+    return factory(cfg)
 
 
 def __getattr__(attr):  # CORE_NAMES stays current when others register()

@@ -1,0 +1,218 @@
+"""A bank of yaw hypotheses (Gaussian-sum prior) around any in-motion core: alignment from an unknown heading.
+
+Why: a 179 deg yaw error is not a Gaussian error in any parametrisation. A single invariant filter started
+with it linearises the first GNSS updates around a nearly flipped attitude, its state-independent covariance
+collapses anyway (yaw 3-sigma 3 deg after 10 s while the error is still 100 deg, ship scenario) and the run
+ends tens of degrees off in some seeds (docs/inmotion_cores.md, "Unknown heading"). Every single filter of
+the bank is started inside its convergence basin instead.
+
+Model: the yaw prior N(0, sigma_yaw^2) about the initial guess (wrapped) is approximated by ``K`` components at
+offsets ``2 pi k / K`` about the local Up axis, prior weights proportional to the wrapped normal density at the
+offset, each with its own yaw sigma ``min(sigma_yaw, pi / K)`` (half the spacing). Every component is a full
+core (LIEKF, PI-LIEKF, IEKF or EKF) run on the same data. Weights follow Bayes' rule with each component's
+GNSS innovation likelihood ``N(z; 0, S)``:
+
+    log w_k += -0.5 (z_k^T S_k^-1 z_k + log det S_k)      (normalised after every fix)
+
+Components whose weight falls below ``hypothesis_prune_weight`` (after ``hypothesis_min_updates`` fixes) are
+dropped, and so is a component that has converged onto the same attitude as a better one (within
+``hypothesis_merge_deg``; its weight goes to the survivor). With one component left the bank is a thin
+pass-through and costs nothing extra.
+
+Output: the estimate of the most probable component, with the spread of the live components added to its ENU
+attitude covariance (``P_att_n + sum_k w_k d_k d_k^T``, ``d_k`` the rotation vector from the best attitude to
+component k): the published 3-sigma cannot be small while another heading is still plausible, and the
+status stays CONVERGING until one hypothesis is left.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, UpdateResult
+
+
+def _rot_up(angle_rad: float) -> np.ndarray:
+    """Rotation about the local Up (ENU z) axis."""
+    return Rotation.from_rotvec([0.0, 0.0, angle_rad]).as_matrix()
+
+
+class YawHypothesisBank(AlignmentCore):
+    """K copies of one core at evenly spaced yaw offsets, weighted by their GNSS innovation likelihoods."""
+
+    def __init__(self, factory, cfg):
+        self._factory = factory
+        self.cfg = cfg
+        self.K = int(cfg.yaw_hypotheses)
+        if self.K < 2:
+            raise ValueError(f"yaw_hypotheses: a bank needs >= 2 hypotheses, got {self.K}")
+        proto = factory(cfg)
+        self.name = proto.name
+        self.needs_motion = proto.needs_motion
+        self.supports_gnss = proto.supports_gnss
+        self.supports_zero_velocity = proto.supports_zero_velocity
+        self.supports_backtracking = False
+        self.hyps: list[AlignmentCore] = []
+        self.offsets_rad: list[float] = []
+        self.logw = np.zeros(0)
+        self.n_updates = 0
+        self.bank_counters = {"hypotheses_pruned": 0, "hypotheses_merged": 0}
+        self.collapsed_at_s: float | None = None
+        self._init = False
+
+    # ------------------------------------------------------------------ life cycle
+    def initialize(self, stamp_s, lat_rad, lon_rad, h_m, C_b_n, v_n, P_att_n, sigma_v_m_s, sigma_p_m) -> None:
+        K = self.K
+        P_att_n = np.asarray(P_att_n, float)
+        sig_yaw = math.sqrt(max(P_att_n[2, 2], 0.0))
+        sig_h = min(sig_yaw, math.pi / K) if sig_yaw > 0 else math.pi / K
+        P_h = P_att_n.copy()
+        if sig_yaw > 0:  # shrink the yaw variance, keep the correlations' shape
+            s = sig_h / sig_yaw
+            D = np.diag([1.0, 1.0, s])
+            P_h = D @ P_att_n @ D
+        else:
+            P_h[2, 2] = sig_h * sig_h
+        offs = [2.0 * math.pi * k / K for k in range(K)]
+        offs = [math.remainder(o, 2.0 * math.pi) for o in offs]
+        # wrapped-normal prior density at each offset (sigma_yaw = 0: all weight on the guess)
+        if sig_yaw > 0:
+            logw = np.array([math.log(sum(math.exp(-0.5 * ((o + 2 * math.pi * j) / sig_yaw) ** 2) for j in (-1, 0, 1))
+                                      + 1e-300) for o in offs])
+        else:
+            logw = np.array([0.0] + [-np.inf] * (K - 1))
+        self.hyps, self.offsets_rad = [], []
+        for o, lw in zip(offs, logw):
+            if not np.isfinite(lw):
+                continue
+            core = self._factory(self.cfg)
+            core.initialize(stamp_s, lat_rad, lon_rad, h_m, _rot_up(o) @ np.asarray(C_b_n, float), v_n, P_h,
+                            sigma_v_m_s, sigma_p_m)
+            self.hyps.append(core)
+            self.offsets_rad.append(o)
+        self.logw = logw[np.isfinite(logw)] - np.max(logw)
+        self.n_updates = 0
+        self.collapsed_at_s = None
+        self._init = True
+
+    @property
+    def initialized(self) -> bool:
+        return self._init
+
+    @property
+    def weights(self) -> np.ndarray:
+        w = np.exp(self.logw - np.max(self.logw))
+        return w / w.sum()
+
+    @property
+    def best(self) -> AlignmentCore:
+        return self.hyps[int(np.argmax(self.logw))]
+
+    def __getattr__(self, attr):  # counters, diagnostics helpers, lmi_history, ... of the most probable core
+        if attr.startswith("_") or attr in ("hyps", "logw"):
+            raise AttributeError(attr)
+        return getattr(self.best, attr)
+
+    # ------------------------------------------------------------------ events
+    def propagate(self, imu) -> None:
+        for h in self.hyps:
+            h.propagate(imu)
+
+    def propagate_arrays(self, *args, **kwargs) -> None:
+        for h in self.hyps:
+            h.propagate_arrays(*args, **kwargs)
+
+    def flush(self) -> None:
+        for h in self.hyps:
+            if hasattr(h, "flush"):
+                h.flush()
+
+    def update_gnss(self, fix) -> UpdateResult:
+        return self._update([h.update_gnss(fix) for h in self.hyps])
+
+    def update_zero_velocity(self, stamp_s: float, sigma_v_m_s: float) -> UpdateResult:
+        return self._update([h.update_zero_velocity(stamp_s, sigma_v_m_s) for h in self.hyps])
+
+    def _update(self, results: list[UpdateResult]) -> UpdateResult:
+        best_before = int(np.argmax(self.logw))
+        if len(self.hyps) > 1:
+            for k, r in enumerate(results):
+                # accepted, or gated by this component's own NIS test (an implausible innovation is evidence
+                # too); a fix rejected before any innovation (bad input) carries no S and changes nothing
+                if r.S.size and np.isfinite(r.nis):
+                    sign, logdet = np.linalg.slogdet(r.S)
+                    self.logw[k] += -0.5 * (r.nis + (logdet if sign > 0 else 0.0))
+            self.logw -= np.max(self.logw)
+            if any(r.accepted for r in results):
+                self.n_updates += 1
+            self._prune()
+        out = results[best_before] if best_before < len(results) else results[0]
+        return out
+
+    def _prune(self) -> None:
+        if self.n_updates < self.cfg.hypothesis_min_updates:
+            return
+        w = self.weights
+        keep = [k for k in range(len(self.hyps)) if w[k] >= self.cfg.hypothesis_prune_weight]
+        self.bank_counters["hypotheses_pruned"] += len(self.hyps) - len(keep)
+        self._select(keep)
+        # merge components that converged onto the same attitude as a more probable one
+        order = list(np.argsort(-self.logw))
+        keep, merged_into = [], {}
+        for k in order:
+            Ck = self.hyps[k].estimate().C_b_n
+            for j in keep:
+                Cj = self.hyps[j].estimate().C_b_n
+                if np.degrees(np.linalg.norm(Rotation.from_matrix(Ck @ Cj.T).as_rotvec())) < self.cfg.hypothesis_merge_deg:
+                    merged_into[k] = j
+                    break
+            else:
+                keep.append(k)
+        if merged_into:
+            w = self.weights
+            for k, j in merged_into.items():
+                w[j] += w[k]
+            self.bank_counters["hypotheses_merged"] += len(merged_into)
+            self.logw = np.log(np.maximum(w, 1e-300))
+            self._select(sorted(keep))
+        if len(self.hyps) == 1 and self.collapsed_at_s is None:
+            self.collapsed_at_s = float(self.hyps[0].estimate().stamp_s)
+
+    def _select(self, keep: list[int]) -> None:
+        if len(keep) == len(self.hyps):
+            return
+        self.hyps = [self.hyps[k] for k in keep]
+        self.offsets_rad = [self.offsets_rad[k] for k in keep]
+        self.logw = self.logw[keep] - np.max(self.logw[keep])
+
+    # ------------------------------------------------------------------ output
+    def estimate(self) -> AlignmentEstimate:
+        if not self._init:
+            raise RuntimeError("estimate() before initialize()")
+        b = int(np.argmax(self.logw))
+        est = self.hyps[b].estimate()
+        if len(self.hyps) == 1:
+            return est
+        w = self.weights
+        spread = np.zeros((3, 3))
+        for k, h in enumerate(self.hyps):
+            if k == b:
+                continue
+            d = Rotation.from_matrix(h.estimate().C_b_n @ est.C_b_n.T).as_rotvec()
+            spread += w[k] * np.outer(d, d)
+        est.P_att_n = est.P_att_n + spread
+        sig_yaw3 = 3.0 * math.degrees(math.sqrt(max(est.P_att_n[2, 2], 0.0)))
+        est.status = AlignmentStatus.CONVERGING
+        est.reason = (f"{len(self.hyps)} yaw hypotheses alive (best weight {w[b]:.3f}); "
+                      f"3-sigma yaw {sig_yaw3:.2f} deg")
+        return est
+
+    def diagnostics(self) -> dict:
+        d = dict(self.best.diagnostics()) if hasattr(self.best, "diagnostics") else {}
+        d.update(yaw_hypotheses_alive=len(self.hyps), yaw_hypothesis_weights=self.weights.round(4).tolist(),
+                 yaw_hypothesis_offsets_deg=[round(math.degrees(o), 1) for o in self.offsets_rad],
+                 yaw_hypotheses_collapsed_at_s=self.collapsed_at_s, **self.bank_counters)
+        return d
