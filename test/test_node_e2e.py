@@ -83,6 +83,38 @@ def test_ship_run_reaches_aligned_with_yaw_error_below_1_deg(tmp_path, ros_env):
         mon.close()
 
 
+@pytest.mark.timeout(120)
+def test_unknown_heading_179_deg_off_aligns_with_the_yaw_hypothesis_bank(tmp_path, ros_env):
+    """The node parameter yaw_hypotheses: 8 (filters/hypotheses.py): started 179 deg off in yaw, the IEKF bank keeps
+    one hypothesis within seconds, raises the flag and ends within 1 deg; the bank is visible in /diagnostics."""
+    from insalign_ros.nodes.monitor import AlignmentMonitor
+
+    mon = AlignmentMonitor()
+    nodes = []
+    try:
+        nodes.append(start_node(ALIGN, ros_env, log_dir=tmp_path, params={
+            "core": "iekf", "yaw_hypotheses": 8, "init_from_ground_truth": True,
+            "init_rpy_error_deg": "[3.0, -3.0, 179.0]"}))
+        sim = start_node(SIM, ros_env, log_dir=tmp_path, params={
+            "source": "scenario", "scenario": "ship", "seed": 1, "duration_s": 60.0, "rate_hz": 100.0,
+            "rate_factor": 8.0, "wait_for_subscribers": 1, "wait_timeout_s": 30.0})
+        nodes.append(sim)
+        assert wait_for_exit(sim, 90.0) == 0, sim.output()[-2000:]
+        summary = _sim_summary(sim)
+        assert mon.wait_for(lambda m: m.diag.get("filter_time_s") and float(m.diag["filter_time_s"]) * 1e9
+                            >= summary["first_stamp_ns"] + 59.0e9, 15.0), mon.diag
+        assert mon.wait_for(lambda m: m.aligned is True, 5.0), (mon.aligned_history, mon.diag)
+        err, s3 = mon.euler_error[1], mon.euler_3sigma[1]
+        assert abs(err[2]) < 1.0 and np.all(np.abs(err) < s3), (err, s3)
+        assert mon.diag["core.yaw_hypotheses_alive"] == "1", mon.diag
+        t_init = float(mon.diag["initialised_at_s"])
+        assert float(mon.diag["core.yaw_hypotheses_collapsed_at_s"]) - t_init < 30.0, mon.diag
+        assert abs(abs(json.loads(mon.diag["core.yaw_hypothesis_offsets_deg"])[0]) - 180.0) < 1e-6, mon.diag
+    finally:
+        stop_nodes(nodes)
+        mon.close()
+
+
 def _run_group(cores, scenario, tmp_path, ros_env):
     from insalign_ros.nodes.monitor import AlignmentMonitor
 

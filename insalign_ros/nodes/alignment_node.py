@@ -18,6 +18,7 @@ parameters, the aligned-flag criteria (eval/aligned.py) and the bad-input policy
 
 from __future__ import annotations
 
+import json
 import math
 import sys
 import time
@@ -547,6 +548,17 @@ class AlignmentNode(Node):
             self.pub_aligned.publish(Bool(data=now))
             self.get_logger().info(f"aligned flag {'raised' if now else 'lowered'} at t={t:.3f} s: {self.flag.reason}")
 
+    def _core_diagnostics(self) -> dict:
+        """The core's own diagnostics() (PI-LIEKF LMI status, yaw-hypothesis bank, ...) as 'core.<key>' strings."""
+        fn = getattr(self.core, "diagnostics", None) if self.core is not None else None
+        if not callable(fn):
+            return {}
+        try:
+            return {f"core.{k}": (json.dumps(v) if isinstance(v, (list, tuple, dict)) else str(v))
+                    for k, v in fn().items()}
+        except Exception as exc:  # noqa: BLE001 - diagnostics must never take the node down
+            return {"core.diagnostics_error": f"{type(exc).__name__}: {exc}"}
+
     def _publish_diagnostics(self) -> None:
         st = DiagnosticStatus()
         st.name = f"{self.get_name()}: alignment"
@@ -582,6 +594,7 @@ class AlignmentNode(Node):
                         imu_stamp_age_median_ms=f"{np.median(age):.3f}",
                         imu_stamp_age_p99_ms=f"{np.percentile(age, 99):.3f}")
         vals.update({k: str(v) for k, v in self.counters.items()})
+        vals.update(self._core_diagnostics())
         st.values = [KeyValue(key=k, value=str(v)) for k, v in vals.items()]
         arr = DiagnosticArray()
         arr.header.stamp = self.get_clock().now().to_msg()
