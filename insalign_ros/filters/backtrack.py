@@ -100,9 +100,16 @@ class BacktrackingAligner:
     """
 
     def __init__(self, core: AlignmentCore, init_stamp_s: float, window_s: float, passes: int = 1,
-                 chunk_samples: int = 200):
+                 chunk_samples: int = 200, covariance: str = "reset"):
         if passes < 0 or not window_s > 0:
             raise ValueError(f"passes must be >= 0 and window_s > 0 (got {passes}, {window_s})")
+        if covariance not in ("reset", "reuse"):
+            raise ValueError(f"covariance must be 'reset' or 'reuse', got {covariance!r}")
+        #: "reset": the last forward pass over the window starts from the initial covariance (state kept), so every
+        #: measurement is counted once and the handed-over covariance is the forward-only one (docs/backtracking.md);
+        #: "reuse": the covariance after the backward pass (the paper's scheme; counts the data twice: optimistic)
+        self.covariance = covariance
+        self._P0 = np.array(core.P, float, copy=True) if getattr(core, "P", None) is not None else None
         if passes > 0:
             make_backtrackable(core)
         self.live = core
@@ -189,6 +196,8 @@ class BacktrackingAligner:
                 k = k0
                 yield
             # forward over the window
+            if self.covariance == "reset" and self._P0 is not None and _ == self.passes - 1:
+                core.P = self._P0.copy()
             yield from self._forward(core, 0, n)
         # catch-up with everything recorded since (the list grows while we run)
         i = n
@@ -255,14 +264,14 @@ class BacktrackingAligner:
 
 
 def run_offline_backtrack(core, data, rpy_error_deg, window_s: float, passes: int = 1, output_period_s: float = 1.0,
-                          init_index: int = 0):
+                          init_index: int = 0, covariance: str = "reset"):
     """Offline: initialise from the truth of ``data`` plus an Euler error, feed all events; at the end of the
     window run the passes to completion at once (zero catch-up). Returns (estimates, aligner)."""
     k = init_index
     guess = initial_guess(data.t_s[k], data.lat_rad[k], data.lon_rad[k], data.h_m[k], data.C_b_n[k], data.v_n[k],
                           rpy_error_deg, core.cfg)
     guess.apply(core)
-    bt = BacktrackingAligner(core, float(data.t_s[k]), window_s, passes)
+    bt = BacktrackingAligner(core, float(data.t_s[k]), window_s, passes, covariance=covariance)
     out = []
     next_out = float(data.t_s[k])
     for ev in data.events(start=k):

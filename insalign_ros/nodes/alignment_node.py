@@ -83,6 +83,8 @@ COMMON_PARAMS = {
     "log_throttle_s": (2.0, "throttle of the rejection log lines [s]"),
     "backtrack_passes": (0, "backtracking passes over the stored window (filters/backtrack.py; 0: off)"),
     "backtrack_window_s": (60.0, "backtracking: stored alignment window after initialisation [s data time]"),
+    "backtrack_covariance": ("reset", "backtracking: 'reset' = last forward pass from the initial covariance (each "
+                             "measurement counted once, honest sigma); 'reuse' = the paper's (optimistic)"),
     "backtrack_budget_s": (0.02, "backtracking: wall time per timer tick spent on the passes [s]"),
     "backtrack_timer_hz": (20.0, "backtracking: timer rate of the budgeted pass steps [Hz]"),
     "aligned.roll_pitch_3sigma_deg": (1.0, "aligned flag: 3-sigma roll/pitch bound [deg]"),
@@ -194,6 +196,8 @@ class AlignmentNode(Node):
                 return f"{name}: must be a finite number >= 0, got {p[name]!r}"
         if not (isinstance(p["backtrack_passes"], int) and 0 <= p["backtrack_passes"] <= 10):
             return f"backtrack_passes: must be an integer in [0, 10], got {p['backtrack_passes']!r}"
+        if p["backtrack_covariance"] not in ("reset", "reuse"):
+            return f"backtrack_covariance: must be 'reset' or 'reuse', got {p['backtrack_covariance']!r}"
         for name in ("backtrack_window_s", "backtrack_budget_s", "backtrack_timer_hz"):
             if not (isinstance(p[name], (int, float)) and math.isfinite(p[name]) and p[name] > 0):
                 return f"{name}: must be a finite number > 0, got {p[name]!r}"
@@ -480,7 +484,8 @@ class AlignmentNode(Node):
         if p["backtrack_passes"] > 0:
             from ..filters.backtrack import BacktrackingAligner
 
-            self.runner = BacktrackingAligner(core, t, p["backtrack_window_s"], p["backtrack_passes"])
+            self.runner = BacktrackingAligner(core, t, p["backtrack_window_s"], p["backtrack_passes"],
+                                              covariance=p["backtrack_covariance"])
         else:
             self.runner = EventRunner(core, t)
         self.anchor = pos
