@@ -33,6 +33,8 @@ def main(argv=None):
     ap.add_argument("--fig", default="")
     ap.add_argument("--gnss-sigma-floor-m", type=float, default=1.0,
                     help="floor of the fix sigma (the RT3003 reports ~2 cm; 0 = use it as is)")
+    ap.add_argument("--yaw-hypotheses", type=int, default=1,
+                    help="bank of K yaw hypotheses around each core (filters/hypotheses.py; 1 = one filter)")
     args = ap.parse_args(argv)
     drive = Path(args.data) / args.drive
     if not drive.exists():
@@ -42,7 +44,7 @@ def main(argv=None):
     print(f"{data.name}: {data.n} IMU samples over {data.t_s[-1]:.1f} s, {len(data.gnss_t_s)} fixes")
     rows, series = [], {}
     for c in INMOTION_CORE_NAMES:
-        core = make_core(c, {"gnss_sigma_floor_m": args.gnss_sigma_floor_m})
+        core = make_core(c, {"gnss_sigma_floor_m": args.gnss_sigma_floor_m, "yaw_hypotheses": args.yaw_hypotheses})
         ests, runner = run_offline(core, data, args.rpy_error, output_period_s=1.0)
         r = MT.evaluate(c, ests, data.t_s, data.C_b_n, float(data.t_s[0]))
         series[c] = r
@@ -70,7 +72,9 @@ def main(argv=None):
         ax.set_ylabel("yaw error vs RT3003 [deg]")
         ax.grid(True)
         ax.legend()
-        ax.set_title(f"KITTI 0042, initial error {args.rpy_error} deg, GNSS sigma floor {args.gnss_sigma_floor_m} m")
+        bank = f", {args.yaw_hypotheses} yaw hypotheses" if args.yaw_hypotheses > 1 else ""
+        ax.set_title(f"KITTI 0042, initial error {args.rpy_error} deg, GNSS sigma floor {args.gnss_sigma_floor_m} m"
+                     + bank, fontsize=9)
         fig.tight_layout()
         fig.savefig(args.fig, dpi=90)
     return 0

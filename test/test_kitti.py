@@ -15,7 +15,8 @@ from insalign_ros.io.kitti import (IDX, KittiError, convert_drive, oxts_rows_fro
 from insalign_ros.sim.scenarios import make_scenario
 
 T0_NS = int(np.datetime64("2011-10-03T14:34:18.654292160", "ns").astype(np.int64))
-REAL = Path("/work/shared/data/kitti_raw_oxts_sync/2011_10_03_drive_0042_oxts")
+# read-only shared data next to the clone (never copied into the repo); the tests that need it skip without it
+REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti_raw_oxts_sync" / "2011_10_03_drive_0042_oxts"
 
 
 @pytest.fixture(scope="module")
@@ -114,6 +115,26 @@ def test_real_drive_0042(tmp_path):
     assert abs(yaw - first[IDX["yaw"]]) < 1e-12
     # at highway speed the RT3003's az is about +g (specific force, z up)
     assert 9.0 < np.median(data.f_ib_b[:, 2]) < 10.5
+
+
+@pytest.mark.skipif(not REAL.exists(), reason=f"real KITTI drive not present at {REAL}")
+@pytest.mark.parametrize("name", ("liekf", "iekf"))
+def test_real_drive_0042_unknown_heading_with_rt3003_sigma(name):
+    """Issue 5 item 8 on real data: 10 Hz IMU, the RT3003's own 2-cm fix sigma (no floor), initial error 10/10/179
+    deg, a bank of 8 yaw hypotheses: within 2 deg of the RT3003 yaw within 20 s and for the rest of the drive
+    (measured 5 s, max 0.6-0.7 deg after 60 s; docs/results.md). One filter alone diverges here (same table)."""
+    from insalign_ros.eval import metrics as MT
+    from insalign_ros.filters.registry import make_core
+    from insalign_ros.filters.runner import run_offline
+
+    data, _ = convert_drive(REAL, gnss_rate_hz=1.0)
+    core = make_core(name, {"yaw_hypotheses": 8, "gnss_sigma_floor_m": 0.0})
+    ests, _ = run_offline(core, data, [10.0, 10.0, 179.0], output_period_s=1.0)
+    r = MT.evaluate(name, ests, data.t_s, data.C_b_n, float(data.t_s[0]))
+    assert MT.time_below_s(r.t_s, r.rpy_err_deg[:, 2], 2.0) <= 20.0
+    late = r.t_s >= 60.0
+    assert np.max(np.abs(r.rpy_err_deg[late, 2])) < 1.5
+    assert np.max(np.abs(r.rpy_err_deg[late, :2])) < 0.5
 
 
 def test_extract_layout_100hz_with_jitter(tmp_path):
