@@ -125,19 +125,26 @@ class PiLiekfConfig(InMotionGnssConfig):
     rho: float = 0.003
     #: cvxpy solver for the LMI; SCS is tried only when this one raises
     lmi_solver: str = "CLARABEL"
-    #: "window": eq. (20) on the transition lifted over ``lmi_window_updates`` GNSS intervals (k_P = I, k_I from
-    #: the LMI, rate (1 - 2 rho)^W); "interval": eq. (22) on one frozen interval as the paper writes it (never
-    #: feasible on the INS: kept to reproduce that finding)
-    lmi_formulation: str = "window"
+    #: "certify" (default): eq. (20) as an analysis LMI (J variable) on the exact closed loop of eq. (18) over a
+    #: window of ``lmi_window_updates`` GNSS intervals, one J for 3 windows shifted by W/3, rate (1 - 2 rho)^W; the
+    #: first certified candidate of ``lmi_candidates`` is used. "window": synthesis LMI on the lifted window with
+    #: the integral state held (k_P = I, k_I an LMI variable; feasible but k_I <= ~0.06 1/s, buys nothing).
+    #: "interval": eq. (22) on one frozen interval as the paper writes it (never feasible on the INS)
+    lmi_formulation: str = "certify"
+    #: formulation "certify": candidate gains "k_P:k_I,..." (scalars times I; k_I in 1/s) in order of preference;
+    #: the first one that the eq. (20) LMI certifies on the exact window product is used
+    lmi_candidates: str = "1.6:0.5,1.6:0.3,1.3:0.3,1.0:0.1"
     #: GNSS intervals W of the lifted window (formulation "window")
     lmi_window_updates: int = 30
     #: re-solve the LMI every this many GNSS updates (1 = every update, as Alg. 2 reads); the gains are cached
     #: in between (A and H are state-independent: the LMI data change only with the IMU input and L_k)
     lmi_resolve_every_updates: int = 30
     #: "every": re-solve every ``lmi_resolve_every_updates``; "once": solve once, at the first update with a full
-    #: window after the 3-sigma yaw fell below ``aligned_yaw_3sigma_deg``, and keep those gains (retried at the
+    #: window after the 3-sigma yaw fell below ``lmi_once_yaw_3sigma_deg``, and keep those gains (retried at the
     #: same schedule while the solve falls back)
     lmi_schedule: str = "every"
+    #: convergence threshold of the "once" schedule [deg] (the ship's 3-sigma yaw settles near 1.4 deg)
+    lmi_once_yaw_3sigma_deg: float = 3.0
     #: "structured": the eq. (23) gain structure built into the LMI (exact, residual 0); "paper": unstructured
     #: J, N of eq. (22) and the least-squares solution of eq. (23) (its residual is reported and the structured
     #: closed loop is checked)
@@ -167,12 +174,18 @@ class PiLiekfConfig(InMotionGnssConfig):
         super().validate()
         if not 0.0 <= self.rho < 0.5:
             raise ValueError(f"rho: must be in [0, 0.5) so that 1 - 2 rho > 0, got {self.rho}")
-        choices = {"lmi_solver": ("CLARABEL", "SCS"), "lmi_formulation": ("window", "interval"),
+        choices = {"lmi_solver": ("CLARABEL", "SCS"), "lmi_formulation": ("window", "certify", "interval"),
                    "lmi_schedule": ("every", "once"), "lmi_structure": ("structured", "paper"),
                    "lmi_async": ("auto", "true", "false"), "lmi_objective": ("min_norm", "max_integral")}
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name}: must be one of {list(allowed)}, got {getattr(self, name)!r}")
+        try:
+            from .lmi import parse_candidates
+
+            parse_candidates(self.lmi_candidates)
+        except ValueError as exc:
+            raise ValueError(f"lmi_candidates: {exc}") from None
         if self.safe_k_I_per_s < 0:
             raise ValueError(f"safe_k_I_per_s: must be >= 0, got {self.safe_k_I_per_s}")
         if self.lmi_resolve_every_updates < 1:
@@ -183,6 +196,8 @@ class PiLiekfConfig(InMotionGnssConfig):
             raise ValueError(f"lmi_eps: must be > 0, got {self.lmi_eps}")
         if self.integral_clamp_m < 0:
             raise ValueError(f"integral_clamp_m: must be >= 0, got {self.integral_clamp_m}")
+        if not self.lmi_once_yaw_3sigma_deg > 0:
+            raise ValueError(f"lmi_once_yaw_3sigma_deg: must be > 0, got {self.lmi_once_yaw_3sigma_deg}")
 
 
 @dataclass

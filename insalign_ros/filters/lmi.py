@@ -370,3 +370,100 @@ class WindowPiGainSolver:
             res.reason = (f"lifted LMI (W = {self.W}) solved, rate (1-2 rho)^W certified for the held model (margin "
                           f"{margin:.2g}); exact window spectral radius {srad:.4f}; eq. (23) residual {resid:.2g}")
         return res
+
+
+def parse_candidates(text: str) -> list[tuple[float, float]]:
+    """``"1.6:0.5,1.0:0.1"`` -> [(k_P, k_I [1/s]), ...] (scalar gains, times the identity). Raises ValueError."""
+    out = []
+    for item in text.split(","):
+        kp, ki = item.split(":")
+        kp, ki = float(kp), float(ki)
+        if not (np.isfinite(kp) and np.isfinite(ki) and kp > 0 and ki >= 0):
+            raise ValueError(f"gain candidate {item!r}: need k_P > 0 and k_I >= 0")
+        out.append((kp, ki))
+    if not out:
+        raise ValueError("no gain candidates")
+    return out
+
+
+class WindowGainCertifier:
+    """Eq. (20) as an *analysis* LMI on the exact per-update closed loop (eq. (18), integral state not held).
+
+    For given gains ``K_PI = [k_P; -k_I]`` (eq. (23) structure exact: ``K = M K_PI``) the transition of the
+    augmented error over a window of W intervals is the product ``Pi = prod_j (A_bar_j - M_j K_PI B_bar_j)``,
+    polynomial in the gains, so the gains cannot be LMI variables; J can. The LMI
+
+        Pi_i^T J Pi_i - (1 - 2 rho)^W J < 0  for the S windows ending 0, s, 2 s, ... updates ago,  J > 0
+
+    (one Lyapunov function for all of them: robust to the motion changing between windows; a single window
+    would only test its spectral radius) certifies the paper's rate. The candidates (scalar k_P, k_I, in the
+    user's order of preference) are tried in order; the first certified one is returned, else the safe gains.
+    """
+
+    def __init__(self, n: int = 9, m: int = 3, rho: float = 0.003, window: int = 30, n_windows: int = 3,
+                 shift: int = 10, candidates=((1.0, 0.0),), solver: str = "CLARABEL", eps: float = 1e-6,
+                 safe_k_I_per_s: float = 0.0):
+        import cvxpy as cp
+
+        self.cp, self.n, self.m, self.rho, self.W, self.S, self.shift = cp, n, m, rho, window, n_windows, shift
+        self.candidates, self.solver, self.eps = list(candidates), solver, eps
+        self.safe_k_P, self.safe_k_I = np.eye(m), safe_k_I_per_s * np.eye(m)
+        self.c = (1.0 - 2.0 * rho) ** window
+        q = n + m
+        self.Pi = [cp.Parameter((q, q)) for _ in range(n_windows)]
+        self.J = cp.Variable((q, q), symmetric=True)
+        self.exprs = []
+        cons = [self.J >> eps * np.eye(q), self.J << np.eye(q)]
+        for P in self.Pi:
+            # Schur form of Pi^T J Pi < c J (eq. (21)-(22) with K fixed): [[-c J, Pi^T J], [J Pi, -J]] < 0
+            JP = self.J @ P
+            e = cp.bmat([[-self.c * self.J, JP.T], [JP, -self.J]])
+            e = 0.5 * (e + e.T)
+            self.exprs.append(e)
+            cons.append(e << -eps * np.eye(2 * q))
+        self.prob = cp.Problem(cp.Minimize(0), cons)
+
+    @property
+    def history_needed(self) -> int:
+        return self.W + (self.S - 1) * self.shift
+
+    def solve(self, w: WindowData) -> LmiResult:
+        """``w`` holds the last ``history_needed`` intervals (oldest first); P0 whitens the error coordinates."""
+        m = self.m
+        t0 = time.perf_counter()
+        tried = []
+        status, used = "not solved", ""
+        N = len(w.Ts)
+        for kp, ki in self.candidates:
+            k_P, k_I = kp * np.eye(m), ki * np.eye(m)
+            Pis = []
+            for i in range(self.S):
+                end = N - i * self.shift
+                sub = WindowData(w.A[end - self.W:end], w.L[end - self.W:end], w.Ts[end - self.W:end], w.H, w.P0)
+                Pis.append(exact_window_closed_loop(sub, k_P, k_I))
+            srad = max(float(np.max(np.abs(np.linalg.eigvals(P)))) for P in Pis)
+            if srad >= np.sqrt(self.c):  # necessary condition fails: no J exists, skip the solve
+                tried.append(f"{kp:g}/{ki:g}: spectral radius {srad:.3f} >= (1-2 rho)^(W/2)")
+                continue
+            for par, P in zip(self.Pi, Pis):
+                par.value = P
+            status, used = _solve(self.prob, self.solver)
+            if status not in ("optimal", "optimal_inaccurate") or self.J.value is None:
+                tried.append(f"{kp:g}/{ki:g}: {status}")
+                continue
+            lmi_max = max(float(np.linalg.eigvalsh(np.asarray(e.value)).max()) for e in self.exprs)
+            if lmi_max > -0.5 * self.eps:
+                tried.append(f"{kp:g}/{ki:g}: on the boundary")
+                continue
+            J = self.J.value
+            margin = max(float(np.linalg.eigvalsh(P.T @ J @ P - self.c * J).max()) for P in Pis)
+            dt = time.perf_counter() - t0
+            return LmiResult(status, k_P, k_I, False,
+                             f"gains k_P = {kp:g} I, k_I = {ki:g} I certified: eq. (20) rate (1-2 rho)^W with one J "
+                             f"over {self.S} windows (W = {self.W}), worst spectral radius {srad:.3f}"
+                             + (f"; rejected before: {'; '.join(tried)}" if tried else ""),
+                             0.0, lmi_max, margin, srad, used, dt, extra={"candidate": (kp, ki)})
+        dt = time.perf_counter() - t0
+        return LmiResult(status, self.safe_k_P, self.safe_k_I, True,
+                         f"no gain candidate certified ({'; '.join(tried)}): safe gains", solver=used,
+                         solve_time_s=dt)

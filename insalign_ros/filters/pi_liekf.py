@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import TimeoutError as FutureTimeout
 
 import numpy as np
 
@@ -51,10 +53,12 @@ class PiLiekf(Liekf):
         self.k_P = np.eye(3)
         self.k_I = self.cfg.safe_k_I_per_s * np.eye(3)
         self._n_updates = 0
-        self._window: deque = deque(maxlen=self.cfg.lmi_window_updates)
+        self._window: deque = deque(maxlen=self._history_needed())
         self._pending = None  # Future of an asynchronous solve
         self._frozen = False  # schedule "once": gains fixed after the first successful solve
         self._once_first = None
+        if self.lmi_async and self._executor is None:  # created here, not in the update path
+            self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pi_liekf_lmi")
         self.lmi_submitted = 0
 
     # ------------------------------------------------------------------ LMI
@@ -63,7 +67,12 @@ class PiLiekf(Liekf):
             from . import lmi
 
             c = self.cfg
-            if c.lmi_formulation == "window":
+            if c.lmi_formulation == "certify":
+                self._solver = lmi.WindowGainCertifier(9, 3, c.rho, c.lmi_window_updates, 3,
+                                                       max(1, c.lmi_window_updates // 3),
+                                                       lmi.parse_candidates(c.lmi_candidates), c.lmi_solver,
+                                                       c.lmi_eps, c.safe_k_I_per_s)
+            elif c.lmi_formulation == "window":
                 self._solver = lmi.WindowPiGainSolver(9, 3, c.rho, c.lmi_window_updates, c.lmi_solver, c.lmi_eps,
                                                       c.safe_k_I_per_s, c.lmi_structure, c.lmi_objective)
             else:
@@ -71,15 +80,19 @@ class PiLiekf(Liekf):
                 self._solver = cls(9, 3, c.rho, c.lmi_solver, c.lmi_eps, c.safe_k_I_per_s)
         return self._solver
 
+    def _history_needed(self) -> int:
+        W = self.cfg.lmi_window_updates
+        return W + 2 * max(1, W // 3) if self.cfg.lmi_formulation == "certify" else W
+
     def _solve_due(self) -> bool:
         if self._frozen or self._pending is not None:
             return False
         c = self.cfg
-        if c.lmi_formulation == "window" and len(self._window) < c.lmi_window_updates:
+        if c.lmi_formulation != "interval" and len(self._window) < self._history_needed():
             return False
         if c.lmi_schedule == "once":
             sig_yaw3 = 3.0 * math.degrees(math.sqrt(max(self._yaw_var_n(), 0.0)))
-            if sig_yaw3 >= c.aligned_yaw_3sigma_deg:
+            if sig_yaw3 >= c.lmi_once_yaw_3sigma_deg:
                 return False
             # the first converged update, then (while the solve falls back) every lmi_resolve_every_updates
             if self._once_first is None:
@@ -97,7 +110,7 @@ class PiLiekf(Liekf):
     def _solve_job(self, A, H, L, Ts):
         """A callable that solves on a snapshot (copies): safe to run in a worker thread."""
         # the solver (cvxpy import and problem build, ~1 s the first time) is built inside the job: in the worker
-        if self.cfg.lmi_formulation == "window":
+        if self.cfg.lmi_formulation != "interval":
             from .lmi import WindowData
 
             w = WindowData(np.array([x[0] for x in self._window]), np.array([x[1] for x in self._window]),
@@ -129,10 +142,6 @@ class PiLiekf(Liekf):
             job = self._solve_job(self._Phi_since_update, H, L, Ts)
             self.lmi_submitted += 1
             if self.lmi_async:
-                if self._executor is None:
-                    from concurrent.futures import ThreadPoolExecutor
-
-                    self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pi_liekf_lmi")
                 self._pending = self._executor.submit(job)
             else:
                 self._apply(job())
@@ -148,8 +157,6 @@ class PiLiekf(Liekf):
         """Block until an asynchronous solve has finished and apply it (tests, shutdown). True if none is left."""
         if self._pending is None:
             return True
-        from concurrent.futures import TimeoutError as FutureTimeout
-
         try:
             self._pending.result(timeout=timeout_s)
         except FutureTimeout:
