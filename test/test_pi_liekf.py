@@ -231,3 +231,18 @@ def test_certified_gains_on_the_ship_exact_loop_and_rejected_candidates():
     est_lk, _ = run_offline(lk, d, [10.0, 10.0, 60.0], output_period_s=1.0)
     assert not np.allclose(est[-1].C_b_n, est_lk[-1].C_b_n, atol=1e-6)
     assert np.allclose(est[50].C_b_n, est_lk[50].C_b_n, atol=1e-12)  # identical before the first solve
+
+
+def test_async_core_can_be_deep_copied():
+    """The backtracking aligner deep-copies the live core: the worker thread and a pending solve are not copied."""
+    import copy
+
+    from insalign_ros.sim.scenarios import make_scenario
+
+    d = make_scenario("ship", seed=0, duration_s=12.0)
+    core = _timed_core("true", _SlowSolver(1.0, 0.05))
+    run_offline(core, d, [10.0, 10.0, 60.0], output_period_s=1.0)
+    assert core._pending is not None
+    twin = copy.deepcopy(core)
+    assert twin._pending is None and twin._executor is None and np.array_equal(twin.P, core.P)
+    core.close()

@@ -43,6 +43,18 @@ class PiLiekf(Liekf):
         self.lmi = None
         self.lmi_history: list = []  # (t_s when the gains were applied, LmiResult)
 
+    def _ensure_executor(self) -> ThreadPoolExecutor:
+        if self._executor is None:
+            self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pi_liekf_lmi")
+        return self._executor
+
+    def __getstate__(self):
+        # copy.deepcopy (the backtracking aligner copies the live core): threads, futures and the cvxpy problem are
+        # not copied; the copy builds its own. A solve still running for the original is not inherited.
+        st = self.__dict__.copy()
+        st.update(_executor=None, _pending=None, _solver=None)
+        return st
+
     @property
     def lmi_async(self) -> bool:
         return self.cfg.lmi_async == "true"
@@ -57,8 +69,8 @@ class PiLiekf(Liekf):
         self._pending = None  # Future of an asynchronous solve
         self._frozen = False  # schedule "once": gains fixed after the first successful solve
         self._once_first = None
-        if self.lmi_async and self._executor is None:  # created here, not in the update path
-            self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="pi_liekf_lmi")
+        if self.lmi_async:  # created here, not in the update path
+            self._ensure_executor()
         self.lmi_submitted = 0
 
     # ------------------------------------------------------------------ LMI
@@ -142,7 +154,7 @@ class PiLiekf(Liekf):
             job = self._solve_job(self._Phi_since_update, H, L, Ts)
             self.lmi_submitted += 1
             if self.lmi_async:
-                self._pending = self._executor.submit(job)
+                self._pending = self._ensure_executor().submit(job)
             else:
                 self._apply(job())
         self._n_updates += 1
