@@ -69,8 +69,8 @@ class PiLiekf(Liekf):
         self._pending = None  # Future of an asynchronous solve
         self._frozen = False  # schedule "once": gains fixed after the first successful solve
         self._once_first = None
-        if self.lmi_async:  # created here, not in the update path
-            self._ensure_executor()
+        if self.lmi_async:  # created here, not in the update path; the cvxpy import and problem build (~1 s)
+            self._ensure_executor().submit(self._gain_solver)  # run in the worker now, not at the first solve
         self.lmi_submitted = 0
 
     # ------------------------------------------------------------------ LMI
