@@ -246,3 +246,22 @@ def test_async_core_can_be_deep_copied():
     twin = copy.deepcopy(core)
     assert twin._pending is None and twin._executor is None and np.array_equal(twin.P, core.P)
     core.close()
+
+
+class _RaisingSolver:
+    def solve(self, *args, **kwargs):
+        raise np.linalg.LinAlgError("not positive definite")
+
+
+@pytest.mark.parametrize("mode", ["true", "false"])
+def test_a_failing_solve_falls_back_to_safe_gains_with_the_reason(mode):
+    from insalign_ros.sim.scenarios import make_scenario
+
+    core = _timed_core(mode, _RaisingSolver())
+    est, _ = run_offline(core, make_scenario("ship", seed=0, duration_s=12.0), [10.0, 10.0, 60.0],
+                         output_period_s=1.0)
+    assert core.wait_for_pending_solve(5.0)
+    assert core.lmi_history and core.lmi.used_fallback and "LinAlgError" in core.diagnostics()["lmi_reason"]
+    assert np.allclose(core.k_P, np.eye(3)) and np.allclose(core.k_I, 0.0)
+    assert np.all(np.isfinite(est[-1].C_b_n))
+    core.close()

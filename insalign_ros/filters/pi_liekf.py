@@ -6,10 +6,12 @@ Per GNSS update k (our sign convention: :mod:`.liekf`):
   error-state prediction is zero after the reset of eq. (33));
 * ``Z_PI = k_P Z_p + Z_I_{k-1}``, ``Z_I_k = Z_I_{k-1} + k_I T_s Z_p`` (eq. (29)); ``xi_hat = L_k Z_PI``
   (eq. (30)); covariance by eq. (31) (Joseph, unchanged: the covariance does not know about the PI loop);
-* gains ``k_P, k_I`` from the LMI (:mod:`.lmi`). Default formulation "window": eq. (20) on the transition lifted
-  over the last ``lmi_window_updates`` intervals (the one-interval LMI of eq. (22) is never feasible on the INS;
-  docs/inmotion_cores.md). Re-solved every ``lmi_resolve_every_updates`` updates (or once, after convergence)
-  and cached in between; with ``lmi_async`` the solve runs in a worker thread on a snapshot of the window and
+* gains ``k_P, k_I`` from the LMI (:mod:`.lmi`; the one-interval LMI of eq. (22) is never feasible on the INS,
+  docs/inmotion_cores.md). Default formulation "certify": eq. (20) as an analysis LMI (J variable) on the exact
+  closed loop of eq. (18) over windows of ``lmi_window_updates`` intervals; the first certified candidate of
+  ``lmi_candidates`` is used. "window": synthesis of k_I on the lifted window with the integral state held.
+  Safe gains (k_P = I, k_I = ``safe_k_I_per_s``) until the first solve and whenever it fails, with the reason.
+  Re-solved every ``lmi_resolve_every_updates`` updates (or once, after convergence) and cached in between; with ``lmi_async`` the solve runs in a worker thread on a snapshot of the window and
   the gains are swapped in at the first update after it finished, so an update never waits for cvxpy.
 * ``Z_I`` is clamped per axis at ``integral_clamp_m`` (anti-windup while a large initial attitude error makes the
   innovations meaningless as a bias signal).
@@ -139,6 +141,17 @@ class PiLiekf(Liekf):
         if self.cfg.lmi_schedule == "once" and not res.used_fallback:
             self._frozen = True
 
+    def _run_guarded(self, job):
+        """A solve that raises (bad window data, solver crash) must not take the filter down: safe gains + reason."""
+        try:
+            return job()
+        except Exception as exc:  # noqa: BLE001 - any failure of the gain design falls back
+            from .lmi import LmiResult
+
+            c = self.cfg
+            return LmiResult(f"error: {type(exc).__name__}", np.eye(3), c.safe_k_I_per_s * np.eye(3), True,
+                             f"LMI solve raised {type(exc).__name__}: {exc}: safe gains")
+
     def _poll(self) -> None:
         if self._pending is not None and self._pending.done():
             fut, self._pending = self._pending, None
@@ -154,9 +167,9 @@ class PiLiekf(Liekf):
             job = self._solve_job(self._Phi_since_update, H, L, Ts)
             self.lmi_submitted += 1
             if self.lmi_async:
-                self._pending = self._ensure_executor().submit(job)
+                self._pending = self._ensure_executor().submit(self._run_guarded, job)
             else:
-                self._apply(job())
+                self._apply(self._run_guarded(job))
         self._n_updates += 1
         Z_PI = self.k_P @ z + self.Z_I
         self.Z_I = self.Z_I + self.k_I @ z * Ts
