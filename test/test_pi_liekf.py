@@ -107,8 +107,8 @@ def test_window_lmi_is_feasible_on_the_ship_and_its_gains_stabilise_the_exact_lo
     from insalign_ros.sim.scenarios import make_scenario
 
     d = make_scenario("ship", seed=3, duration_s=61.5)  # the last fix (t = 61 s) is the last solve
-    pi = make_core("pi_liekf", {"lmi_formulation": "window", "lmi_window_updates": 20, "lmi_resolve_every_updates": 20,
-                                "lmi_async": "false"})
+    pi = make_core("pi_liekf", {"lmi_formulation": "window", "rho": 0.003, "lmi_window_updates": 20,
+                                "lmi_resolve_every_updates": 20, "lmi_async": "false"})
     assert pi.cfg.lmi_structure == "structured" and pi.cfg.lmi_objective == "max_integral"
     run_offline(pi, d, [10.0, 10.0, 60.0], output_period_s=1.0)
     assert [round(t) for t, _ in pi.lmi_history] == [21, 41, 61]  # every 20 updates once the window is full

@@ -119,10 +119,9 @@ class LiekfConfig(InMotionGnssConfig):
 class PiLiekfConfig(InMotionGnssConfig):
     """PI-LIEKF (Alg. 2) with PI gains from the LMI of eqs. (18)-(23) (docs/inmotion_cores.md, PI-LIEKF)."""
 
-    #: decay-rate parameter of eq. (20) per GNSS update. The paper's Table 2 value 0.01 compounds to
-    #: (1 - 2 rho)^30 = 0.55 over the 30-s window, faster than the converged Kalman loop itself contracts on the ship
-    #: (lifted spectral radius 0.82 at k_I = 0 -> rho <= 0.0066): 0.003 (measured in docs/inmotion_cores.md)
-    rho: float = 0.003
+    #: decay-rate parameter of eq. (20) per GNSS update (PI-LIEKF Table 2: 0.01), compounded to (1 - 2 rho)^W over a
+    #: window. The "window" synthesis needs rho <= ~0.006 on the ship (use 0.003; docs/inmotion_cores.md)
+    rho: float = 0.01
     #: cvxpy solver for the LMI; SCS is tried only when this one raises
     lmi_solver: str = "CLARABEL"
     #: "certify" (default): eq. (20) as an analysis LMI (J variable) on the exact closed loop of eq. (18) over a

@@ -15,6 +15,12 @@ least-squares solution and the relative residual ||M K_PI - K|| / ||K|| is repor
 the *structured* closed loop ``A_bar - M K_PI B_bar`` still satisfies the rate condition of eq. (20) with
 the same J and its spectral radius. When the LMI is infeasible or the structured gains do not stabilise,
 the safe gains ``k_P = I, k_I = safe`` are returned (the PI-LIEKF then reduces to the LIEKF) with the reason.
+
+That per-interval form (:class:`PiGainSolver`, :class:`StructuredPiGainSolver`) is never feasible on the INS (the
+frozen pair is not detectable). :func:`lift_window` + :class:`WindowPiGainSolver` impose eq. (20) on the
+transition lifted over W intervals (k_I synthesised, integral state held); :class:`WindowGainCertifier` (the
+default of the PI-LIEKF) uses eq. (20) as an analysis LMI on the exact window product for candidate gains.
+docs/inmotion_cores.md has the derivations and the measurements.
 """
 
 from __future__ import annotations
@@ -347,7 +353,7 @@ class WindowPiGainSolver:
             resid = 0.0
         else:
             K = np.linalg.solve(J, self.N.value)  # A_cl = A_bar - K B_bar; E k_I = -K
-            k_I = -K[n:] 
+            k_I = -K[n:]
             resid = float(np.linalg.norm(K[:n]) / max(np.linalg.norm(K), 1e-300))
         E = np.zeros((q, m))
         E[n:] = np.eye(m)
@@ -400,7 +406,7 @@ class WindowGainCertifier:
     user's order of preference) are tried in order; the first certified one is returned, else the safe gains.
     """
 
-    def __init__(self, n: int = 9, m: int = 3, rho: float = 0.003, window: int = 30, n_windows: int = 3,
+    def __init__(self, n: int = 9, m: int = 3, rho: float = 0.01, window: int = 30, n_windows: int = 3,
                  shift: int = 10, candidates=((1.0, 0.0),), solver: str = "CLARABEL", eps: float = 1e-6,
                  safe_k_I_per_s: float = 0.0):
         import cvxpy as cp
