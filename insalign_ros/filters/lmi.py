@@ -15,6 +15,12 @@ least-squares solution and the relative residual ||M K_PI - K|| / ||K|| is repor
 the *structured* closed loop ``A_bar - M K_PI B_bar`` still satisfies the rate condition of eq. (20) with
 the same J and its spectral radius. When the LMI is infeasible or the structured gains do not stabilise,
 the safe gains ``k_P = I, k_I = safe`` are returned (the PI-LIEKF then reduces to the LIEKF) with the reason.
+
+That per-interval form (:class:`PiGainSolver`, :class:`StructuredPiGainSolver`) is never feasible on the INS (the
+frozen pair is not detectable). :func:`lift_window` + :class:`WindowPiGainSolver` impose eq. (20) on the
+transition lifted over W intervals (k_I synthesised, integral state held); :class:`WindowGainCertifier` (the
+default of the PI-LIEKF) uses eq. (20) as an analysis LMI on the exact window product for candidate gains.
+docs/inmotion_cores.md has the derivations and the measurements.
 """
 
 from __future__ import annotations
@@ -198,3 +204,272 @@ class PiGainSolver:
         else:
             res.reason = f"LMI solved, eq. (20) rate certified; eq. (23) residual {resid:.2g}"
         return res
+
+
+# ------------------------------------------------------------------------------ lifted (window) formulation
+@dataclass
+class WindowData:
+    """The last W GNSS intervals of the LIEKF (k_P = I), oldest first: what the lifted LMI needs.
+
+    Per interval j: ``A_j`` (9x9 error transition between fixes), ``L_j`` (9x3 Kalman gain), ``Ts_j`` [s];
+    ``H`` (3x9) is constant; ``P0`` (9x9) is the posterior covariance at the start of the window (whitening).
+    """
+
+    A: np.ndarray  # (W, n, n)
+    L: np.ndarray  # (W, n, m)
+    Ts: np.ndarray  # (W,)
+    H: np.ndarray  # (m, n)
+    P0: np.ndarray  # (n, n)
+
+
+def lift_window(w: WindowData):
+    """Lifted augmented system of eq. (18) over W intervals with k_P = I and the integral state held.
+
+    Per interval (k_P = I): ``e_j = Phi_j e_{j-1} - L_j Z``, ``Phi_j = (I - L_j H) A_j``, ``z_j = H A_j e_{j-1}``;
+    the integral update of eq. (16) summed over the window with Z held: ``Z+ = Z + k_I sum_j Ts_j z_j``. So
+
+        [e_W; Z+] = (A_bar_W + E k_I B_bar_W) [e_0; Z],  A_bar_W = [[Phi_W, -Gamma_W], [0, I]],
+        B_bar_W = [O_W, -Lambda_W],  E = [0; I],
+
+    ``Phi_W = Phi_W..Phi_1``, ``Gamma_W = sum_j Phi_W..Phi_{j+1} L_j``, ``O_W = sum_j Ts_j H A_j Phi_{j-1}..Phi_1``,
+    ``Lambda_W = sum_j Ts_j H A_j Gamma_{j-1}``. Returns (A_bar_W, B_bar_W) in the whitened error coordinates
+    ``e = T e'``, ``T T^T = P0`` (Z in metres, unscaled).
+    """
+    n, m = w.H.shape[1], w.H.shape[0]
+    T = np.linalg.cholesky(0.5 * (w.P0 + w.P0.T))
+    Phi_acc, Gam = np.eye(n), np.zeros((n, m))
+    O, Lam = np.zeros((m, n)), np.zeros((m, m))
+    for A, L, Ts in zip(w.A, w.L, w.Ts):
+        HA = w.H @ A
+        O += Ts * HA @ Phi_acc
+        Lam += Ts * HA @ Gam
+        Phi = A - L @ HA
+        Phi_acc = Phi @ Phi_acc
+        Gam = Phi @ Gam + L
+    Ti = np.linalg.inv(T)
+    q = n + m
+    Abar = np.zeros((q, q))
+    Abar[:n, :n] = Ti @ Phi_acc @ T
+    Abar[:n, n:] = -Ti @ Gam
+    Abar[n:, n:] = np.eye(m)
+    Bbar = np.hstack([O @ T, -Lam])
+    return Abar, Bbar, T
+
+
+def exact_window_closed_loop(w: WindowData, k_P: np.ndarray, k_I: np.ndarray) -> np.ndarray:
+    """Product over the window of the per-update closed loops ``A_bar_j - M_j K_PI B_bar_j`` (eq. (18), exact:
+    the integral state is not held), in the same whitened coordinates as :func:`lift_window`."""
+    n, m = w.H.shape[1], w.H.shape[0]
+    T = np.linalg.cholesky(0.5 * (w.P0 + w.P0.T))
+    Ti = np.linalg.inv(T)
+    q = n + m
+    Pi = np.eye(q)
+    for A, L, Ts in zip(w.A, w.L, w.Ts):
+        HA = w.H @ A
+        Acl = np.zeros((q, q))
+        Acl[:n, :n] = A - L @ k_P @ HA
+        Acl[:n, n:] = -L
+        Acl[n:, :n] = Ts * k_I @ HA
+        Acl[n:, n:] = np.eye(m)
+        Pi = Acl @ Pi
+    S = np.eye(q)
+    S[:n, :n] = T
+    Si = np.eye(q)
+    Si[:n, :n] = Ti
+    return Si @ Pi @ S
+
+
+class WindowPiGainSolver:
+    """Eqs. (20)-(23) on the lifted window system of :func:`lift_window` (docs/inmotion_cores.md).
+
+    The frozen one-interval pair of eq. (18) is not detectable on the INS (rotation about the specific force is
+    invisible over one interval), so the rate condition is imposed on the transition over a window of W
+    intervals in which the motion makes the attitude observable, with the paper's per-update rate compounded:
+    ``A_cl^T J A_cl < (1 - 2 rho)^W J``. k_P = I (the Kalman gain, which the filter's covariance assumes);
+    the LMI designs k_I.
+
+    ``structure="structured"`` (default): ``J = blkdiag(J_e, J_Z)`` so that ``N = J E k_I = [0; J_Z k_I]`` and
+    ``k_I = J_Z^-1 Y`` exactly (eq. (23) with the non-square M replaced by its Z_I rows: residual 0).
+    ``structure="paper"``: unstructured (J, N) of eq. (22), ``K = J^-1 N`` (12 x 3), k_I from the least-squares
+    solution of ``E k_I = K`` (eq. (23)); its relative residual is reported.
+    Objective: the smallest ||N|| that certifies the rate (least noise amplification).
+    Every result is checked on the exact per-update product (integral state not held): spectral radius < 1.
+    """
+
+    def __init__(self, n: int = 9, m: int = 3, rho: float = 0.01, window: int = 30, solver: str = "CLARABEL",
+                 eps: float = 1e-6, safe_k_I_per_s: float = 0.0, structure: str = "structured",
+                 objective: str = "min_norm"):
+        import cvxpy as cp
+
+        self.cp, self.n, self.m, self.rho, self.W, self.solver, self.eps = cp, n, m, rho, window, solver, eps
+        self.structure = structure
+        self.safe_k_P, self.safe_k_I = np.eye(m), safe_k_I_per_s * np.eye(m)
+        q = n + m
+        self.c = (1.0 - 2.0 * rho) ** window
+        self.Abar = cp.Parameter((q, q))
+        self.Bbar = cp.Parameter((m, q))
+        if structure == "structured":
+            self.Je = cp.Variable((n, n), symmetric=True)
+            # max_integral: J_Z = I fixes the scale of the homogeneous LMI, so k_I = Y exactly
+            self.JZ = cp.Variable((m, m), symmetric=True) if objective == "min_norm" else cp.Constant(np.eye(m))
+            self.Y = cp.Variable((m, m))
+            J = cp.bmat([[self.Je, np.zeros((n, m))], [np.zeros((m, n)), self.JZ]])
+            N = cp.vstack([np.zeros((n, m)), -self.Y])  # A_cl = A_bar + E k_I B_bar = A_bar - K B_bar, K = -E k_I
+            self.J = J
+        else:
+            self.J = cp.Variable((q, q), symmetric=True)
+            N = cp.Variable((q, m))
+            J = self.J
+        self.N = N
+        JA = J @ self.Abar - N @ self.Bbar
+        lmi = cp.bmat([[-self.c * J, JA.T], [JA, -J]])
+        lmi = 0.5 * (lmi + lmi.T)
+        cons = [lmi << -eps * np.eye(2 * q), J >> eps * np.eye(q), J << np.eye(q)]
+        if objective == "max_integral" and structure == "structured":
+            # the largest integral gain (min eigenvalue of its symmetric part) that the certificate allows
+            s_min = cp.Variable()
+            cons.append(0.5 * (self.Y + self.Y.T) >> s_min * np.eye(m))
+            self.prob = cp.Problem(cp.Maximize(s_min), cons)
+        else:
+            self.prob = cp.Problem(cp.Minimize(cp.sum_squares(N)), cons)
+        self._lmi_expr = lmi
+
+    def solve(self, w: WindowData) -> LmiResult:
+        n, m, q = self.n, self.m, self.n + self.m
+        t0 = time.perf_counter()
+        Abar, Bbar, _ = lift_window(w)
+        self.Abar.value, self.Bbar.value = Abar, Bbar
+        status, used = _solve(self.prob, self.solver)
+        dt = time.perf_counter() - t0
+        safe = LmiResult(status, self.safe_k_P, self.safe_k_I, True, "", solver=used, solve_time_s=dt)
+        if status not in ("optimal", "optimal_inaccurate") or self.J.value is None:
+            safe.reason = f"lifted LMI (W = {self.W}) not solved ({status}): safe gains"
+            return safe
+        J = np.asarray(self.J.value)
+        lmi_val = np.asarray(self._lmi_expr.value)
+        lmi_max = float(np.linalg.eigvalsh(0.5 * (lmi_val + lmi_val.T)).max())
+        if self.structure == "structured":
+            k_I = np.linalg.solve(np.asarray(self.JZ.value), self.Y.value)
+            resid = 0.0
+        else:
+            K = np.linalg.solve(J, self.N.value)  # A_cl = A_bar - K B_bar; E k_I = -K
+            k_I = -K[n:]
+            resid = float(np.linalg.norm(K[:n]) / max(np.linalg.norm(K), 1e-300))
+        E = np.zeros((q, m))
+        E[n:] = np.eye(m)
+        Acl = Abar + E @ k_I @ Bbar
+        margin = float(np.linalg.eigvalsh(Acl.T @ J @ Acl - self.c * J).max())
+        Pi = exact_window_closed_loop(w, np.eye(m), k_I)
+        srad = float(np.max(np.abs(np.linalg.eigvals(Pi))))
+        res = LmiResult(status, np.eye(m), k_I, False, "", resid, lmi_max, margin, srad, used, dt,
+                        extra={"window": self.W, "rate_factor": self.c,
+                               "spectral_radius_held": float(np.max(np.abs(np.linalg.eigvals(Acl))))})
+        if lmi_max > -0.5 * self.eps:
+            res.k_P, res.k_I, res.used_fallback = self.safe_k_P, self.safe_k_I, True
+            res.reason = (f"lifted LMI (W = {self.W}) infeasible: '{status}' on the boundary (max eig {lmi_max:.2g}):"
+                          f" safe gains")
+        elif srad >= 1.0 or not np.all(np.isfinite(k_I)):
+            res.k_P, res.k_I, res.used_fallback = self.safe_k_P, self.safe_k_I, True
+            res.reason = (f"lifted LMI (W = {self.W}) gains do not stabilise the exact window product (spectral "
+                          f"radius {srad:.4f}; eq. (23) residual {resid:.2g}): safe gains")
+        else:
+            res.reason = (f"lifted LMI (W = {self.W}) solved, rate (1-2 rho)^W certified for the held model (margin "
+                          f"{margin:.2g}); exact window spectral radius {srad:.4f}; eq. (23) residual {resid:.2g}")
+        return res
+
+
+def parse_candidates(text: str) -> list[tuple[float, float]]:
+    """``"1.6:0.5,1.0:0.1"`` -> [(k_P, k_I [1/s]), ...] (scalar gains, times the identity). Raises ValueError."""
+    out = []
+    for item in text.split(","):
+        kp, ki = item.split(":")
+        kp, ki = float(kp), float(ki)
+        if not (np.isfinite(kp) and np.isfinite(ki) and kp > 0 and ki >= 0):
+            raise ValueError(f"gain candidate {item!r}: need k_P > 0 and k_I >= 0")
+        out.append((kp, ki))
+    if not out:
+        raise ValueError("no gain candidates")
+    return out
+
+
+class WindowGainCertifier:
+    """Eq. (20) as an *analysis* LMI on the exact per-update closed loop (eq. (18), integral state not held).
+
+    For given gains ``K_PI = [k_P; -k_I]`` (eq. (23) structure exact: ``K = M K_PI``) the transition of the
+    augmented error over a window of W intervals is the product ``Pi = prod_j (A_bar_j - M_j K_PI B_bar_j)``,
+    polynomial in the gains, so the gains cannot be LMI variables; J can. The LMI
+
+        Pi_i^T J Pi_i - (1 - 2 rho)^W J < 0  for the S windows ending 0, s, 2 s, ... updates ago,  J > 0
+
+    (one Lyapunov function for all of them: robust to the motion changing between windows; a single window
+    would only test its spectral radius) certifies the paper's rate. The candidates (scalar k_P, k_I, in the
+    user's order of preference) are tried in order; the first certified one is returned, else the safe gains.
+    """
+
+    def __init__(self, n: int = 9, m: int = 3, rho: float = 0.01, window: int = 30, n_windows: int = 3,
+                 shift: int = 10, candidates=((1.0, 0.0),), solver: str = "CLARABEL", eps: float = 1e-6,
+                 safe_k_I_per_s: float = 0.0):
+        import cvxpy as cp
+
+        self.cp, self.n, self.m, self.rho, self.W, self.S, self.shift = cp, n, m, rho, window, n_windows, shift
+        self.candidates, self.solver, self.eps = list(candidates), solver, eps
+        self.safe_k_P, self.safe_k_I = np.eye(m), safe_k_I_per_s * np.eye(m)
+        self.c = (1.0 - 2.0 * rho) ** window
+        q = n + m
+        self.Pi = [cp.Parameter((q, q)) for _ in range(n_windows)]
+        self.J = cp.Variable((q, q), symmetric=True)
+        self.exprs = []
+        cons = [self.J >> eps * np.eye(q), self.J << np.eye(q)]
+        for P in self.Pi:
+            # Schur form of Pi^T J Pi < c J (eq. (21)-(22) with K fixed): [[-c J, Pi^T J], [J Pi, -J]] < 0
+            JP = self.J @ P
+            e = cp.bmat([[-self.c * self.J, JP.T], [JP, -self.J]])
+            e = 0.5 * (e + e.T)
+            self.exprs.append(e)
+            cons.append(e << -eps * np.eye(2 * q))
+        self.prob = cp.Problem(cp.Minimize(0), cons)
+
+    @property
+    def history_needed(self) -> int:
+        return self.W + (self.S - 1) * self.shift
+
+    def solve(self, w: WindowData) -> LmiResult:
+        """``w`` holds the last ``history_needed`` intervals (oldest first); P0 whitens the error coordinates."""
+        m = self.m
+        t0 = time.perf_counter()
+        tried = []
+        status, used = "not solved", ""
+        N = len(w.Ts)
+        for kp, ki in self.candidates:
+            k_P, k_I = kp * np.eye(m), ki * np.eye(m)
+            Pis = []
+            for i in range(self.S):
+                end = N - i * self.shift
+                sub = WindowData(w.A[end - self.W:end], w.L[end - self.W:end], w.Ts[end - self.W:end], w.H, w.P0)
+                Pis.append(exact_window_closed_loop(sub, k_P, k_I))
+            srad = max(float(np.max(np.abs(np.linalg.eigvals(P)))) for P in Pis)
+            if srad >= np.sqrt(self.c):  # necessary condition fails: no J exists, skip the solve
+                tried.append(f"{kp:g}/{ki:g}: spectral radius {srad:.3f} >= (1-2 rho)^(W/2)")
+                continue
+            for par, P in zip(self.Pi, Pis):
+                par.value = P
+            status, used = _solve(self.prob, self.solver)
+            if status not in ("optimal", "optimal_inaccurate") or self.J.value is None:
+                tried.append(f"{kp:g}/{ki:g}: {status}")
+                continue
+            lmi_max = max(float(np.linalg.eigvalsh(np.asarray(e.value)).max()) for e in self.exprs)
+            if lmi_max > -0.5 * self.eps:
+                tried.append(f"{kp:g}/{ki:g}: on the boundary")
+                continue
+            J = self.J.value
+            margin = max(float(np.linalg.eigvalsh(P.T @ J @ P - self.c * J).max()) for P in Pis)
+            dt = time.perf_counter() - t0
+            return LmiResult(status, k_P, k_I, False,
+                             f"gains k_P = {kp:g} I, k_I = {ki:g} I certified: eq. (20) rate (1-2 rho)^W with one J "
+                             f"over {self.S} windows (W = {self.W}), worst spectral radius {srad:.3f}"
+                             + (f"; rejected before: {'; '.join(tried)}" if tried else ""),
+                             0.0, lmi_max, margin, srad, used, dt, extra={"candidate": (kp, ki)})
+        dt = time.perf_counter() - t0
+        return LmiResult(status, self.safe_k_P, self.safe_k_I, True,
+                         f"no gain candidate certified ({'; '.join(tried)}): safe gains", solver=used,
+                         solve_time_s=dt)

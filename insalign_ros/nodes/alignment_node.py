@@ -164,6 +164,8 @@ class AlignmentNode(Node):
         for n in fields:
             if n in p and n not in COMMON_PARAMS:
                 out[n] = list(p[n]) if isinstance(p[n], (list, tuple)) else p[n]
+        if out.get("lmi_async") == "auto":  # PI-LIEKF: never solve the LMI inside the IMU/GNSS callback
+            out["lmi_async"] = "true"
         return out
 
     def _criteria(self, p: dict) -> AlignedCriteria:
