@@ -86,7 +86,8 @@ def test_batched_mechanization_equals_sequential_propagate_eci():
     assert np.linalg.norm(lie.so3_log(Cb.T @ C)) < 1e-12
 
 
-FAST = {"pi_liekf": {"lmi_resolve_every_updates": 1000}}  # one LMI solve per run keeps the suite short
+FAST = {"pi_liekf": {"lmi_resolve_every_updates": 1000}}  # at most one LMI solve per run (none in runs shorter
+# than the 30-update certification window) keeps the suite short
 
 
 def _run(core_name, data, rpy_err_deg, params=None, period=1.0):
