@@ -90,8 +90,9 @@ def f_model(x: np.ndarray, u: StaticModelInputs, m_prime: np.ndarray | None = No
     dvN, dvE, pN, pE, pD = x
     E = misalignment_matrix(x[2:5])
     w = u.omega_ie_ned
-    dv3 = np.array([dvN, dvE, 0.0])
-    acc = (np.eye(3) - E) @ u.f_np_ned - 2.0 * np.cross(w, dv3)
+    # 2 omega_ie x [dvN, dvE, 0] written out (np.cross costs ~15 us per call; this runs ~20 times per update)
+    coriolis = 2.0 * np.array([-w[2] * dvE, w[2] * dvN, w[0] * dvE])
+    acc = u.f_np_ned - E @ u.f_np_ned - coriolis
     d_w_in = np.array([dvE / u.r_m, -dvN / u.r_m, -dvE * math.tan(u.lat_rad) / u.r_m])  # eq. (25)
     zeta = E @ (w + d_w_in - m[2:5]) - w
     rot = Rz(pD).T @ zeta
