@@ -83,7 +83,8 @@ def run_case(args):
     wall = time.time() - t0
     half = len(t) // 2
     out = {"scen": scen, "seed": seed, "dur": dur, "az0": az0, "sig_r": sig_r, "core": core, "wall_s": wall,
-           "floor_level": fl["level_rad"], "floor_az": fl["azimuth_rad"], "arw300": arw300, "arw_end": arw_end,
+           "floor_level": fl["level_rad"], "floor_az": fl["azimuth_rad"], "floor_az_lin": fl["azimuth_linear_rad"],
+           "arw300": arw300, "arw_end": arw_end,
            "comb300": math.hypot(fl["azimuth_rad"], arw300), "comb_end": comb_end}
     for i, nm, f in ((0, "roll", fl["level_rad"]), (1, "pitch", fl["level_rad"]), (2, "az", comb_end)):
         e = err[:, i]

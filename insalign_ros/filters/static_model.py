@@ -140,8 +140,12 @@ class StaticConfig:
     vibration_vrw_m_s_sqrt_s: float = 0.0
     init_sigma_v_m_s: float = 0.01
     #: feed the azimuth estimate back into the mechanization once its 1-sigma is below this [deg]; before that
-    #: the large azimuth stays in the state and the nonlinear model (eq. (34)) carries it
-    azimuth_feedback_sigma_deg: float = 5.0
+    #: the large azimuth stays in the state and the nonlinear model (eq. (34)) carries it. Default 180: always
+    #: (after the azimuth bootstrap the mechanization itself is the exact nonlinear model; with the azimuth kept
+    #: in the state the honest 10-state EKF, whose sigma never drops below the ~24 deg MEMS bias floor, would
+    #: carry a large phiD for ever and its velocity rows then depend to first order on the horizontal specific
+    #: force; see docs/static_alignment.md, "Feedback and rates")
+    azimuth_feedback_sigma_deg: float = 180.0
     #: status ALIGNED once the 3-sigma azimuth uncertainty is below this [deg]
     aligned_yaw_3sigma_deg: float = 1.0
     #: 1-sigma sensor biases the 5-state cores do not estimate: added to the reported attitude covariance as the
@@ -362,12 +366,14 @@ class StaticZuptCore(AlignmentCore):
         a = math.atan2(rE, w_h - rN)
         # covariance: rate from the fit (velocity noise sigma_v; std of the t^2 coefficient ~ sigma_v sqrt(180/N)/T^2)
         # and from the angle random walk (fitted slope of a random-walk tilt ~ ARW sqrt(12 / (5 T))); level from the
-        # fit and the accelerometer-bias floor; the gyro-bias part is added by _bootstrap_azimuth_cov
+        # fit, the accelerometer-bias floor and the random-walk tilt ARW sqrt(T); the gyro-bias part of the azimuth
+        # is added by _bootstrap_azimuth_cov
         n = len(t)
         s_r_fit = 2.0 * sigma_v_m_s * math.sqrt(180.0 / n) / (g * T * T)
         s_r_arw = self.cfg.gyro_arw_deg_sqrt_h * D2R / 60.0 * math.sqrt(12.0 / (5.0 * T))
         s_noise_rad = math.hypot(s_r_fit, s_r_arw) / w_h
-        s_lvl = math.hypot(sigma_v_m_s * math.sqrt(12.0 / n) / (g * T), self.cfg.consider_acc_bias_mg * MG / g)
+        s_lvl = float(np.linalg.norm([sigma_v_m_s * math.sqrt(12.0 / n) / (g * T), self.cfg.consider_acc_bias_mg * MG / g,
+                                      self.cfg.gyro_arw_deg_sqrt_h * D2R / 60.0 * math.sqrt(T)]))
         self.x[:] = 0.0
         self.x[0:2] = V[-1]
         self.x[2:5] = [pN_T, pE_T, a]
@@ -377,6 +383,7 @@ class StaticZuptCore(AlignmentCore):
         self._init_bias_cov()
         self._bootstrap_azimuth_cov(s_noise_rad, w_h)
         self._boot = False
+        self._f_lp_ned = None  # the open-loop mechanization's tilt is about to be corrected: restart the low-pass
         self._feedback()
         return UpdateResult(True, reason="azimuth bootstrap done: %.2f deg" % math.degrees(a))
 
@@ -410,9 +417,8 @@ class StaticZuptCore(AlignmentCore):
             # accelerometer and gyro errors) is now expressed in the new axes, v'' = Rz(phiD) v' (reset Jacobian)
             J = np.eye(self.x.shape[0])
             R2 = Rz(x[4])[0:2, 0:2]
-            for i in range(0, self.x.shape[0] - 1, 1):
-                if i in (0, 2, 5, 7):
-                    J[i:i + 2, i:i + 2] = R2
+            for i in (0, 2, 5, 7)[:2 + self.n_bias // 2]:
+                J[i:i + 2, i:i + 2] = R2
             self.P = J @ self.P @ J.T
             if self._N_prev is not None:
                 self._N_prev = J @ self._N_prev
@@ -464,7 +470,8 @@ class StaticZuptCore(AlignmentCore):
 def physical_floor(C_b_n_true: np.ndarray, bias_gyro_b: np.ndarray, bias_acc_b: np.ndarray, lat_rad: float,
                    g_m_s2: float = 9.80665) -> dict:
     """The static-alignment floor from the biases actually present (papers README):
-    level ~ b_acc_horizontal / g (roll from the north... per ENU axis), azimuth ~ eps_east / (omega_ie cos(lat)).
+    level ~ b_acc_horizontal / g (per ENU axis), azimuth ~ eps_east / (omega_ie cos(lat)); 'azimuth_rad' is the exact
+    form atan2(|eps_E|, omega_ie cos(lat) + eps_N), 'azimuth_linear_rad' the first-order one.
 
     Returns {'roll_rad', 'pitch_rad', 'azimuth_rad'} (magnitudes): roll/pitch use the accelerometer bias
     resolved in ENU (east -> tilt about north, north -> tilt about east) -- the level floor is the larger of the two.
@@ -472,9 +479,15 @@ def physical_floor(C_b_n_true: np.ndarray, bias_gyro_b: np.ndarray, bias_acc_b: 
     b_a_n = C_b_n_true @ np.asarray(bias_acc_b)
     b_g_n = C_b_n_true @ np.asarray(bias_gyro_b)
     level = np.abs(b_a_n[0:2]) / g_m_s2
-    az = abs(b_g_n[0]) / (earth.OMEGA_IE_RAD_S * math.cos(lat_rad))
+    w_h = earth.OMEGA_IE_RAD_S * math.cos(lat_rad)
+    az_lin = abs(b_g_n[0]) / w_h
+    # exact: a static estimator that cannot separate the bias takes North along the measured horizontal rate
+    # (eps_E, w_h + eps_N) [ENU]; its angle from the true North is the floor. = eps_E / w_h to first order; differs
+    # when the horizontal bias is not small against w_h (MEMS: 5 deg/h against 12.3 deg/h at 35 deg)
+    az = abs(math.atan2(b_g_n[0], w_h + b_g_n[1]))
     return {"east_acc_tilt_rad": float(level[0]), "north_acc_tilt_rad": float(level[1]),
-            "level_rad": float(max(level)), "azimuth_rad": float(az), "eps_east_rad_s": float(b_g_n[0])}
+            "level_rad": float(max(level)), "azimuth_rad": float(az), "azimuth_linear_rad": float(az_lin),
+            "eps_east_rad_s": float(b_g_n[0]), "eps_north_rad_s": float(b_g_n[1])}
 
 
 def arw_azimuth_limit_rad(arw_deg_sqrt_h: float, lat_rad: float, T_s: float) -> float:
