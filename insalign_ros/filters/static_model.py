@@ -372,7 +372,8 @@ class StaticZuptCore(AlignmentCore):
         s_r_fit = 2.0 * sigma_v_m_s * math.sqrt(180.0 / n) / (g * T * T)
         s_r_arw = self.cfg.gyro_arw_deg_sqrt_h * D2R / 60.0 * math.sqrt(12.0 / (5.0 * T))
         s_noise_rad = math.hypot(s_r_fit, s_r_arw) / w_h
-        s_lvl = float(np.linalg.norm([sigma_v_m_s * math.sqrt(12.0 / n) / (g * T), self.cfg.consider_acc_bias_mg * MG / g,
+        s_lvl = float(np.linalg.norm([sigma_v_m_s * math.sqrt(12.0 / n) / (g * T),
+                                      self.cfg.consider_acc_bias_mg * MG / g,
                                       self.cfg.gyro_arw_deg_sqrt_h * D2R / 60.0 * math.sqrt(T)]))
         self.x[:] = 0.0
         self.x[0:2] = V[-1]
@@ -473,8 +474,9 @@ def physical_floor(C_b_n_true: np.ndarray, bias_gyro_b: np.ndarray, bias_acc_b: 
     level ~ b_acc_horizontal / g (per ENU axis), azimuth ~ eps_east / (omega_ie cos(lat)); 'azimuth_rad' is the exact
     form atan2(|eps_E|, omega_ie cos(lat) + eps_N), 'azimuth_linear_rad' the first-order one.
 
-    Returns {'roll_rad', 'pitch_rad', 'azimuth_rad'} (magnitudes): roll/pitch use the accelerometer bias
-    resolved in ENU (east -> tilt about north, north -> tilt about east) -- the level floor is the larger of the two.
+    Returns magnitudes [rad]: 'east_acc_tilt_rad', 'north_acc_tilt_rad' (the accelerometer bias resolved in ENU;
+    east -> tilt about north, north -> tilt about east), 'level_rad' (the larger), 'azimuth_rad', 'azimuth_linear_rad',
+    and the ENU gyro biases 'eps_east_rad_s', 'eps_north_rad_s' [rad/s].
     """
     b_a_n = C_b_n_true @ np.asarray(bias_acc_b)
     b_g_n = C_b_n_true @ np.asarray(bias_gyro_b)
