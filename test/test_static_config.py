@@ -46,3 +46,18 @@ def test_registered():
         assert make_core(name).name == name
     with pytest.raises(ValueError, match="horizon_p"):
         make_core("pkf", {"horizon_p": -1})
+
+
+@pytest.mark.parametrize("name,cls", CASES)
+def test_yaml_per_imu_grade_is_config_for_imu(name, cls):
+    """config/<core>.yaml is the ADIS16488A (scenario 'static'), config/<core>_navgrade.yaml the navigation-grade IMU
+    (scenario 'static_navgrade'): process noise and bias priors from the IMU spec (config_for_imu), not one number."""
+    from insalign_ros.filters.static_model import config_for_imu
+    from insalign_ros.sim.error_model import ADIS16488A, NAVGRADE
+
+    for suffix, spec in (("", ADIS16488A), ("_navgrade", NAVGRADE)):
+        p = yaml.safe_load((ROOT / "config" / f"{name}{suffix}.yaml").read_text())["alignment_node"]["ros__parameters"]
+        assert p.pop("core") == name
+        assert cls.from_dict(p) == config_for_imu(cls, spec), suffix
+    nav = config_for_imu(cls, NAVGRADE)
+    assert nav.gyro_arw_deg_sqrt_h == pytest.approx(0.002) and nav.consider_gyro_bias_deg_h == pytest.approx(0.01)

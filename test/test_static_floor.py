@@ -66,3 +66,15 @@ def test_zero_bias_converges_below_0p01_deg(clean, name):
     t, err, _ = run_static(_cores()[name], sc, math.radians(30.0), 1e-3)
     assert abs(math.degrees(err[-1, 2])) < 0.01, (name, np.degrees(err[-1]))
     assert np.all(np.abs(np.degrees(err[-1, :2])) < 0.01)
+
+
+def test_exact_floor_with_a_large_north_bias():
+    """The floor is the angle of the measured horizontal rate (eps_E, w_h + eps_N) [ENU] from North: eps_E / w_h only
+    to first order. Closed form: eps_N = -w_h / 2, eps_E = w_h / 10 -> atan2(0.1, 0.5) = 11.31 deg (linear: 5.73)."""
+    lat = math.radians(35.0)
+    w_h = earth.OMEGA_IE_RAD_S * math.cos(lat)
+    C = earth.C_b_n_from_rpy(0.01, -0.02, 0.7)
+    b_g = C.T @ np.array([0.1 * w_h, -0.5 * w_h, 1e-6])
+    fl = physical_floor(C, b_g, np.zeros(3), lat)
+    assert math.degrees(fl["azimuth_rad"]) == pytest.approx(math.degrees(math.atan2(0.1, 0.5)), abs=1e-9)
+    assert math.degrees(fl["azimuth_linear_rad"]) == pytest.approx(math.degrees(0.1), abs=1e-9)

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core import earth
 from .static_model import DEG_H, MG, StaticConfig, StaticModelInputs, StaticZuptCore, f_model  # noqa: F401
 
 
@@ -40,6 +41,24 @@ class Ekf10(StaticZuptCore):
         sg = self.cfg.init_sigma_gyro_bias_deg_h * DEG_H
         self.P[5:7, 5:7] = np.eye(2) * sa**2
         self.P[7:10, 7:10] = np.eye(3) * sg**2
+
+    def _nullspace(self, phiD: float) -> np.ndarray:
+        """Unobservable direction at rest (eq. (34) rows 3-4): turning the azimuth by d and the horizontal gyro
+        errors by d wN (sin phiD, cos phiD) leaves every level rate, hence every velocity, unchanged."""
+        w_h = earth.OMEGA_IE_RAD_S * math.cos(self.mech.lat_rad)
+        N = np.zeros(10)
+        N[4] = 1.0
+        N[7], N[8] = w_h * math.sin(phiD), w_h * math.cos(phiD)
+        return N
+
+    def _bootstrap_azimuth_cov(self, s_noise_rad: float, w_h: float) -> None:
+        """The bootstrap azimuth a = atan2(rE, wN - rN) carries the horizontal gyro error: its error is
+        (sin a epsN + cos a epsE) / wN, correlated with the gyro-error states (covariance below)."""
+        sg2 = (self.cfg.init_sigma_gyro_bias_deg_h * DEG_H) ** 2
+        a = self.x[4]
+        self.P[4, 4] = s_noise_rad**2 + sg2 / w_h**2
+        self.P[4, 7] = self.P[7, 4] = math.sin(a) * sg2 / w_h
+        self.P[4, 8] = self.P[8, 4] = math.cos(a) * sg2 / w_h
 
     def _full_jacobian(self, F5: np.ndarray) -> np.ndarray:
         # G = df/dm' at the current state (velocity rows: I; attitude rows: -[Rz^T E]), numerically from eq. (34)

@@ -90,8 +90,9 @@ def f_model(x: np.ndarray, u: StaticModelInputs, m_prime: np.ndarray | None = No
     dvN, dvE, pN, pE, pD = x
     E = misalignment_matrix(x[2:5])
     w = u.omega_ie_ned
-    dv3 = np.array([dvN, dvE, 0.0])
-    acc = (np.eye(3) - E) @ u.f_np_ned - 2.0 * np.cross(w, dv3)
+    # 2 omega_ie x [dvN, dvE, 0] written out (np.cross costs ~15 us per call; this runs ~20 times per update)
+    coriolis = 2.0 * np.array([-w[2] * dvE, w[2] * dvN, w[0] * dvE])
+    acc = u.f_np_ned - E @ u.f_np_ned - coriolis
     d_w_in = np.array([dvE / u.r_m, -dvN / u.r_m, -dvE * math.tan(u.lat_rad) / u.r_m])  # eq. (25)
     zeta = E @ (w + d_w_in - m[2:5]) - w
     rot = Rz(pD).T @ zeta
@@ -133,18 +134,35 @@ class StaticConfig:
 
     gyro_arw_deg_sqrt_h: float = 0.26
     acc_vrw_m_s_sqrt_h: float = 0.029
-    #: extra velocity process noise for the engine vibration the model does not describe [m/s/sqrt(s)]
-    vibration_vrw_m_s_sqrt_s: float = 1e-2
+    #: extra velocity process noise for vibration effects the model does not describe (sculling, aliasing of a real
+    #: IMU) [m/s/sqrt(s)], added to the VRW. 0 by default: measured on the simulated engine vibration and sway, the
+    #: mechanised velocity gains nothing beyond the VRW (docs/static_alignment.md, "Process noise per IMU grade")
+    vibration_vrw_m_s_sqrt_s: float = 0.0
     init_sigma_v_m_s: float = 0.01
     #: feed the azimuth estimate back into the mechanization once its 1-sigma is below this [deg]; before that
-    #: the large azimuth stays in the state and the nonlinear model (eq. (34)) carries it
-    azimuth_feedback_sigma_deg: float = 5.0
+    #: the large azimuth stays in the state and the nonlinear model (eq. (34)) carries it. Default 180: always
+    #: (after the azimuth bootstrap the mechanization itself is the exact nonlinear model; with the azimuth kept
+    #: in the state the honest 10-state EKF, whose sigma never drops below the ~24 deg MEMS bias floor, would
+    #: carry a large phiD for ever and its velocity rows then depend to first order on the horizontal specific
+    #: force; see docs/static_alignment.md, "Feedback and rates")
+    azimuth_feedback_sigma_deg: float = 180.0
     #: status ALIGNED once the 3-sigma azimuth uncertainty is below this [deg]
     aligned_yaw_3sigma_deg: float = 1.0
     #: 1-sigma sensor biases the 5-state cores do not estimate: added to the reported attitude covariance as the
     #: physical floor ((b_acc/g)^2 level, (eps/(omega_ie cos lat))^2 azimuth) so P_att_n stays honest
     consider_gyro_bias_deg_h: float = 5.1
     consider_acc_bias_mg: float = 0.07
+    #: azimuth bootstrap (docs/static_alignment.md, "Large initial azimuth"): when the initial yaw 1-sigma exceeds
+    #: ``azimuth_bootstrap_above_sigma_deg``, the first ``azimuth_bootstrap_s`` seconds run the mechanization open
+    #: loop, fit the drift of its velocity (quadratic in time: the level error grows at the residual horizontal
+    #: rate), and start the filter at the azimuth of the horizontal Earth rate seen in the computed frame. 0 = off.
+    azimuth_bootstrap_s: float = 20.0
+    azimuth_bootstrap_above_sigma_deg: float = 10.0
+    #: time constant of the low-pass on the interval-mean specific force that enters the error model [s]: the
+    #: engine vibration (25 Hz) leaves ~5e-3 m/s^2 in a 0.1 s mean; its velocity is not a motion the zero-velocity
+    #: update can see, and with the raw value the phiD column of the velocity rows turns it into false azimuth
+    #: information (measured: docs). 0 = no filter.
+    specific_force_lowpass_s: float = 1.0
 
     def validate(self) -> None:
         for f in fields(self):
@@ -215,6 +233,13 @@ class StaticZuptCore(AlignmentCore):
         self._init_bias_cov()
         self._f_sum_n = np.zeros(3)
         self._dt_acc = 0.0
+        self._f_lp_ned = None
+        self._N_prev = None
+        self.t0_s = float(stamp_s)
+        self._boot = (self.cfg.azimuth_bootstrap_s > 0
+                      and self.P[4, 4] > (self.cfg.azimuth_bootstrap_above_sigma_deg * D2R) ** 2)
+        self._boot_t: list[float] = []
+        self._boot_v: list[np.ndarray] = []
         self.status = AlignmentStatus.CONVERGING
         self.reason = "zero-velocity alignment running"
         self.r_m = math.sqrt(self.mech.R_N_m * self.mech.R_E_m)
@@ -264,6 +289,14 @@ class StaticZuptCore(AlignmentCore):
         f_np_ned = ned_from_enu(self._f_sum_n / dt)
         self._f_sum_n[:] = 0.0
         self._dt_acc = 0.0
+        tau = self.cfg.specific_force_lowpass_s
+        if self._f_lp_ned is None or tau <= 0:
+            self._f_lp_ned = f_np_ned
+        else:
+            self._f_lp_ned = self._f_lp_ned + min(1.0, dt / tau) * (f_np_ned - self._f_lp_ned)
+        f_np_ned = self._f_lp_ned
+        if self._boot:
+            return self._bootstrap_step(float(stamp_s), sigma_v_m_s)
         u = StaticModelInputs(f_np_ned, self.mech.lat_rad, self.r_m)
         self._u_last = u
         # ---- predict the error state over the interval with eq. (34) (RK2) and its Jacobian eq. (35)
@@ -274,8 +307,16 @@ class StaticZuptCore(AlignmentCore):
         k2 = f_model(x5 + dt * k1, u, m_prime)
         F = self._full_jacobian(jacobian(x5, u))
         Phi = expm_taylor(F * dt)
-        self.P = Phi @ self.P @ Phi.T + self._process_noise(dt)
         self.x[:5] = x5 + 0.5 * dt * (k1 + k2)
+        N_next = self._nullspace(self.x[4])
+        if N_next is not None:
+            # observability constraint (Huang, Mourikis, Roumeliotis, OC-EKF): the transition must carry the
+            # unobservable direction of the previous prediction onto the one of this prediction, Phi N_k = N_k+1;
+            # the minimal correction in the least-squares sense (docs/static_alignment.md, "10-state EKF")
+            N_k = self._N_prev if self._N_prev is not None else self._nullspace(x5[4])
+            Phi = Phi - np.outer(Phi @ N_k - N_next, N_k) / float(N_k @ N_k)
+            self._N_prev = N_next
+        self.P = Phi @ self.P @ Phi.T + self._process_noise(dt)
         # ---- update with eq. (32): the measured velocity error is the mechanised velocity (truth is zero)
         n = self.x.shape[0]
         H = np.zeros((2, n))
@@ -295,6 +336,66 @@ class StaticZuptCore(AlignmentCore):
         self.t_last_update_s = float(stamp_s)
         return UpdateResult(True, innovation=innov, S=S, nis=nis)
 
+    def _bootstrap_step(self, stamp_s: float, sigma_v_m_s: float) -> UpdateResult:
+        """Open-loop azimuth bootstrap (docs/static_alignment.md, "Large initial azimuth").
+
+        The mechanization runs without feedback. Its level error in n' (NED) grows as rho(t) = rho0 + r t with the
+        residual horizontal rate r = [wN (1 - cos a) - epsN, wN sin a - epsE] (eq. (34) rows 3-4 at azimuth error
+        a), so the velocity error (eq. (31)) is quadratic: dvN = g (pE0 t + rE t^2/2), dvE = -g (pN0 t + rN t^2/2).
+        A least-squares fit over the window gives r, and (wN - rN, rE) = wN (cos a, sin a) + bias is the horizontal
+        Earth rate in the computed frame: a = atan2(rE, wN - rN). The sway and the engine vibration are integrated
+        by the mechanization (the velocity of the vibration is bounded), so unlike the rate-averaging coarse
+        alignment this needs no long window. The filter then starts from (a, rho(T)) with the covariance of the fit
+        plus the gyro-bias floor.
+        """
+        self._boot_t.append(stamp_s - self.t0_s)
+        self._boot_v.append(ned_from_enu(self.mech.v_n)[0:2].copy())
+        self.t_last_update_s = stamp_s
+        T = stamp_s - self.t0_s
+        if T < self.cfg.azimuth_bootstrap_s or len(self._boot_t) < 10:
+            return UpdateResult(False, reason="azimuth bootstrap: %.1f of %.1f s" % (T, self.cfg.azimuth_bootstrap_s))
+        t = np.array(self._boot_t)
+        V = np.array(self._boot_v)
+        A = np.stack([np.ones_like(t), t, t * t], -1)
+        coef, *_ = np.linalg.lstsq(A, V, rcond=None)  # (3, 2): rows c0, c1, c2; columns vN, vE
+        g = float(np.linalg.norm(self.mech.g_n))
+        w_h = earth.OMEGA_IE_RAD_S * math.cos(self.mech.lat_rad)
+        rE, rN = 2.0 * coef[2, 0] / g, -2.0 * coef[2, 1] / g
+        pE_T = (coef[1, 0] + 2.0 * coef[2, 0] * T) / g
+        pN_T = -(coef[1, 1] + 2.0 * coef[2, 1] * T) / g
+        a = math.atan2(rE, w_h - rN)
+        # covariance: rate from the fit (velocity noise sigma_v; std of the t^2 coefficient ~ sigma_v sqrt(180/N)/T^2)
+        # and from the angle random walk (fitted slope of a random-walk tilt ~ ARW sqrt(12 / (5 T))); level from the
+        # fit, the accelerometer-bias floor and the random-walk tilt ARW sqrt(T); the gyro-bias part of the azimuth
+        # is added by _bootstrap_azimuth_cov
+        n = len(t)
+        s_r_fit = 2.0 * sigma_v_m_s * math.sqrt(180.0 / n) / (g * T * T)
+        s_r_arw = self.cfg.gyro_arw_deg_sqrt_h * D2R / 60.0 * math.sqrt(12.0 / (5.0 * T))
+        s_noise_rad = math.hypot(s_r_fit, s_r_arw) / w_h
+        s_lvl = float(np.linalg.norm([sigma_v_m_s * math.sqrt(12.0 / n) / (g * T),
+                                      self.cfg.consider_acc_bias_mg * MG / g,
+                                      self.cfg.gyro_arw_deg_sqrt_h * D2R / 60.0 * math.sqrt(T)]))
+        self.x[:] = 0.0
+        self.x[0:2] = V[-1]
+        self.x[2:5] = [pN_T, pE_T, a]
+        self.P[:] = 0.0
+        self.P[0:2, 0:2] = np.eye(2) * sigma_v_m_s**2
+        self.P[2:4, 2:4] = np.eye(2) * s_lvl**2
+        self._init_bias_cov()
+        self._bootstrap_azimuth_cov(s_noise_rad, w_h)
+        self._boot = False
+        self._f_lp_ned = None  # the open-loop mechanization's tilt is about to be corrected: restart the low-pass
+        self._feedback()
+        return UpdateResult(True, reason="azimuth bootstrap done: %.2f deg" % math.degrees(a))
+
+    def _nullspace(self, phiD: float) -> np.ndarray | None:
+        """Unobservable direction of the error state at azimuth phiD (None: the state has none)."""
+        return None
+
+    def _bootstrap_azimuth_cov(self, s_noise_rad: float, w_h: float) -> None:
+        """5-state cores: the fit noise only; the gyro-bias part is the consider floor added in estimate()."""
+        self.P[4, 4] = s_noise_rad**2
+
     def _model_error_prime(self) -> np.ndarray | None:
         return None
 
@@ -313,6 +414,15 @@ class StaticZuptCore(AlignmentCore):
         if feed_az:
             E = misalignment_rotation_enu(phi)
             self.mech.correct_attitude(E)
+            # the computed frame n' turns by phiD about Down: every (N, E) pair of the state (velocity, level,
+            # accelerometer and gyro errors) is now expressed in the new axes, v'' = Rz(phiD) v' (reset Jacobian)
+            J = np.eye(self.x.shape[0])
+            R2 = Rz(x[4])[0:2, 0:2]
+            for i in (0, 2, 5, 7)[:2 + self.n_bias // 2]:
+                J[i:i + 2, i:i + 2] = R2
+            self.P = J @ self.P @ J.T
+            if self._N_prev is not None:
+                self._N_prev = J @ self._N_prev
             self.x[4] = 0.0
         else:
             # level only: C_true = Rz(phiD) exp(rho) C_est -> C_est <- exp(rho) C_est, phiD stays in the state
@@ -344,6 +454,8 @@ class StaticZuptCore(AlignmentCore):
         yaw3 = 3.0 * math.sqrt(max(P_att[2, 2], 0.0))
         status = AlignmentStatus.ALIGNED if yaw3 < self.cfg.aligned_yaw_3sigma_deg * D2R else AlignmentStatus.CONVERGING
         reason = ("3-sigma azimuth %.3g deg" % (yaw3 / D2R))
+        if self._boot:
+            status, reason = AlignmentStatus.CONVERGING, "azimuth bootstrap (open-loop drift fit) running"
         return AlignmentEstimate(
             self.t_s, self.attitude_estimate(), self.mech.v_n.copy(), self.mech.lat_rad, self.mech.lon_rad,
             self.mech.h_m, P_att, self.P.copy(), self.state_names,
@@ -359,26 +471,45 @@ class StaticZuptCore(AlignmentCore):
 def physical_floor(C_b_n_true: np.ndarray, bias_gyro_b: np.ndarray, bias_acc_b: np.ndarray, lat_rad: float,
                    g_m_s2: float = 9.80665) -> dict:
     """The static-alignment floor from the biases actually present (papers README):
-    level ~ b_acc_horizontal / g (roll from the north... per ENU axis), azimuth ~ eps_east / (omega_ie cos(lat)).
+    level ~ b_acc_horizontal / g (per ENU axis), azimuth ~ eps_east / (omega_ie cos(lat)); 'azimuth_rad' is the exact
+    form atan2(|eps_E|, omega_ie cos(lat) + eps_N), 'azimuth_linear_rad' the first-order one.
 
-    Returns {'roll_rad', 'pitch_rad', 'azimuth_rad'} (magnitudes): roll/pitch use the accelerometer bias
-    resolved in ENU (east -> tilt about north, north -> tilt about east) -- the level floor is the larger of the two.
+    Returns magnitudes [rad]: 'east_acc_tilt_rad', 'north_acc_tilt_rad' (the accelerometer bias resolved in ENU;
+    east -> tilt about north, north -> tilt about east), 'level_rad' (the larger), 'azimuth_rad', 'azimuth_linear_rad',
+    and the ENU gyro biases 'eps_east_rad_s', 'eps_north_rad_s' [rad/s].
     """
     b_a_n = C_b_n_true @ np.asarray(bias_acc_b)
     b_g_n = C_b_n_true @ np.asarray(bias_gyro_b)
     level = np.abs(b_a_n[0:2]) / g_m_s2
-    az = abs(b_g_n[0]) / (earth.OMEGA_IE_RAD_S * math.cos(lat_rad))
+    w_h = earth.OMEGA_IE_RAD_S * math.cos(lat_rad)
+    az_lin = abs(b_g_n[0]) / w_h
+    # exact: a static estimator that cannot separate the bias takes North along the measured horizontal rate
+    # (eps_E, w_h + eps_N) [ENU]; its angle from the true North is the floor. = eps_E / w_h to first order; differs
+    # when the horizontal bias is not small against w_h (MEMS: 5 deg/h against 12.3 deg/h at 35 deg)
+    az = abs(math.atan2(b_g_n[0], w_h + b_g_n[1]))
     return {"east_acc_tilt_rad": float(level[0]), "north_acc_tilt_rad": float(level[1]),
-            "level_rad": float(max(level)), "azimuth_rad": float(az), "eps_east_rad_s": float(b_g_n[0])}
+            "level_rad": float(max(level)), "azimuth_rad": float(az), "azimuth_linear_rad": float(az_lin),
+            "eps_east_rad_s": float(b_g_n[0]), "eps_north_rad_s": float(b_g_n[1])}
+
+
+def arw_azimuth_limit_rad(arw_deg_sqrt_h: float, lat_rad: float, T_s: float) -> float:
+    """1-sigma azimuth limit of gyrocompassing over T_s set by the gyro white noise: the east tilt rate
+    omega_ie cos(lat) psi is the slope of a random-walk tilt of density ARW, ARW / (omega_ie cos(lat) sqrt(T))."""
+    return arw_deg_sqrt_h * D2R / 60.0 / (earth.OMEGA_IE_RAD_S * math.cos(lat_rad) * math.sqrt(T_s))
 
 
 def config_for_imu(config_class, spec, **overrides):
-    """Config of a static core with the noise (and for the EKF10 the bias priors) of an ImuSpec (datasheet)."""
+    """Config of a static core from an ImuSpec (datasheet): process noise from VRW and ARW, the bias priors (EKF10
+    initial bias sigmas, the 5-state consider floor, the coarse alignment's bias terms) from the bias stability.
+    config/<core>.yaml (ADIS16488A) and config/<core>_navgrade.yaml are this function's output (tested)."""
     params = {"gyro_arw_deg_sqrt_h": spec.arw_deg_sqrt_h, "acc_vrw_m_s_sqrt_h": spec.vrw_m_s_sqrt_h}
     names = {f.name for f in fields(config_class)}
     if "consider_gyro_bias_deg_h" in names:
         params["consider_gyro_bias_deg_h"] = spec.gyro_bias_deg_h
         params["consider_acc_bias_mg"] = spec.acc_bias_mg
+    if "gyro_bias_deg_h" in names:
+        params["gyro_bias_deg_h"] = spec.gyro_bias_deg_h
+        params["acc_bias_mg"] = spec.acc_bias_mg
     if "init_sigma_gyro_bias_deg_h" in names:
         params["init_sigma_gyro_bias_deg_h"] = spec.gyro_bias_deg_h
         params["init_sigma_acc_bias_mg"] = spec.acc_bias_mg
