@@ -99,11 +99,8 @@ class StructuredPiGainSolver:
         M[n:, m:] = Ts * np.eye(m)
         self.Abar.value, self.Bbar.value, self.MBL.value = Abar_w, Bbar_w, M
         t0 = time.perf_counter()
-        status, used = _solve(self.prob, self.solver)
-        dt = time.perf_counter() - t0
-        safe = LmiResult(status, self.safe_k_P, self.safe_k_I, True, "", 0.0, solver=used, solve_time_s=dt)
-        if status not in ("optimal", "optimal_inaccurate") or self.X.value is None:
-            safe.reason = f"LMI infeasible ({status}): safe gains"
+        status, used, dt, safe = _solve_or_safe(self, self.X, "structured LMI", t0)
+        if safe is not None:
             return safe
         K_PI = self.Y.value @ np.linalg.inv(self.Xm.value)
         k_P, k_I = K_PI[:m], -K_PI[m:]
@@ -116,12 +113,29 @@ class StructuredPiGainSolver:
         srad = float(np.max(np.abs(np.linalg.eigvals(Acl))))
         res = LmiResult(status, k_P, k_I, False, "", 0.0, -lmi_min, margin, srad, used, dt)
         if lmi_min < 0.5 * self.eps or srad >= 1.0 or not np.all(np.isfinite(K_PI)):
-            res.k_P, res.k_I, res.used_fallback = self.safe_k_P, self.safe_k_I, True
-            res.reason = (f"LMI infeasible: solver returned '{status}' on the boundary (min eig {lmi_min:.2g}, "
-                          f"spectral radius {srad:.4f}): safe gains")
+            _use_safe(res, self, f"LMI infeasible: solver returned '{status}' on the boundary (min eig "
+                                 f"{lmi_min:.2g}, spectral radius {srad:.4f}): safe gains")
         else:
             res.reason = f"LMI solved: eq. (20) rate certified (margin {margin:.2g}, spectral radius {srad:.4f})"
         return res
+
+
+def _use_safe(res: LmiResult, solver, reason: str) -> None:
+    """Replace the gains of ``res`` by the solver's safe gains (k_P = I, k_I = safe) and say why."""
+    res.k_P, res.k_I, res.used_fallback = solver.safe_k_P, solver.safe_k_I, True
+    res.reason = reason
+
+
+def _solve_or_safe(solver, var, what: str, t0: float):
+    """Solve ``solver.prob``; return (status, solver used, seconds since t0, None) or, when it has no solution,
+    the same with an LmiResult carrying the safe gains and the reason."""
+    status, used = _solve(solver.prob, solver.solver)
+    dt = time.perf_counter() - t0
+    if status in ("optimal", "optimal_inaccurate") and var.value is not None:
+        return status, used, dt, None
+    safe = LmiResult(status, solver.safe_k_P, solver.safe_k_I, True, "", solver=used, solve_time_s=dt)
+    safe.reason = f"{what} not solved ({status}): safe gains k_P = I, k_I = safe"
+    return status, used, dt, safe
 
 
 def _solve(prob, first: str):
@@ -171,11 +185,8 @@ class PiGainSolver:
         Bbar[:, :n] = H @ A
         self.Abar.value, self.Bbar.value = Abar, Bbar
         t0 = time.perf_counter()
-        status, used = _solve(self.prob, self.solver)
-        dt = time.perf_counter() - t0
-        safe = LmiResult(status, self.safe_k_P, self.safe_k_I, True, "", solver=used, solve_time_s=dt)
-        if status not in ("optimal", "optimal_inaccurate") or self.J.value is None:
-            safe.reason = f"LMI not solved ({status}): safe gains k_P = I, k_I = safe"
+        status, used, dt, safe = _solve_or_safe(self, self.J, "LMI", t0)
+        if safe is not None:
             return safe
         J, Nv = self.J.value, self.N.value
         lmi_val = np.asarray(self._lmi_expr.value)
@@ -191,13 +202,11 @@ class PiGainSolver:
         srad = float(np.max(np.abs(np.linalg.eigvals(Acl))))
         res = LmiResult(status, K_PI[:m].copy(), -K_PI[m:].copy(), False, "", resid, lmi_max, margin, srad, used, dt)
         if lmi_max > -0.5 * self.eps:
-            res.k_P, res.k_I, res.used_fallback = self.safe_k_P, self.safe_k_I, True
-            res.reason = (f"LMI infeasible: solver returned '{status}' on the boundary (max eig {lmi_max:.2g} > "
-                          f"-eps): safe gains")
+            _use_safe(res, self, f"LMI infeasible: solver returned '{status}' on the boundary (max eig "
+                                 f"{lmi_max:.2g} > -eps): safe gains")
         elif srad >= 1.0 or not np.all(np.isfinite(K_PI)):
-            res.k_P, res.k_I, res.used_fallback = self.safe_k_P, self.safe_k_I, True
-            res.reason = (f"structured gains from eq. (23) (residual {resid:.2g}) do not stabilise the augmented "
-                          f"system (spectral radius {srad:.4f}): safe gains k_P = I, k_I = safe")
+            _use_safe(res, self, f"structured gains from eq. (23) (residual {resid:.2g}) do not stabilise the "
+                                 f"augmented system (spectral radius {srad:.4f}): safe gains k_P = I, k_I = safe")
         elif margin >= 0:
             res.reason = (f"structured gains stable (spectral radius {srad:.4f}) but the eq. (20) rate is not "
                           f"certified with this J (margin {margin:.3g}); eq. (23) residual {resid:.2g}")
@@ -339,11 +348,8 @@ class WindowPiGainSolver:
         t0 = time.perf_counter()
         Abar, Bbar, _ = lift_window(w)
         self.Abar.value, self.Bbar.value = Abar, Bbar
-        status, used = _solve(self.prob, self.solver)
-        dt = time.perf_counter() - t0
-        safe = LmiResult(status, self.safe_k_P, self.safe_k_I, True, "", solver=used, solve_time_s=dt)
-        if status not in ("optimal", "optimal_inaccurate") or self.J.value is None:
-            safe.reason = f"lifted LMI (W = {self.W}) not solved ({status}): safe gains"
+        status, used, dt, safe = _solve_or_safe(self, self.J, f"lifted LMI (W = {self.W})", t0)
+        if safe is not None:
             return safe
         J = np.asarray(self.J.value)
         lmi_val = np.asarray(self._lmi_expr.value)
@@ -365,13 +371,11 @@ class WindowPiGainSolver:
                         extra={"window": self.W, "rate_factor": self.c,
                                "spectral_radius_held": float(np.max(np.abs(np.linalg.eigvals(Acl))))})
         if lmi_max > -0.5 * self.eps:
-            res.k_P, res.k_I, res.used_fallback = self.safe_k_P, self.safe_k_I, True
-            res.reason = (f"lifted LMI (W = {self.W}) infeasible: '{status}' on the boundary (max eig {lmi_max:.2g}):"
-                          f" safe gains")
+            _use_safe(res, self, f"lifted LMI (W = {self.W}) infeasible: '{status}' on the boundary (max eig "
+                                 f"{lmi_max:.2g}): safe gains")
         elif srad >= 1.0 or not np.all(np.isfinite(k_I)):
-            res.k_P, res.k_I, res.used_fallback = self.safe_k_P, self.safe_k_I, True
-            res.reason = (f"lifted LMI (W = {self.W}) gains do not stabilise the exact window product (spectral "
-                          f"radius {srad:.4f}; eq. (23) residual {resid:.2g}): safe gains")
+            _use_safe(res, self, f"lifted LMI (W = {self.W}) gains do not stabilise the exact window product "
+                                 f"(spectral radius {srad:.4f}; eq. (23) residual {resid:.2g}): safe gains")
         else:
             res.reason = (f"lifted LMI (W = {self.W}) solved, rate (1-2 rho)^W certified for the held model (margin "
                           f"{margin:.2g}); exact window spectral radius {srad:.4f}; eq. (23) residual {resid:.2g}")
