@@ -164,6 +164,8 @@ def run_alignment(args, log_dir: Path, out=None) -> tuple[int, dict]:
     err = [float(x) for x in args.init_error_deg.split(",")]
     align_params = {"core": args.core, "init_from_ground_truth": not args.bag, "init_rpy_error_deg": str(err),
                     "imu_qos": "reliable"}
+    if args.yaw_hypotheses > 1:  # unknown heading: a bank of yaw hypotheses (filters/hypotheses.py)
+        align_params["yaw_hypotheses"] = args.yaw_hypotheses
     if args.bag:
         align_params["initial_rpy_deg"] = str([float(x) for x in args.initial_rpy_deg.split(",")])
         align_params["init_from_ground_truth"] = args.bag_truth_init
@@ -285,6 +287,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--init-error-deg", default="5,-5,30", help="initial roll,pitch,yaw error [deg] added to the "
                     "truth (default 5,-5,30)")
+    ap.add_argument("--yaw-hypotheses", type=int, default=1, help="in-motion cores: a bank of K yaw hypotheses for an "
+                    "unknown heading (e.g. --yaw-hypotheses 8 --init-error-deg 5,-5,179; default 1 = one filter)")
     ap.add_argument("--bag", type=Path, default=None, help="replay this contract rosbag2 instead of a scenario")
     ap.add_argument("--initial-rpy-deg", default="0,0,0", help="bag without truth: initial roll,pitch,yaw guess")
     ap.add_argument("--bag-truth-init", action="store_true", help="bag with truth: initialise from it + the error")
