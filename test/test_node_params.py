@@ -82,6 +82,8 @@ def test_run_time_changes_are_validated_and_bad_values_refused(node_factory):
         (Parameter("initial_rpy_deg", value=[1.0, 2.0]), "initial_rpy_deg"),
         (Parameter("pose_rate_hz", value="fast"), "type"),  # rclpy refuses a type change itself
         (Parameter("imu_qos", value="reliable"), "read-only"),
+        (Parameter("backtrack_passes", value=1), "backward propagation"),  # iekf cannot run backward
+        (Parameter("yaw_hypotheses", value=0), "yaw_hypotheses"),
     ]
     for prm, word in cases:
         old = node.get_parameter(prm.name).value
@@ -105,3 +107,5 @@ def test_bad_start_up_parameter_is_an_error_with_the_reason(node_factory):
         node_factory(["-p", "core:=nope"])
     with pytest.raises(ValueError, match="hold_s"):
         node_factory(["-p", "aligned.hold_s:=-3.0"])
+    with pytest.raises(ValueError, match="backward propagation"):  # a bank cannot be backtracked
+        node_factory(["-p", "core:=liekf", "-p", "backtrack_passes:=1", "-p", "yaw_hypotheses:=8"])

@@ -96,6 +96,8 @@ COMMON_PARAMS = {
     "aligned.max_update_age_s": (5.0, "aligned flag: last accepted update at most this old [s]"),
 }
 READ_ONLY = {"imu_qos", "imu_qos_depth", "backtrack_timer_hz"}
+#: cores that filters/backtrack.py can run backward (make_backtrackable)
+BACKTRACK_CORES = ("liekf", "liekf_backtrack", "earth_iekf")
 
 
 def _latched_qos() -> QoSProfile:
@@ -198,6 +200,10 @@ class AlignmentNode(Node):
                 return f"{name}: must be a finite number >= 0, got {p[name]!r}"
         if not (isinstance(p["backtrack_passes"], int) and 0 <= p["backtrack_passes"] <= 10):
             return f"backtrack_passes: must be an integer in [0, 10], got {p['backtrack_passes']!r}"
+        if p["backtrack_passes"] > 0 and (p["core"] not in BACKTRACK_CORES or p.get("yaw_hypotheses", 1) > 1):
+            return (f"backtrack_passes > 0 needs one filter of a core with backward propagation "
+                    f"({', '.join(BACKTRACK_CORES)}, yaw_hypotheses 1); got core {p['core']!r}, yaw_hypotheses "
+                    f"{p.get('yaw_hypotheses', 1)}")
         if p["backtrack_covariance"] not in ("reset", "reuse"):
             return f"backtrack_covariance: must be 'reset' or 'reuse', got {p['backtrack_covariance']!r}"
         for name in ("backtrack_window_s", "backtrack_budget_s", "backtrack_timer_hz"):
