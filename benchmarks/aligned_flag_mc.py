@@ -31,11 +31,12 @@ from insalign_ros.filters.runner import EventRunner, initial_guess  # noqa: E402
 from insalign_ros.sim.scenarios import make_scenario  # noqa: E402
 
 
-def one_run(seed: int, core_name: str, duration_s: float, criteria: AlignedCriteria, rate_s: float = 0.1) -> dict:
+def one_run(seed: int, core_name: str, duration_s: float, criteria: AlignedCriteria, rate_s: float = 0.1,
+            yaw_range_deg: float = 60.0, yaw_hypotheses: int = 1) -> dict:
     data = make_scenario("ship", seed=seed, duration_s=duration_s)
     rng = np.random.default_rng(10_000 + seed)
-    err0 = np.array([rng.uniform(-5, 5), rng.uniform(-5, 5), rng.uniform(-60, 60)])
-    core = make_core(core_name, {})
+    err0 = np.array([rng.uniform(-5, 5), rng.uniform(-5, 5), rng.uniform(-yaw_range_deg, yaw_range_deg)])
+    core = make_core(core_name, {"yaw_hypotheses": yaw_hypotheses} if yaw_hypotheses > 1 else {})
     g = initial_guess(data.t_s[0], data.lat_rad[0], data.lon_rad[0], data.h_m[0], data.C_b_n[0], data.v_n[0],
                       err0, core.cfg)
     g.apply(core)
@@ -74,11 +75,16 @@ def main(argv=None) -> int:
     ap.add_argument("--core", default="liekf")
     ap.add_argument("--duration-s", type=float, default=300.0)
     ap.add_argument("--yaw-3sigma-deg", type=float, default=AlignedCriteria.yaw_3sigma_deg)
+    ap.add_argument("--yaw-range-deg", type=float, default=60.0, help="initial yaw error ~ U(-R, R) [deg]")
+    ap.add_argument("--yaw-hypotheses", type=int, default=1, help="bank of K yaw hypotheses (1 = one filter)")
     args = ap.parse_args(argv)
     crit = AlignedCriteria(yaw_3sigma_deg=args.yaw_3sigma_deg)
     t0 = time.monotonic()
-    rows = [one_run(s, args.core, args.duration_s, crit) for s in range(args.runs)]
-    print(f"aligned flag, {args.runs} ship runs x {args.duration_s:g} s, core {args.core}, criteria {crit.to_dict()}")
+    rows = [one_run(s, args.core, args.duration_s, crit, yaw_range_deg=args.yaw_range_deg,
+                    yaw_hypotheses=args.yaw_hypotheses) for s in range(args.runs)]
+    print(f"aligned flag, {args.runs} ship runs x {args.duration_s:g} s, core {args.core}, yaw error "
+          f"U(-{args.yaw_range_deg:g}, {args.yaw_range_deg:g}) deg, {args.yaw_hypotheses} yaw hypotheses, "
+          f"criteria {crit.to_dict()}")
     print("| seed | initial error r/p/y [deg] | true |yaw err| < thr from [s] | flag first up [s] | delay [s] | "
           "false-aligned epochs | max |yaw err| while up [deg] | final |yaw err| / 3-sigma [deg] |")
     print("|---|---|---|---|---|---|---|---|")
