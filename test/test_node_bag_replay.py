@@ -53,3 +53,42 @@ def test_replayed_bag_reaches_aligned_with_yaw_error_below_1_deg(tmp_path, monke
     finally:
         stop_nodes(nodes)
         mon.close()
+
+
+@pytest.mark.timeout(120)
+def test_paced_bag_replay_as_fast_as_the_consumer_loses_nothing(tmp_path, monkeypatch):
+    """Backpressure: replay at rate factor 1000 (100,000 Imu/s asked for) into a best-effort subscription; with
+    ``pace_topic`` = the node's pose, imu_sim_node pauses whenever it is more than ``max_lead_s`` of data ahead of the
+    node's filter time, so every message arrives (the 1,000-deep queue holds the 2 s lead of 200 samples)."""
+    import json
+
+    from insalign_ros.io.bag import write_bag
+    from insalign_ros.nodes.monitor import AlignmentMonitor
+    from insalign_ros.sim.scenarios import make_scenario
+
+    data = make_scenario("ship", seed=1, duration_s=60.0)
+    bag = tmp_path / "ship_bag"
+    write_bag(data, bag)
+    env = isolated_ros_env()
+    for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
+        monkeypatch.setenv(k, env[k])
+    mon = AlignmentMonitor()
+    nodes = []
+    try:
+        nodes.append(start_node("insalign_ros.nodes.alignment_node", env, log_dir=tmp_path, params={
+            "core": "iekf", "init_from_ground_truth": True, "init_rpy_error_deg": "[3.0, -3.0, 30.0]",
+            "imu_qos": "sensor_data", "imu_qos_depth": 1000}))
+        sim = start_node("insalign_ros.nodes.imu_sim_node", env, log_dir=tmp_path, params={
+            "source": "bag", "bag_path": str(bag), "rate_factor": 1000.0, "wait_for_subscribers": 1,
+            "wait_timeout_s": 30.0, "start_stamp_s": 1.7e9, "qos_depth": 1000,
+            "pace_topic": "/alignment_node/pose", "max_lead_s": 2.0})
+        nodes.append(sim)
+        assert wait_for_exit(sim, 90.0) == 0, sim.output()[-2000:]
+        summary = json.loads([ln for ln in sim.output().splitlines() if ln.startswith("SIM_SUMMARY ")][-1][12:])
+        assert summary["imu_sent"] == data.n and summary["paused_s"] > 0.1, (summary, sim.output()[-3000:])
+        assert "backpressure off" not in sim.output()
+        assert mon.wait_for(lambda m: m.counter("imu_received") == data.n, 15.0), (mon.diag, summary)
+        assert int(mon.diag["imu_rejected"]) == 0 and int(mon.diag.get("imu_gaps", 0)) == 0, mon.diag
+    finally:
+        stop_nodes(nodes)
+        mon.close()

@@ -18,6 +18,13 @@ from the IMU specification's noise densities, orientation_covariance[0] = -1), `
 Timing: stamps are data time: ``start_stamp_s`` (0: the wall clock at the first message) + the scenario time.
 Message k is published at wall time ``start + t_k / rate_factor`` (1.0 = real time, > 1 faster).
 
+Backpressure (``pace_topic``, scenario and bag sources): with ``pace_topic`` set (e.g. ``/alignment_node/pose``, a
+geometry_msgs/PoseWithCovarianceStamped the consumer publishes with its filter time as the stamp), the replay never
+runs more than ``max_lead_s`` of data time ahead of the newest stamp seen there: it pauses (the wall-time schedule
+shifts) instead of letting a slow consumer drop messages. Before the first pace message it may lead by
+``max_lead_s`` past the first GNSS fix (the consumer initialises there); if no pace message arrives for
+``pace_timeout_s`` of wall time while paused, it logs a warning and stops pacing (never hangs).
+
 QoS (nodes/qos.py, REP 2003): ``qos`` = ``reliable`` by default for every data topic: a reliable writer serves both
 the sensor-data (best-effort) subscription of alignment_node and a user's reliable subscriber; a best-effort writer
 would leave a reliable subscriber with nothing. ``sensor_data`` makes the writer best effort.
@@ -35,7 +42,7 @@ import time
 
 import numpy as np
 import rclpy
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from scipy.spatial.transform import Rotation
@@ -117,6 +124,9 @@ class ImuSimNode(Node):
         lat, lon, h = (float(p(n, d).value) for n, d in (("lat_deg", 49.0), ("lon_deg", 8.4), ("h_m", 120.0)))
         rpy = [float(p(n, 0.0).value) for n in ("roll_deg", "pitch_deg", "yaw_deg")]
         qos_kind, depth = str(p("qos", "reliable").value), int(p("qos_depth", 200).value)
+        self.pace_topic = str(p("pace_topic", "").value)
+        self.max_lead_s = float(p("max_lead_s", 2.0).value)
+        self.pace_timeout_s = float(p("pace_timeout_s", 5.0).value)
         if self.source not in SOURCES:
             raise ValueError(f"source must be one of {SOURCES}, got {self.source!r}")
         if not (0.0 < self.rate_hz <= 2000.0):
@@ -125,6 +135,9 @@ class ImuSimNode(Node):
             raise ValueError(f"rate_factor must be in (0, 1000], got {self.rate_factor}")
         if self.gps_rate_hz < 0 or self.duration_s < 0 or self.truth_rate_hz < 0 or self.clock_period_s <= 0:
             raise ValueError("gps_rate_hz and duration_s must be >= 0, clock_period_s > 0")
+        if not (math.isfinite(self.max_lead_s) and self.max_lead_s > 0 and math.isfinite(self.pace_timeout_s)
+                and self.pace_timeout_s > 0):
+            raise ValueError(f"max_lead_s and pace_timeout_s must be > 0, got {self.max_lead_s}, {self.pace_timeout_s}")
         if self.source == "bag" and not self.bag_path:
             raise ValueError("source bag needs bag_path")
         qos = imu_qos(qos_kind, depth)
@@ -150,6 +163,12 @@ class ImuSimNode(Node):
         self.pub_truth = self.create_publisher(PoseStamped, "ground_truth/pose", qos) if (
             self.publish_truth and self.data.has_truth) else None
         self.pub_clock = self.create_publisher(Clock, "/clock", 10)
+        self.paced_stamp_s: float | None = None  # newest consumer stamp on pace_topic [s]
+        self.paused_s = 0.0  # wall time spent waiting for the consumer
+        self._paused_since: float | None = None
+        self._pace_msg_wall = time.monotonic()
+        if self.pace_topic:
+            self.create_subscription(PoseWithCovarianceStamped, self.pace_topic, self._on_pace, 50)
         self._prepare()
 
     # ------------------------------------------------------------------ scenario / bag source
@@ -191,6 +210,22 @@ class ImuSimNode(Node):
             self.done = self.gave_up = True
         return False
 
+    def _on_pace(self, msg) -> None:
+        t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        if self.paced_stamp_s is None or t > self.paced_stamp_s:
+            self.paced_stamp_s = t
+        self._pace_msg_wall = time.monotonic()
+
+    def _lead_limit_s(self) -> float:
+        """Latest data time (scenario time) that may be published now under backpressure (inf: no pacing)."""
+        if not self.pace_topic:
+            return math.inf
+        d = self.data
+        if self.paced_stamp_s is None:  # the consumer initialises at the first fix: let it get there
+            first_fix = float(d.gnss_t_s[0]) if len(d.gnss_t_s) else float(d.t_s[0])
+            return first_fix + self.max_lead_s
+        return self.paced_stamp_s - self.stamp0_s + self.max_lead_s
+
     def publish_due(self, wall_s: float) -> float | None:
         """Publish every message whose wall time has come; return the wall time of the next one (None: done)."""
         d = self.data
@@ -199,14 +234,28 @@ class ImuSimNode(Node):
             base = self.start_stamp_s if self.start_stamp_s > 0 else time.time()
             self.t_start_ns = int(round(base * 1e9))
             self.stamp0_s = self.t_start_ns * 1e-9 - float(d.t_s[0])
-        elapsed_data = (wall_s - self.wall0) * self.rate_factor
         limit = d.n if not self.count else min(d.n, self.count)
-        while self.k < limit and d.t_s[self.k] - d.t_s[0] <= elapsed_data:
+        lead = self._lead_limit_s()
+        if self._paused_since is not None and (self.k >= limit or d.t_s[self.k] <= lead):
+            # the consumer caught up: resume, shifting the wall-time schedule by the pause
+            self.wall0 += wall_s - self._paused_since
+            self.paused_s += wall_s - self._paused_since
+            self._paused_since = None
+        elapsed_data = (wall_s - self.wall0) * self.rate_factor
+        while self.k < limit and d.t_s[self.k] - d.t_s[0] <= elapsed_data and d.t_s[self.k] <= lead:
             self._publish_sample(self.k)
             self.k += 1
         if self.k >= limit:
             self.done = True
             return None
+        if d.t_s[self.k] > lead and d.t_s[self.k] - d.t_s[0] <= elapsed_data:  # due, but the consumer lags: pause
+            if self._paused_since is None:
+                self._paused_since = wall_s
+            if wall_s - max(self._pace_msg_wall, self._paused_since) > self.pace_timeout_s:
+                self.get_logger().warning(f"no message on {self.pace_topic} for {self.pace_timeout_s:g} s while "
+                                          "paused: backpressure off, replaying on the wall-time schedule")
+                self.pace_topic = ""
+            return wall_s + 0.005  # the stream loop spins (pace messages arrive) until then
         return self.wall0 + (d.t_s[self.k] - d.t_s[0]) / self.rate_factor
 
     def _publish_sample(self, k: int) -> None:
@@ -265,7 +314,8 @@ class ImuSimNode(Node):
     def summary(self) -> dict:
         return {"source": self.source, "scenario": getattr(self.data, "name", "rest"), "imu_sent": self.sent,
                 "fix_sent": self.sent_fix, "truth_sent": self.sent_truth, "rate_factor": self.rate_factor,
-                "first_stamp_ns": self.t_start_ns, "gave_up": self.gave_up}
+                "first_stamp_ns": self.t_start_ns, "gave_up": self.gave_up,
+                "paused_s": round(getattr(self, "paused_s", 0.0), 3)}
 
     # ------------------------------------------------------------------ rest source (timer)
     def _tick(self) -> None:
