@@ -52,17 +52,20 @@ def test_ship_run_reaches_aligned_with_yaw_error_below_1_deg(tmp_path, ros_env):
     nodes = []
     try:
         nodes.append(start_node(ALIGN, ros_env, log_dir=tmp_path, params={
-            "core": "liekf", "init_from_ground_truth": True, "init_rpy_error_deg": "[3.0, -3.0, 30.0]"}))
+            "core": "liekf", "init_from_ground_truth": True, "init_rpy_error_deg": "[3.0, -3.0, 30.0]",
+            "imu_qos": "reliable", "imu_qos_depth": 9000}))
+        # reliable with deep histories on both ends: nothing is lost on a loaded machine, so the run is the offline
+        # one (seed 3: final yaw error 0.78 deg, 3-sigma 1.54 deg); with best effort a few drops moved it to 1.0 deg
         sim = start_node(SIM, ros_env, log_dir=tmp_path, params={
             "source": "scenario", "scenario": "ship", "seed": 3, "duration_s": 80.0, "rate_hz": 100.0,
-            "rate_factor": 8.0, "wait_for_subscribers": 1, "wait_timeout_s": 30.0})
+            "rate_factor": 8.0, "wait_for_subscribers": 1, "wait_timeout_s": 30.0, "qos": "reliable",
+            "qos_depth": 9000})
         nodes.append(sim)
         assert wait_for_exit(sim, 90.0) == 0, sim.output()[-2000:]
         summary = _sim_summary(sim)
         assert summary["imu_sent"] == 8001
         # the last diagnostics arrive within ~1 s; wait until the node has processed everything sent
-        # (best effort on a loaded 2-core machine may drop a few; the no-drop measurement is benchmarks/node_latency.py)
-        assert mon.wait_for(lambda m: m.counter("imu_received") >= 0.98 * summary["imu_sent"], 10.0), mon.diag
+        assert mon.wait_for(lambda m: m.counter("imu_received") == summary["imu_sent"], 15.0), mon.diag
         assert mon.wait_for(lambda m: m.diag.get("filter_time_s") and float(m.diag["filter_time_s"]) * 1e9
                             >= summary["first_stamp_ns"] + 79.0e9, 10.0), mon.diag
         assert mon.wait_for(lambda m: m.aligned is True, 5.0), (mon.aligned_history, mon.diag)
