@@ -167,6 +167,10 @@ class StaticConfig:
     def validate(self) -> None:
         for f in fields(self):
             v = getattr(self, f.name)
+            if f.type in ("str", str):  # choices are checked by the subclass that adds the field
+                if not isinstance(v, str):
+                    raise ValueError(f"{f.name}: expected a string, got {v!r}")
+                continue
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                 raise ValueError(f"{f.name}: expected a finite number, got {v!r}")
             if f.type in ("int", int) and not isinstance(v, int):
