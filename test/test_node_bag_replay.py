@@ -17,25 +17,32 @@ pytestmark = [pytest.mark.ros,
               pytest.mark.skipif(importlib.util.find_spec("insalign_ros.io.bag") is None,
                                  reason="insalign_ros/io/bag.py (the simulator issue's bag reader) has not landed")]
 
-@pytest.mark.timeout(120)
-def test_replayed_bag_reaches_aligned_with_yaw_error_below_1_deg(tmp_path, monkeypatch):
+def _ship_bag_and_monitor(tmp_path, monkeypatch, seed, duration_s):
+    """A ship scenario written as a contract bag, an isolated DDS domain, and a monitor joined to it."""
+    from insalign_ros.io.bag import write_bag
     from insalign_ros.nodes.monitor import AlignmentMonitor
     from insalign_ros.sim.scenarios import make_scenario
 
-    data = make_scenario("ship", seed=4, duration_s=120.0)
-    from insalign_ros.io.bag import write_bag
-
+    data = make_scenario("ship", seed=seed, duration_s=duration_s)
     bag = tmp_path / "ship_bag"
     write_bag(data, bag)
     env = isolated_ros_env()
     for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
         monkeypatch.setenv(k, env[k])
-    mon = AlignmentMonitor()
+    return data, bag, env, AlignmentMonitor()
+
+
+def _start_align(env, tmp_path, **params):
+    return start_node("insalign_ros.nodes.alignment_node", env, log_dir=tmp_path, params={
+        "core": "iekf", "init_from_ground_truth": True, "init_rpy_error_deg": "[3.0, -3.0, 30.0]", **params})
+
+
+@pytest.mark.timeout(120)
+def test_replayed_bag_reaches_aligned_with_yaw_error_below_1_deg(tmp_path, monkeypatch):
+    data, bag, env, mon = _ship_bag_and_monitor(tmp_path, monkeypatch, seed=4, duration_s=120.0)
     nodes = []
     try:
-        nodes.append(start_node("insalign_ros.nodes.alignment_node", env, log_dir=tmp_path, params={
-            "core": "iekf", "init_from_ground_truth": True, "init_rpy_error_deg": "[3.0, -3.0, 30.0]",
-            "imu_qos": "reliable"}))
+        nodes.append(_start_align(env, tmp_path, imu_qos="reliable"))
         sim = start_node("insalign_ros.nodes.imu_sim_node", env, log_dir=tmp_path, params={
             "source": "bag", "bag_path": str(bag), "rate_factor": 8.0, "wait_for_subscribers": 1,
             "wait_timeout_s": 30.0, "start_stamp_s": 1.7e9, "qos_depth": 1000})
@@ -62,22 +69,10 @@ def test_paced_bag_replay_as_fast_as_the_consumer_loses_nothing(tmp_path, monkey
     node's filter time, so every message arrives (the 1,000-deep queue holds the 2 s lead of 200 samples)."""
     import json
 
-    from insalign_ros.io.bag import write_bag
-    from insalign_ros.nodes.monitor import AlignmentMonitor
-    from insalign_ros.sim.scenarios import make_scenario
-
-    data = make_scenario("ship", seed=1, duration_s=60.0)
-    bag = tmp_path / "ship_bag"
-    write_bag(data, bag)
-    env = isolated_ros_env()
-    for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
-        monkeypatch.setenv(k, env[k])
-    mon = AlignmentMonitor()
+    data, bag, env, mon = _ship_bag_and_monitor(tmp_path, monkeypatch, seed=1, duration_s=60.0)
     nodes = []
     try:
-        nodes.append(start_node("insalign_ros.nodes.alignment_node", env, log_dir=tmp_path, params={
-            "core": "iekf", "init_from_ground_truth": True, "init_rpy_error_deg": "[3.0, -3.0, 30.0]",
-            "imu_qos": "sensor_data", "imu_qos_depth": 1000}))
+        nodes.append(_start_align(env, tmp_path, imu_qos="sensor_data", imu_qos_depth=1000))
         sim = start_node("insalign_ros.nodes.imu_sim_node", env, log_dir=tmp_path, params={
             "source": "bag", "bag_path": str(bag), "rate_factor": 1000.0, "wait_for_subscribers": 1,
             "wait_timeout_s": 30.0, "start_stamp_s": 1.7e9, "qos_depth": 1000,
