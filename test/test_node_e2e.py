@@ -44,6 +44,17 @@ def _pose_cov_ok(msg) -> tuple[bool, str]:
     return bool(ev[0] > 0), f"eigenvalues {ev}"
 
 
+def _run_lossless_ship(nodes, ros_env, tmp_path, seed, duration_s):
+    """Ship scenario at 100 Hz, rate factor 8, reliable with a history deeper than the run; waits for the end."""
+    sim = start_node(SIM, ros_env, log_dir=tmp_path, params={
+        "source": "scenario", "scenario": "ship", "seed": seed, "duration_s": duration_s, "rate_hz": 100.0,
+        "rate_factor": 8.0, "wait_for_subscribers": 1, "wait_timeout_s": 30.0, "qos": "reliable",
+        "qos_depth": 9000})
+    nodes.append(sim)
+    assert wait_for_exit(sim, 90.0) == 0, sim.output()[-2000:]
+    return sim, _sim_summary(sim)
+
+
 @pytest.mark.timeout(120)
 def test_ship_run_reaches_aligned_with_yaw_error_below_1_deg(tmp_path, ros_env):
     from insalign_ros.nodes.monitor import AlignmentMonitor
@@ -56,13 +67,7 @@ def test_ship_run_reaches_aligned_with_yaw_error_below_1_deg(tmp_path, ros_env):
             "imu_qos": "reliable", "imu_qos_depth": 9000}))
         # reliable with deep histories on both ends: nothing is lost on a loaded machine, so the run is the offline
         # one (seed 3: final yaw error 0.78 deg, 3-sigma 1.54 deg); with best effort a few drops moved it to 1.0 deg
-        sim = start_node(SIM, ros_env, log_dir=tmp_path, params={
-            "source": "scenario", "scenario": "ship", "seed": 3, "duration_s": 80.0, "rate_hz": 100.0,
-            "rate_factor": 8.0, "wait_for_subscribers": 1, "wait_timeout_s": 30.0, "qos": "reliable",
-            "qos_depth": 9000})
-        nodes.append(sim)
-        assert wait_for_exit(sim, 90.0) == 0, sim.output()[-2000:]
-        summary = _sim_summary(sim)
+        sim, summary = _run_lossless_ship(nodes, ros_env, tmp_path, seed=3, duration_s=80.0)
         assert summary["imu_sent"] == 8001
         # the last diagnostics arrive within ~1 s; wait until the node has processed everything sent
         assert mon.wait_for(lambda m: m.counter("imu_received") == summary["imu_sent"], 15.0), mon.diag
@@ -97,16 +102,10 @@ def test_unknown_heading_179_deg_off_aligns_with_the_yaw_hypothesis_bank(tmp_pat
     try:
         nodes.append(start_node(ALIGN, ros_env, log_dir=tmp_path, params={
             "core": "iekf", "yaw_hypotheses": 8, "init_from_ground_truth": True,
-            "init_rpy_error_deg": "[3.0, -3.0, 179.0]", "imu_qos": "reliable", "imu_qos_depth": 6000}))
+            "init_rpy_error_deg": "[3.0, -3.0, 179.0]", "imu_qos": "reliable", "imu_qos_depth": 9000}))
         # reliable with deep histories on both ends: no sample is lost even on a loaded machine, so the run is the
         # offline one (seed 1: final yaw error -0.16 deg, 3-sigma 1.87 deg)
-        sim = start_node(SIM, ros_env, log_dir=tmp_path, params={
-            "source": "scenario", "scenario": "ship", "seed": 1, "duration_s": 60.0, "rate_hz": 100.0,
-            "rate_factor": 8.0, "wait_for_subscribers": 1, "wait_timeout_s": 30.0, "qos": "reliable",
-            "qos_depth": 6000})
-        nodes.append(sim)
-        assert wait_for_exit(sim, 90.0) == 0, sim.output()[-2000:]
-        summary = _sim_summary(sim)
+        sim, summary = _run_lossless_ship(nodes, ros_env, tmp_path, seed=1, duration_s=60.0)
         assert mon.wait_for(lambda m: m.diag.get("filter_time_s") and float(m.diag["filter_time_s"]) * 1e9
                             >= summary["first_stamp_ns"] + 59.0e9, 15.0), mon.diag
         assert mon.wait_for(lambda m: m.aligned is True, 5.0), (mon.aligned_history, mon.diag)

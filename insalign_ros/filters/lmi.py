@@ -126,6 +126,18 @@ def _use_safe(res: LmiResult, solver, reason: str) -> None:
     res.reason = reason
 
 
+def _fell_back(res: LmiResult, solver, lmi_max: float, srad: float, gains: np.ndarray, infeasible: str,
+               unstable: str) -> bool:
+    """Safe gains (and True) when the LMI is on the boundary or the gains do not stabilise the loop."""
+    if lmi_max > -0.5 * solver.eps:
+        _use_safe(res, solver, infeasible)
+        return True
+    if srad >= 1.0 or not np.all(np.isfinite(gains)):
+        _use_safe(res, solver, unstable)
+        return True
+    return False
+
+
 def _solve_or_safe(solver, var, what: str, t0: float):
     """Solve ``solver.prob``; return (status, solver used, seconds since t0, None) or, when it has no solution,
     the same with an LmiResult carrying the safe gains and the reason."""
@@ -201,13 +213,13 @@ class PiGainSolver:
         margin = float(np.linalg.eigvalsh(Acl.T @ J @ Acl - (1.0 - 2.0 * self.rho) * J).max())
         srad = float(np.max(np.abs(np.linalg.eigvals(Acl))))
         res = LmiResult(status, K_PI[:m].copy(), -K_PI[m:].copy(), False, "", resid, lmi_max, margin, srad, used, dt)
-        if lmi_max > -0.5 * self.eps:
-            _use_safe(res, self, f"LMI infeasible: solver returned '{status}' on the boundary (max eig "
-                                 f"{lmi_max:.2g} > -eps): safe gains")
-        elif srad >= 1.0 or not np.all(np.isfinite(K_PI)):
-            _use_safe(res, self, f"structured gains from eq. (23) (residual {resid:.2g}) do not stabilise the "
-                                 f"augmented system (spectral radius {srad:.4f}): safe gains k_P = I, k_I = safe")
-        elif margin >= 0:
+        if _fell_back(res, self, lmi_max, srad, K_PI,
+                      f"LMI infeasible: solver returned '{status}' on the boundary (max eig {lmi_max:.2g} > -eps): "
+                      "safe gains",
+                      f"structured gains from eq. (23) (residual {resid:.2g}) do not stabilise the augmented system "
+                      f"(spectral radius {srad:.4f}): safe gains k_P = I, k_I = safe"):
+            return res
+        if margin >= 0:
             res.reason = (f"structured gains stable (spectral radius {srad:.4f}) but the eq. (20) rate is not "
                           f"certified with this J (margin {margin:.3g}); eq. (23) residual {resid:.2g}")
         else:
@@ -370,13 +382,11 @@ class WindowPiGainSolver:
         res = LmiResult(status, np.eye(m), k_I, False, "", resid, lmi_max, margin, srad, used, dt,
                         extra={"window": self.W, "rate_factor": self.c,
                                "spectral_radius_held": float(np.max(np.abs(np.linalg.eigvals(Acl))))})
-        if lmi_max > -0.5 * self.eps:
-            _use_safe(res, self, f"lifted LMI (W = {self.W}) infeasible: '{status}' on the boundary (max eig "
-                                 f"{lmi_max:.2g}): safe gains")
-        elif srad >= 1.0 or not np.all(np.isfinite(k_I)):
-            _use_safe(res, self, f"lifted LMI (W = {self.W}) gains do not stabilise the exact window product "
-                                 f"(spectral radius {srad:.4f}; eq. (23) residual {resid:.2g}): safe gains")
-        else:
+        if not _fell_back(res, self, lmi_max, srad, k_I,
+                          f"lifted LMI (W = {self.W}) infeasible: '{status}' on the boundary (max eig {lmi_max:.2g}):"
+                          " safe gains",
+                          f"lifted LMI (W = {self.W}) gains do not stabilise the exact window product (spectral radius "
+                          f"{srad:.4f}; eq. (23) residual {resid:.2g}): safe gains"):
             res.reason = (f"lifted LMI (W = {self.W}) solved, rate (1-2 rho)^W certified for the held model (margin "
                           f"{margin:.2g}); exact window spectral radius {srad:.4f}; eq. (23) residual {resid:.2g}")
         return res
