@@ -35,7 +35,7 @@ from scipy.spatial.transform import Rotation
 
 from ..core import earth
 from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, ImuSample
-from .static_model import DEG_H, MG, StaticConfig
+from .static_model import DEG_H, MG, StaticConfig, usable_step
 
 NO_HEADING = "gyro noise/bias too large for Earth rate at this latitude: cannot give heading"
 
@@ -105,11 +105,8 @@ class CoarseAlignment(AlignmentCore):
         return self._init
 
     def propagate(self, imu: ImuSample) -> None:
-        if not self._init:
-            return
-        dt = float(imu.stamp_s) - self.t_s
-        if not (0.0 < dt <= 1.0) or not (np.all(np.isfinite(imu.f_ib_b)) and np.all(np.isfinite(imu.omega_ib_b))):
-            self.t_s = max(self.t_s, float(imu.stamp_s)) if np.isfinite(imu.stamp_s) else self.t_s
+        dt = usable_step(self, imu)
+        if dt is None:
             return
         f = np.asarray(imu.f_ib_b, float)
         w = np.asarray(imu.omega_ib_b, float)

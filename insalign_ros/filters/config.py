@@ -16,8 +16,53 @@ import math
 from dataclasses import dataclass, fields
 
 
+class ConfigDict:
+    """from_dict / to_dict / field type checks shared by every core config dataclass (in-motion and static)."""
+
+    @classmethod
+    def from_dict(cls, params: dict | None = None):
+        """Build from a (possibly partial) dict; ints are accepted for floats. Raises ValueError."""
+        params = dict(params or {})
+        known = {f.name: f for f in fields(cls)}
+        unknown = sorted(set(params) - set(known))
+        if unknown:
+            raise ValueError(f"unknown parameter(s) {unknown} for {cls.__name__}; known: {sorted(known)}")
+        kwargs = {}
+        for k, v in params.items():
+            ftype = known[k].type
+            if ftype in ("float", float) and isinstance(v, int) and not isinstance(v, bool):
+                v = float(v)
+            if ftype in ("str", str) and not isinstance(v, str):
+                raise ValueError(f"{k}: expected a string, got {v!r}")
+            if ftype in ("float", float) and not isinstance(v, float):
+                raise ValueError(f"{k}: expected a number, got {v!r}")
+            kwargs[k] = v
+        cfg = cls(**kwargs)
+        cfg.validate()
+        return cfg
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    def check_field_types(self, non_negative: bool = False) -> None:
+        """Strings are strings, ints ints, every other field a finite number (and >= 0 when asked)."""
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if f.type in ("str", str):  # choices are checked by the class that adds the field
+                if not isinstance(v, str):
+                    raise ValueError(f"{f.name}: expected a string, got {v!r}")
+                continue
+            if f.type in ("int", int):
+                if not (isinstance(v, int) and not isinstance(v, bool)):
+                    raise ValueError(f"{f.name}: expected an integer, got {v!r}")
+            elif isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ValueError(f"{f.name}: expected a finite number, got {v!r}")
+            if non_negative and v < 0:
+                raise ValueError(f"{f.name}: must be >= 0, got {v}")
+
+
 @dataclass
-class InMotionConfig:
+class InMotionConfig(ConfigDict):
     """Shared parameters of the GNSS-aided in-motion cores."""
 
     #: gyro angle random walk [deg/sqrt(h)] -> process noise of the attitude error (PI-LIEKF Table 2, Q)
@@ -48,12 +93,7 @@ class InMotionConfig:
 
     # ------------------------------------------------------------------ validation
     def validate(self) -> None:
-        for f in fields(self):
-            val = getattr(self, f.name)
-            if f.type in ("float", float) and not (isinstance(val, (int, float)) and math.isfinite(val)):
-                raise ValueError(f"{f.name}: expected a finite number, got {val!r}")
-            if f.type in ("int", int) and not (isinstance(val, int) and not isinstance(val, bool)):
-                raise ValueError(f"{f.name}: expected an integer, got {val!r}")
+        self.check_field_types()
         for name in ("gyro_arw_deg_sqrt_h", "acc_vrw_m_s_sqrt_h"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name}: must be >= 0, got {getattr(self, name)}")
@@ -69,31 +109,6 @@ class InMotionConfig:
             raise ValueError(f"gnss_nis_gate: must be >= 0 (0 = off), got {self.gnss_nis_gate}")
         if not 1 <= self.max_batch_samples <= 100_000:
             raise ValueError(f"max_batch_samples: must be in [1, 100000], got {self.max_batch_samples}")
-
-    @classmethod
-    def from_dict(cls, params: dict | None = None):
-        """Build from a (possibly partial) dict; ints are accepted for floats. Raises ValueError."""
-        params = dict(params or {})
-        known = {f.name: f for f in fields(cls)}
-        unknown = sorted(set(params) - set(known))
-        if unknown:
-            raise ValueError(f"unknown parameter(s) {unknown} for {cls.__name__}; known: {sorted(known)}")
-        kwargs = {}
-        for k, v in params.items():
-            ftype = known[k].type
-            if ftype in ("float", float) and isinstance(v, int) and not isinstance(v, bool):
-                v = float(v)
-            if ftype in ("str", str) and not isinstance(v, str):
-                raise ValueError(f"{k}: expected a string, got {v!r}")
-            if ftype in ("float", float) and not isinstance(v, float):
-                raise ValueError(f"{k}: expected a number, got {v!r}")
-            kwargs[k] = v
-        cfg = cls(**kwargs)
-        cfg.validate()
-        return cfg
-
-    def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
 
 
 @dataclass

@@ -20,7 +20,6 @@ writes with the level angles rotated by phiD (second order at small phiD, see do
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass, fields
 
@@ -29,6 +28,7 @@ import numpy as np
 from ..core import earth, lie
 from ..core.mechanization_n import LocalLevelMechanization
 from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, ImuSample, UpdateResult
+from .config import ConfigDict
 
 #: NED <-> ENU axis swap (a proper rotation, its own inverse): v_ned = T v_enu
 T_NED_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
@@ -125,7 +125,7 @@ def expm_taylor(A: np.ndarray, order: int = 8) -> np.ndarray:
 
 # ---------------------------------------------------------------------------------------------- config
 @dataclass
-class StaticConfig:
+class StaticConfig(ConfigDict):
     """Shared parameters of the static (zero-velocity) cores. Units in the names.
 
     Defaults: PKF paper Table 1 (ADIS16488A): ARW 0.26 deg/sqrt(h), VRW 0.029 m/s/sqrt(h); bias stability 5.1 deg/h,
@@ -165,43 +165,23 @@ class StaticConfig:
     specific_force_lowpass_s: float = 1.0
 
     def validate(self) -> None:
-        for f in fields(self):
-            v = getattr(self, f.name)
-            if f.type in ("str", str):  # choices are checked by the subclass that adds the field
-                if not isinstance(v, str):
-                    raise ValueError(f"{f.name}: expected a string, got {v!r}")
-                continue
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise ValueError(f"{f.name}: expected a finite number, got {v!r}")
-            if f.type in ("int", int) and not isinstance(v, int):
-                raise ValueError(f"{f.name}: expected an integer, got {v!r}")
-            if v < 0:
-                raise ValueError(f"{f.name}: must be >= 0, got {v}")
+        self.check_field_types(non_negative=True)
         for name in ("init_sigma_v_m_s", "aligned_yaw_3sigma_deg", "azimuth_feedback_sigma_deg"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}: must be > 0, got {getattr(self, name)}")
 
-    @classmethod
-    def from_dict(cls, params: dict | None = None):
-        """Build from a (partial) dict; ints accepted for floats. ValueError with the reason on bad input."""
-        params = dict(params or {})
-        known = {f.name: f for f in fields(cls)}
-        unknown = sorted(set(params) - set(known))
-        if unknown:
-            raise ValueError(f"unknown parameter(s) {unknown} for {cls.__name__}; known: {sorted(known)}")
-        kw = {}
-        for k, v in params.items():
-            if known[k].type in ("float", float):
-                if isinstance(v, bool) or not isinstance(v, (int, float)):
-                    raise ValueError(f"{k}: expected a number, got {v!r}")
-                v = float(v)
-            kw[k] = v
-        cfg = cls(**kw)
-        cfg.validate()
-        return cfg
 
-    def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+def usable_step(core, imu: ImuSample) -> float | None:
+    """The step dt [s] of an IMU sample a static core can use: initialised, 0 < dt <= 1 s, finite values. Otherwise
+    None, and a later finite stamp (a gap) still moves the core's time so the next step is measured from it."""
+    if not core._init:
+        return None
+    t = float(imu.stamp_s)
+    dt = t - core.t_s
+    if not (0.0 < dt <= 1.0) or not (np.all(np.isfinite(imu.f_ib_b)) and np.all(np.isfinite(imu.omega_ib_b))):
+        core.t_s = max(core.t_s, t) if math.isfinite(t) else core.t_s
+        return None
+    return dt
 
 
 # ---------------------------------------------------------------------------------------------- core
@@ -257,11 +237,8 @@ class StaticZuptCore(AlignmentCore):
         return self._init
 
     def propagate(self, imu: ImuSample) -> None:
-        if not self._init:
-            return
-        dt = float(imu.stamp_s) - self.t_s
-        if not (dt > 0.0) or dt > 1.0:
-            self.t_s = float(imu.stamp_s) if dt > 0 else self.t_s
+        dt = usable_step(self, imu)
+        if dt is None:
             return
         f_n = self.mech.step(imu.omega_ib_b, imu.f_ib_b, dt)
         self._f_sum_n += f_n * dt
