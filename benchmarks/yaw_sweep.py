@@ -165,26 +165,26 @@ def main(argv=None):
             p = PAPER_TABLE3.get(c, (None, None, None))
             L.append(f"| {c} | {rm[0]:.2f} | {rm[1]:.2f} | {rm[2]:.2f} | {fmt(p[0])} | {fmt(p[1])} | {fmt(p[2], 1)} |")
         L.append("")
-    L.append("**Time to |yaw error| < 1 deg and stays** [s]: median / max over seeds (never = runs that end above 1 deg).\n")
-    L.append("| core | " + " | ".join(f"{y:+.0f}" for y in yaws) + " |")
-    L.append("|---|" + "---|" * len(yaws))
-    for c in cores:
-        cells = []
-        for y in yaws:
-            tt = np.array([s["time_yaw_below_deg_s"] for s in results[(c, y)]])
-            never = int(np.isnan(tt).sum())
-            ok = tt[~np.isnan(tt)]
-            cell = f"{np.median(ok):.0f} / {np.max(ok):.0f}" if len(ok) else "-"
-            cells.append(cell + (f" ({never} never)" if never else ""))
-        L.append(f"| {c} | " + " | ".join(cells) + " |")
-    L.append("")
-    L.append("**Gross failures**: runs whose final |yaw error| exceeds 5 deg (count over seeds).\n")
-    L.append("| core | " + " | ".join(f"{y:+.0f}" for y in yaws) + " |")
-    L.append("|---|" + "---|" * len(yaws))
-    for c in cores:
-        L.append(f"| {c} | " + " | ".join(
-            str(sum(abs(s["final_err_rpy_deg"][2]) > 5.0 for s in results[(c, y)])) for y in yaws) + " |")
-    L.append("")
+    def table(title, cell):
+        """A core x initial-yaw table; cell(runs) -> text from the summaries of one (core, yaw) pair."""
+        L.append(title + "\n")
+        L.append("| core | " + " | ".join(f"{y:+.0f}" for y in yaws) + " |")
+        L.append("|---|" + "---|" * len(yaws))
+        for c in cores:
+            L.append(f"| {c} | " + " | ".join(cell(c, y, results[(c, y)]) for y in yaws) + " |")
+        L.append("")
+
+    def time_cell(c, y, runs):
+        tt = np.array([s["time_yaw_below_deg_s"] for s in runs])
+        never = int(np.isnan(tt).sum())
+        ok = tt[~np.isnan(tt)]
+        cell = f"{np.median(ok):.0f} / {np.max(ok):.0f}" if len(ok) else "-"
+        return cell + (f" ({never} never)" if never else "")
+
+    table("**Time to |yaw error| < 1 deg and stays** [s]: median / max over seeds (never = runs that end above 1 deg).",
+          time_cell)
+    table("**Gross failures**: runs whose final |yaw error| exceeds 5 deg (count over seeds).",
+          lambda c, y, runs: str(sum(abs(s["final_err_rpy_deg"][2]) > 5.0 for s in runs)))
     banks = [c for c in cores if parse_core(c)[1]]
     if banks:
         L.append("**Yaw-hypothesis banks**: data time at which one hypothesis was left [s], median / max over seeds "
@@ -196,34 +196,24 @@ def main(argv=None):
             L.append(f"- {c}: {np.median(tcv):.0f} / {np.max(tcv):.0f} s" + (f" ({never} runs ended with several)"
                                                                               if never else ""))
         L.append("")
-    L.append("**Steady-state |yaw error|** [deg], mean over the last 60 s: mean / max over seeds.\n")
-    L.append("| core | " + " | ".join(f"{y:+.0f}" for y in yaws) + " |")
-    L.append("|---|" + "---|" * len(yaws))
-    for c in cores:
-        cells = []
-        for y in yaws:
-            ss = np.array([s["steady_state_abs_err_rpy_deg"][2] for s in results[(c, y)]])
-            cells.append(f"{ss.mean():.2f} / {ss.max():.2f}")
-        L.append(f"| {c} | " + " | ".join(cells) + " |")
-    L.append("")
+    def ss_cell(c, y, runs):
+        ss = np.array([s["steady_state_abs_err_rpy_deg"][2] for s in runs])
+        return f"{ss.mean():.2f} / {ss.max():.2f}"
+
+    table("**Steady-state |yaw error|** [deg], mean over the last 60 s: mean / max over seeds.", ss_cell)
     lo, hi = MT.nees_band(args.seeds)
-    L.append(f"**Averaged attitude NEES** (3 dof) over t >= 30 s: NEES averaged over the {args.seeds} seeds at each "
-             f"output time, then the mean over time and the fraction of output times inside the 95 % band "
-             f"[{lo:.2f}, {hi:.2f}].\n")
-    L.append("| core | " + " | ".join(f"{y:+.0f}" for y in yaws) + " |")
-    L.append("|---|" + "---|" * len(yaws))
-    for c in cores:
-        cells = []
-        for y in yaws:
-            arr = nees_series[(c, y)]
-            n = min(len(a[0]) for a in arr)
-            t = arr[0][0][:n]
-            avg = np.mean([a[1][:n] for a in arr], axis=0)
-            m = t >= 30.0
-            inside = float(np.mean((avg[m] >= lo) & (avg[m] <= hi)))
-            cells.append(f"{np.mean(avg[m]):.2f} ({100 * inside:.0f} % in)")
-        L.append(f"| {c} | " + " | ".join(cells) + " |")
-    L.append("")
+    def nees_cell(c, y, runs):
+        arr = nees_series[(c, y)]
+        n = min(len(a[0]) for a in arr)
+        t = arr[0][0][:n]
+        avg = np.mean([a[1][:n] for a in arr], axis=0)
+        m = t >= 30.0
+        inside = float(np.mean((avg[m] >= lo) & (avg[m] <= hi)))
+        return f"{np.mean(avg[m]):.2f} ({100 * inside:.0f} % in)"
+
+    table(f"**Averaged attitude NEES** (3 dof) over t >= 30 s: NEES averaged over the {args.seeds} seeds at each "
+          f"output time, then the mean over time and the fraction of output times inside the 95 % band "
+          f"[{lo:.2f}, {hi:.2f}].", nees_cell)
     if "pi_liekf" in cores:
         allpi = [s for y in yaws for s in results[("pi_liekf", y)]]
         nsol = sum(s.get("lmi_solves", 0) for s in allpi)

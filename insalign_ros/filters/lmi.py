@@ -48,7 +48,18 @@ class LmiResult:
     extra: dict = field(default_factory=dict)
 
 
-class StructuredPiGainSolver:
+class _GainSolverBase:
+    """Common set-up of the PI gain solvers: sizes, rate, solver choice, strictness margin, safe fallback gains."""
+
+    def _setup(self, n: int, m: int, rho: float, solver: str, eps: float, safe_k_I_per_s: float):
+        import cvxpy as cp
+
+        self.cp, self.n, self.m, self.rho, self.solver, self.eps = cp, n, m, rho, solver, eps
+        self.safe_k_P, self.safe_k_I = np.eye(m), safe_k_I_per_s * np.eye(m)
+        return cp, n + m
+
+
+class StructuredPiGainSolver(_GainSolverBase):
     """Eq. (20) with the gain structure K = M K_PI of eq. (23) built in (no non-square inverse needed).
 
     Dual (equivalent) form of eq. (20): ``A_cl X A_cl^T < (1 - 2 rho) X`` with ``X = J^-1``. With the
@@ -64,11 +75,7 @@ class StructuredPiGainSolver:
 
     def __init__(self, n: int = 9, m: int = 3, rho: float = 0.01, solver: str = "CLARABEL", eps: float = 1e-6,
                  safe_k_I_per_s: float = 0.0):
-        import cvxpy as cp
-
-        self.cp, self.n, self.m, self.rho, self.solver, self.eps = cp, n, m, rho, solver, eps
-        self.safe_k_P, self.safe_k_I = np.eye(m), safe_k_I_per_s * np.eye(m)
-        q = n + m
+        cp, q = self._setup(n, m, rho, solver, eps, safe_k_I_per_s)
         self.Abar = cp.Parameter((q, q))
         self.Bbar = cp.Parameter((m, q))
         self.MBL = cp.Parameter((q, 2 * m))  # M (whitened)
@@ -165,16 +172,12 @@ def _solve(prob, first: str):
     return status, used
 
 
-class PiGainSolver:
+class PiGainSolver(_GainSolverBase):
     """Builds the DPP-parametrised cvxpy problem once (n, m fixed); each solve only sets A_bar and B_bar."""
 
     def __init__(self, n: int = 9, m: int = 3, rho: float = 0.01, solver: str = "CLARABEL", eps: float = 1e-6,
                  safe_k_I_per_s: float = 0.0):
-        import cvxpy as cp
-
-        self.cp, self.n, self.m, self.rho, self.solver, self.eps = cp, n, m, rho, solver, eps
-        self.safe_k_P, self.safe_k_I = np.eye(m), safe_k_I_per_s * np.eye(m)
-        q = n + m
+        cp, q = self._setup(n, m, rho, solver, eps, safe_k_I_per_s)
         self.Abar = cp.Parameter((q, q))
         self.Bbar = cp.Parameter((m, q))
         self.J = cp.Variable((q, q), symmetric=True)
@@ -300,7 +303,7 @@ def exact_window_closed_loop(w: WindowData, k_P: np.ndarray, k_I: np.ndarray) ->
     return Si @ Pi @ S
 
 
-class WindowPiGainSolver:
+class WindowPiGainSolver(_GainSolverBase):
     """Eqs. (20)-(23) on the lifted window system of :func:`lift_window` (docs/inmotion_cores.md).
 
     The frozen one-interval pair of eq. (18) is not detectable on the INS (rotation about the specific force is
@@ -320,12 +323,8 @@ class WindowPiGainSolver:
     def __init__(self, n: int = 9, m: int = 3, rho: float = 0.01, window: int = 30, solver: str = "CLARABEL",
                  eps: float = 1e-6, safe_k_I_per_s: float = 0.0, structure: str = "structured",
                  objective: str = "min_norm"):
-        import cvxpy as cp
-
-        self.cp, self.n, self.m, self.rho, self.W, self.solver, self.eps = cp, n, m, rho, window, solver, eps
-        self.structure = structure
-        self.safe_k_P, self.safe_k_I = np.eye(m), safe_k_I_per_s * np.eye(m)
-        q = n + m
+        cp, q = self._setup(n, m, rho, solver, eps, safe_k_I_per_s)
+        self.W, self.structure = window, structure
         self.c = (1.0 - 2.0 * rho) ** window
         self.Abar = cp.Parameter((q, q))
         self.Bbar = cp.Parameter((m, q))
@@ -406,7 +405,7 @@ def parse_candidates(text: str) -> list[tuple[float, float]]:
     return out
 
 
-class WindowGainCertifier:
+class WindowGainCertifier(_GainSolverBase):
     """Eq. (20) as an *analysis* LMI on the exact per-update closed loop (eq. (18), integral state not held).
 
     For given gains ``K_PI = [k_P; -k_I]`` (eq. (23) structure exact: ``K = M K_PI``) the transition of the
@@ -423,13 +422,9 @@ class WindowGainCertifier:
     def __init__(self, n: int = 9, m: int = 3, rho: float = 0.01, window: int = 30, n_windows: int = 3,
                  shift: int = 10, candidates=((1.0, 0.0),), solver: str = "CLARABEL", eps: float = 1e-6,
                  safe_k_I_per_s: float = 0.0):
-        import cvxpy as cp
-
-        self.cp, self.n, self.m, self.rho, self.W, self.S, self.shift = cp, n, m, rho, window, n_windows, shift
-        self.candidates, self.solver, self.eps = list(candidates), solver, eps
-        self.safe_k_P, self.safe_k_I = np.eye(m), safe_k_I_per_s * np.eye(m)
+        cp, q = self._setup(n, m, rho, solver, eps, safe_k_I_per_s)
+        self.W, self.S, self.shift, self.candidates = window, n_windows, shift, list(candidates)
         self.c = (1.0 - 2.0 * rho) ** window
-        q = n + m
         self.Pi = [cp.Parameter((q, q)) for _ in range(n_windows)]
         self.J = cp.Variable((q, q), symmetric=True)
         self.exprs = []
