@@ -1,0 +1,6 @@
+"""The alignment pipeline, ROS-free: one session behind the node, the offline runner and the benchmarks.
+
+Inputs are pushed in arrival order and processed in stamp order (time-ordered buffer); the session owns
+validation, initialisation, the core and its wrappers, the update schedule, the aligned flag and the status.
+See docs/session.md.
+"""
