@@ -62,7 +62,7 @@ def test_ship_run_reaches_aligned_with_yaw_error_below_1_deg(tmp_path, ros_env):
     mon = AlignmentMonitor()
     nodes = []
     try:
-        nodes.append(start_node(ALIGN, ros_env, log_dir=tmp_path, params={
+        nodes.append(start_node(ALIGN, ros_env, log_dir=tmp_path, params={"imu_timeout_s": 0.0, 
             "core": "liekf", "init_from_ground_truth": True, "init_rpy_error_deg": "[3.0, -3.0, 30.0]",
             "imu_qos": "reliable", "imu_qos_depth": 9000}))
         # reliable with deep histories on both ends: nothing is lost on a loaded machine, so the run is the offline
@@ -100,7 +100,7 @@ def test_unknown_heading_179_deg_off_aligns_with_the_yaw_hypothesis_bank(tmp_pat
     mon = AlignmentMonitor()
     nodes = []
     try:
-        nodes.append(start_node(ALIGN, ros_env, log_dir=tmp_path, params={
+        nodes.append(start_node(ALIGN, ros_env, log_dir=tmp_path, params={"imu_timeout_s": 0.0, 
             "core": "iekf", "yaw_hypotheses": 8, "init_from_ground_truth": True,
             "init_rpy_error_deg": "[3.0, -3.0, 179.0]", "imu_qos": "reliable", "imu_qos_depth": 9000}))
         # reliable with deep histories on both ends: no sample is lost even on a loaded machine, so the run is the

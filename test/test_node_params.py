@@ -77,7 +77,7 @@ def test_run_time_changes_are_validated_and_bad_values_refused(node_factory):
         (Parameter("aligned.yaw_3sigma_deg", value=-1.0), "yaw_3sigma_deg"),
         (Parameter("aligned.nis_alpha", value=2.0), "nis_alpha"),
         (Parameter("gyro_arw_deg_sqrt_h", value=-2.0), "gyro_arw_deg_sqrt_h"),
-        (Parameter("core", value="no_such_core"), "unknown"),
+        (Parameter("core", value="liekf"), "read-only"),  # a core comes with its own parameter set: restart
         (Parameter("max_rate_rad_s", value=float("nan")), "max_rate_rad_s"),
         (Parameter("initial_rpy_deg", value=[1.0, 2.0]), "initial_rpy_deg"),
         (Parameter("pose_rate_hz", value="fast"), "type"),  # rclpy refuses a type change itself
@@ -96,9 +96,15 @@ def test_run_time_changes_are_validated_and_bad_values_refused(node_factory):
     assert all(r.successful for r in res)
     assert node.criteria.yaw_3sigma_deg == 1.5 and node.flag.criteria.yaw_3sigma_deg == 1.5
     assert node.pose_period_s == pytest.approx(0.05)
-    # switching the core resets the alignment
-    assert node.set_parameters([Parameter("core", value="liekf")])[0].successful
-    assert node.core_name == "liekf" and node.state == "waiting for data"
+    # a core parameter change restarts the alignment with the new value (and the core keeps its own defaults)
+    from insalign_ros.filters.config import IekfConfig
+
+    assert node.set_parameters([Parameter("gnss_sigma_floor_m", value=2)])[0].successful  # int for a double
+    assert node.session.core_params["gnss_sigma_floor_m"] == 2.0 and node.state == "waiting for data"
+    cfg = node.session.core_params
+    want = IekfConfig().to_dict()
+    assert {k: v for k, v in cfg.items() if k != "gnss_sigma_floor_m"} == \
+        {k: v for k, v in want.items() if k != "gnss_sigma_floor_m"}
 
 
 @pytest.mark.timeout(60)

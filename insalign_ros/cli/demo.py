@@ -224,7 +224,7 @@ def run_alignment(args, log_dir: Path, out=None) -> tuple[int, dict]:
         rows = [
             ("core / scenario", f"{args.core} / {args.bag or args.scenario}"),
             ("time to aligned [s data]", f"{t_al:.1f}" if t_al is not None else "never"),
-            ("aligned at the end", d.get("aligned", "?")),
+            ("aligned at the end", d.get("aligned_at_last_output", d.get("aligned", "?"))),
             ("final Euler error [deg]  r p y", _fmt3(e) if e is not None else "- (no ground truth)"),
             ("final 3-sigma [deg]      r p y", _fmt3(s3)),
             ("IMU sent / received", f"{sent} / {received}"),

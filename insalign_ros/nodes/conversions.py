@@ -78,6 +78,36 @@ def imu_from_msg(msg: Imu, max_rate_rad_s: float, max_acc_m_s2: float,
     return ImuSample(t, omega, f), ""
 
 
+def imu_sample_fast(msg: Imu, cov_ok: dict) -> tuple[ImuSample | None, str]:
+    """sensor_msgs/Imu -> ImuSample for the node's callback: the message-level checks only (orientation finite,
+    covariances usable, stamp > 0); the session checks the values. A covariance seen before is not checked again
+    (``cov_ok``: covariance tuple -> reason, bounded): drivers send the same covariance in every message."""
+    h = msg.header.stamp
+    t = h.sec + 1e-9 * h.nanosec
+    if not t > 0.0:
+        return None, f"stamp {t:.6f} s is not positive"
+    q = msg.orientation
+    if not math.isfinite(q.x + q.y + q.z + q.w):
+        return None, "orientation: non-finite value"
+    for cov, name in ((msg.angular_velocity_covariance, "angular_velocity"),
+                      (msg.linear_acceleration_covariance, "linear_acceleration"),
+                      (msg.orientation_covariance, "orientation")):
+        key = (name, tuple(cov))
+        reason = cov_ok.get(key)
+        if reason is None:
+            if name == "orientation" and cov[0] == -1.0:  # REP 145: no orientation estimate
+                reason = "" if np.all(np.isfinite(np.asarray(cov, float))) else "orientation covariance: non-finite value"
+            else:
+                reason = check_covariance(cov, 3, name)
+            if len(cov_ok) > 1000:
+                cov_ok.clear()
+            cov_ok[key] = reason
+        if reason:
+            return None, reason
+    w, a = msg.angular_velocity, msg.linear_acceleration
+    return ImuSample(t, np.array((w.x, w.y, w.z)), np.array((a.x, a.y, a.z))), ""
+
+
 def imu_noise_from_msg(msg: Imu, dt_s: float) -> dict:
     """Noise densities implied by the Imu covariances of one sample [rad^2, (m/s^2)^2] over dt_s, as config fields.
 

@@ -40,9 +40,9 @@ from .config import SessionConfig
 D2R = math.pi / 180.0
 
 COUNTERS = (
-    "imu_received", "imu_processed", "imu_rejected", "imu_invalid", "imu_duplicate", "imu_out_of_order",
+    "imu_received", "imu_processed", "imu_rejected", "imu_invalid", "imu_frame", "imu_duplicate", "imu_out_of_order",
     "imu_reordered", "imu_future", "imu_gaps", "imu_before_init", "gnss_received", "gnss_accepted", "gnss_rejected",
-    "gnss_invalid", "gnss_duplicate", "gnss_stale", "gnss_future", "gnss_before_init", "gnss_filter_rejected",
+    "gnss_invalid", "gnss_no_fix", "gnss_frame", "gnss_duplicate", "gnss_stale", "gnss_future", "gnss_before_init", "gnss_filter_rejected",
     "gnss_unused", "truth_received", "truth_invalid", "time_resets", "core_faults", "zupt_accepted",
     "watchdog_trips", "inputs_dropped")
 
@@ -83,7 +83,8 @@ class _Pending:
     imu: list = field(default_factory=list)  # (t, omega (3,), f (3,))
     fix_t: list = field(default_factory=list)
     fix: list = field(default_factory=list)
-    truth: "OrderedDict[float, TruthSample]" = field(default_factory=OrderedDict)
+    truth: dict = field(default_factory=dict)  # stamp -> TruthSample
+    truth_t: list = field(default_factory=list)  # sorted stamps of ``truth``
 
 
 class AlignmentSession:
@@ -149,8 +150,9 @@ class AlignmentSession:
         self.dts: deque = deque(maxlen=101)
         self._median_dt: float | None = None
         self._dt_count = 0
-        self.hist_w: deque = deque(maxlen=200)
-        self.hist_f: deque = deque(maxlen=200)
+        self.hist_t: deque = deque(maxlen=1000)  # recent processed samples (gap bridging statistics)
+        self.hist_w: deque = deque(maxlen=1000)
+        self.hist_f: deque = deque(maxlen=1000)
         self.init_t: float | None = None
         self.anchor: tuple[float, float, float] | None = None
         self.next_out_t = -math.inf
@@ -170,12 +172,14 @@ class AlignmentSession:
         """Validate and buffer one IMU sample (omega_ib_b [rad/s], f_ib_b [m/s^2], body FLU). False if rejected."""
         c = self.counters
         c["imu_received"] += 1
-        self._touch(wall_s, imu=True)
+        self._touch(wall_s)
         t = float(sample.stamp_s)
         w, f = sample.omega_ib_b, sample.f_ib_b
         reason = _check_imu(t, w, f, self.cfg.max_rate_rad_s, self.cfg.max_acc_m_s2)
         if reason:
             return self._reject_imu("imu_invalid", reason)
+        if wall_s is not None:
+            self.last_imu_wall = wall_s  # the watchdog counts valid samples only
         if t in self._recent_set:
             return self._reject_imu("imu_duplicate", f"duplicate stamp {t:.6f}")
         newest = self.newest_imu_t
@@ -206,11 +210,11 @@ class AlignmentSession:
         c["gnss_received"] += 1
         self._touch(wall_s)
         t = float(fix.stamp_s)
-        if t in self.fix_stamps or t in self.buf.fix_t:
-            return self._reject_fix("gnss_duplicate", f"duplicate stamp {t:.6f}")
         if self.processed_t is not None and t < self.processed_t:
             return self._reject_fix("gnss_stale", f"stamp {t:.6f} is {self.processed_t - t:.3f} s behind the filter "
                                                   f"time (max_fix_lag_s {self.cfg.max_fix_lag_s:g} s)")
+        if t in self.fix_stamps or t in self.buf.fix_t:
+            return self._reject_fix("gnss_duplicate", f"duplicate stamp {t:.6f}")
         if self.newest_imu_t is not None and t > self.newest_imu_t + self.cfg.max_fix_ahead_s:
             return self._reject_fix("gnss_future", f"stamp {t:.6f} is {t - self.newest_imu_t:.3f} s ahead of the IMU")
         self.fix_stamps.append(t)
@@ -229,16 +233,22 @@ class AlignmentSession:
         if C.shape != (3, 3) or not np.all(np.isfinite(C)) or not math.isfinite(truth.stamp_s):
             self.counters["truth_invalid"] += 1
             return
-        self.buf.truth[float(truth.stamp_s)] = truth
-        while len(self.buf.truth) > 5000:
-            self.buf.truth.popitem(last=False)
+        t = float(truth.stamp_s)
+        if t not in self.buf.truth:
+            bisect.insort(self.buf.truth_t, t)
+        self.buf.truth[t] = truth
+        while len(self.buf.truth_t) > 5000:
+            del self.buf.truth[self.buf.truth_t.pop(0)]
 
-    def _touch(self, wall_s: float | None, imu: bool = False) -> None:
-        if wall_s is None:
-            return
-        self.last_input_wall = wall_s
-        if imu:
-            self.last_imu_wall = wall_s
+    def reject_input(self, topic: str, counter: str, reason: str, wall_s: float | None = None) -> None:
+        """Count an input the caller rejected before it became a sample (a message's frame, covariance, status)."""
+        self.counters[f"{topic}_received"] += 1
+        self._touch(wall_s)
+        (self._reject_imu if topic == "imu" else self._reject_fix)(counter, reason)
+
+    def _touch(self, wall_s: float | None) -> None:
+        if wall_s is not None:
+            self.last_input_wall = wall_s
 
     def _remember(self, t: float) -> None:
         if len(self.recent_stamps) == self.recent_stamps.maxlen:
@@ -345,16 +355,17 @@ class AlignmentSession:
                 out.append(self._output(t))  # the initial estimate
             return
         gap = dt is not None and self._median_dt is not None and dt > self.cfg.gap_factor * self._median_dt
+        if gap:
+            self._on_gap(prev, t, w, f)
         self._feed(ImuSample(t, w, f))
         self.counters["imu_processed"] += 1
+        self.hist_t.append(t)
         self.hist_w.append(w)
         self.hist_f.append(f)
-        if gap:
-            self._on_gap(t, dt)
         self._apply_fixes_until(t, out)
         if self._zupt_due(t):
             self._zupt(t)
-        if t >= self.next_out_t:
+        if t >= self.next_out_t - 1e-9:
             self.next_out_t = t + self.cfg.output_period_s
             out.append(self._output(t))
 
@@ -365,23 +376,56 @@ class AlignmentSession:
         if self._median_dt is None or self._dt_count % 20 == 0:
             self._median_dt = float(np.median(self.dts))
 
-    def _on_gap(self, t: float, dt: float) -> None:
-        """An IMU gap of ``dt`` [s]: count it and inflate the attitude/velocity covariance by the unknown motion.
+    def _on_gap(self, t_a: float, t_b: float, w_b: np.ndarray, f_b: np.ndarray) -> None:
+        """An IMU gap (t_a, t_b): bridge it and inflate the covariance by what the bridge may have got wrong.
 
-        The sample after the gap stands for the whole interval; the true rate and specific force over the gap
-        are unknown. Their spread over the last ~2 s (per axis, beyond nothing: the spread includes the sensor
-        noise) times the missing time bounds what the missing samples would have changed (docs/session.md)."""
+        Bridge: samples at the median interval, linearly interpolated between the last sample before the gap and
+        the first after it (first-order hold; the sample after the gap then covers its own interval only).
+        Inflation: the same bridge applied to every window of the gap's length in the last seconds of real data
+        gives the error it would have made in the attitude increment (integral of the rate) and the velocity
+        increment (integral of the specific force); their mean square is added to the attitude and velocity
+        variances (docs/session.md, "Gaps"). Without enough history: the rate spread times the missing time."""
         self.counters["imu_gaps"] += 1
-        missing = dt - self._median_dt
-        if len(self.hist_w) >= 10:
-            s_w = float(np.linalg.norm(np.std(np.asarray(self.hist_w), axis=0)))
-            s_f = float(np.linalg.norm(np.std(np.asarray(self.hist_f), axis=0)))
-        else:
-            s_w, s_f = 0.1, 1.0  # no history: a generous default (0.1 rad/s, 1 m/s^2)
-        self.core.inflate_navigation((s_w * missing) ** 2, (s_f * missing) ** 2)
-        self.log("warn", "imu_gaps", f"IMU gap of {dt:.3f} s before {t:.6f} (median interval "
-                                     f"{self._median_dt * 1e3:.2f} ms): covariance inflated by {s_w * missing * 3 / D2R:.3f} "
-                                     f"deg 3-sigma (imu_gaps={self.counters['imu_gaps']})")
+        h = self._median_dt
+        n_mid = max(int(round((t_b - t_a) / h)) - 1, 0)
+        w_a, f_a = (self.hist_w[-1], self.hist_f[-1]) if self.hist_w else (w_b, f_b)
+        step = (t_b - t_a) / (n_mid + 1)
+        for k in range(1, n_mid + 1):
+            a = k / (n_mid + 1)
+            self._feed(ImuSample(t_a + k * step, (1 - a) * w_a + a * w_b, (1 - a) * f_a + a * f_b))
+        var_att, var_v, how = self._bridge_error_var(n_mid + 1, step)
+        self.core.inflate_navigation(var_att, var_v)
+        self.log("warn", "imu_gaps", f"IMU gap of {t_b - t_a:.3f} s before {t_b:.6f} (median interval {h * 1e3:.2f} ms): "
+                                     f"bridged with {n_mid} interpolated samples, attitude 3-sigma +"
+                                     f"{3 * math.sqrt(var_att) / D2R:.3f} deg ({how}; imu_gaps={self.counters['imu_gaps']})")
+
+    def _bridge_error_var(self, m: int, step: float) -> tuple[float, float, str]:
+        """Mean-square error [rad^2, (m/s)^2] of bridging ``m`` intervals by linear interpolation, measured on the
+        recent data (every window of m intervals); a conservative default when the history is too short."""
+        W = np.asarray(self.hist_w)
+        F = np.asarray(self.hist_f)
+        n = len(W)
+        if n < m + 10:
+            s_w = float(np.linalg.norm(np.std(W, axis=0))) if n >= 3 else 0.2
+            s_f = float(np.linalg.norm(np.std(F, axis=0))) if n >= 3 else 2.0
+            T = m * step
+            return (s_w * T) ** 2, (s_f * T) ** 2, "short history: rate spread x gap"
+        a = np.arange(1, m + 1) / m  # interpolation weights of the bridged samples (the last one is the real one)
+        starts = np.arange(0, n - m, max(1, (n - m) // 40))
+        ew, ef = [], []
+        for i in starts:
+            true_w = W[i + 1:i + m + 1].sum(axis=0)
+            true_f = F[i + 1:i + m + 1].sum(axis=0)
+            br_w = ((1 - a)[:, None] * W[i] + a[:, None] * W[i + m]).sum(axis=0)
+            br_f = ((1 - a)[:, None] * F[i] + a[:, None] * F[i + m]).sum(axis=0)
+            ew.append((true_w - br_w) * step)
+            ef.append((true_f - br_f) * step)
+        ew, ef = np.asarray(ew), np.asarray(ef)
+        # the worst window of the recent data as the 1-sigma (the phase of the motion in the gap is unknown), the
+        # largest axis for every axis (isotropic inflation)
+        var_att = float(np.max(ew * ew))
+        var_v = float(np.max(ef * ef))
+        return var_att, var_v, f"bridge error measured on {len(starts)} windows of the last {n * step:.1f} s"
 
     def _feed(self, event) -> None:
         if self.bt is not None:
@@ -520,15 +564,23 @@ class AlignmentSession:
                                  f"{np.round(rpy / D2R, 2).tolist()} deg, v {np.round(v0, 3).tolist()} m/s")
 
     def _truth_velocity(self, tr: TruthSample) -> np.ndarray:
-        """Truth velocity: given, or the derivative of the parabola through the last three truth positions."""
+        """Truth velocity: given, or the slope at ``tr`` of a quadratic through up to two truth positions on each
+        side (the fusion delay means the later ones have arrived); the initial-velocity guess when none."""
         if tr.v_n is not None:
             return np.asarray(tr.v_n, float)
-        prev = [s for k, s in self.buf.truth.items() if k < tr.stamp_s and s.p_n is not None][-2:]
-        if tr.p_n is None or not prev:
+        if tr.p_n is None:
             return np.asarray(self.cfg.initial_velocity_enu_m_s, float)
-        if len(prev) == 2 and abs((tr.stamp_s - prev[1].stamp_s) - (prev[1].stamp_s - prev[0].stamp_s)) < 1e-6:
-            return (3.0 * tr.p_n - 4.0 * prev[1].p_n + prev[0].p_n) / (2.0 * (tr.stamp_s - prev[1].stamp_s))
-        return (tr.p_n - prev[-1].p_n) / (tr.stamp_s - prev[-1].stamp_s)
+        ts = [k for k in self.buf.truth_t if abs(k - tr.stamp_s) <= 1.0 and self.buf.truth[k].p_n is not None]
+        before = [k for k in ts if k < tr.stamp_s][-2:]
+        after = [k for k in ts if k > tr.stamp_s][:2]
+        keys = before + [tr.stamp_s] + after
+        if len(keys) < 2:
+            return np.asarray(self.cfg.initial_velocity_enu_m_s, float)
+        dt = np.array(keys) - tr.stamp_s
+        P = np.array([np.asarray(self.buf.truth[k].p_n if k != tr.stamp_s else tr.p_n, float) for k in keys])
+        deg = min(2, len(keys) - 1)
+        coef = np.polyfit(dt, P, deg)  # highest power first; the slope at dt = 0 is the linear coefficient
+        return coef[-2]
 
     # ------------------------------------------------------------------ outputs, flag, status
     def _output(self, t: float) -> Output:
@@ -554,14 +606,26 @@ class AlignmentSession:
         return o
 
     def _truth_at(self, t: float) -> np.ndarray | None:
-        tb = self.buf.truth
-        if not tb:
-            return None
-        tr = tb.get(t)
+        """Truth attitude at ``t``: the pose stamped there (within 1 us), else the slerp between the two poses that
+        bracket ``t`` within 0.25 s (a truth topic at its own rate), else None."""
+        b = self.buf
+        tt = b.truth_t
         # truth is only needed near the filter time: forget what is more than 2 s behind
-        while tb and next(iter(tb)) < t - 2.0:
-            tb.popitem(last=False)
-        return None if tr is None else np.asarray(tr.C_b_n, float)
+        n_old = bisect.bisect_left(tt, t - 2.0)
+        if n_old:
+            for k in tt[:n_old]:
+                del b.truth[k]
+            del tt[:n_old]
+        i = bisect.bisect_left(tt, t - 1e-6)
+        if i < len(tt) and abs(tt[i] - t) <= 1e-6:
+            return np.asarray(b.truth[tt[i]].C_b_n, float)
+        if 0 < i < len(tt) and tt[i] - tt[i - 1] <= 0.25:
+            from scipy.spatial.transform import Rotation, Slerp
+
+            a, c = tt[i - 1], tt[i]
+            sl = Slerp([a, c], Rotation.from_matrix([b.truth[a].C_b_n, b.truth[c].C_b_n]))
+            return sl([t]).as_matrix()[0]
+        return None
 
     def _watchdog(self, wall_s: float) -> None:
         to = self.cfg.imu_timeout_s
@@ -644,6 +708,8 @@ class AlignmentSession:
         if self.flag.raised_at_s is not None:
             d["aligned_raised_at_s"] = f"{self.flag.raised_at_s:.3f}"
             d["aligned_first_raised_at_s"] = f"{self.flag.first_raised_at_s:.3f}"
+        if o is not None:
+            d["aligned_at_last_output"] = str(o.aligned).lower()  # the flag at the newest data (before any watchdog)
         if self.init_t is not None:
             d["initialised_at_s"] = f"{self.init_t:.3f}"
         lo, hi = self.flag.band
