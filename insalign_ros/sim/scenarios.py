@@ -138,10 +138,7 @@ _PARK = {
     "road_acc_m_s2": (0.5, "m/s^2", "vertical road vibration amplitude at 10 m/s, grows with speed (ISO 2631 ride "
                       "0.3-0.8 m/s^2; assumption)"),
     "road_ang_deg": (0.3, "deg", "road-induced pitch/roll amplitude at 10 m/s, grows with speed (assumption)"),
-    "hill_amp_m": (3.0, "m", "road height variation amplitude (as in car)"),
-    "hill_length_m": (1800.0, "m", "road height variation wavelength along the path (as in car)"),
-    "lat_deg": (49.0, "deg", "Karlsruhe (KITTI)"), "lon_deg": (8.4, "deg", "Karlsruhe (KITTI)"),
-    "h_m": (115.0, "m", "Karlsruhe (KITTI)"),
+    **{k: SCENARIOS["car"].params[k] for k in ("hill_amp_m", "hill_length_m", "lat_deg", "lon_deg", "h_m")},
     "roll_deg": (1.0, "deg", "level angles of the parked car (as in static)"),
     "pitch_deg": (-0.5, "deg", "parked car (as in static)"),
     "heading_deg": (30.0, "deg", "yaw while parked (from East, CCW); random in the Monte Carlo benchmarks"),
