@@ -3,8 +3,8 @@
 Sources (parameter ``source``):
 
 - ``scenario``: ``make_scenario(scenario, seed, duration_s, rate_hz=rate_hz, gnss_rate_hz=gps_rate_hz)``
-  (sim/scenarios.py: ship, car, static, static_navgrade, two_position), generated before publishing (a 300 s ship
-  run at 100 Hz takes ~0.1 s);
+  (sim/scenarios.py: ship, car, static, static_navgrade, two_position, park_drive, park_drive_navgrade,
+  drive_stop_drive), generated before publishing (a 300 s ship run at 100 Hz takes ~0.1 s);
 - ``bag``: a contract rosbag2 (docs/bag_contract.md) read with ``io.bag.read_bag(bag_path)``;
 - ``rest``: a body at rest on the rotating Earth at (lat_deg, lon_deg, h_m) with attitude (roll_deg, pitch_deg,
   yaw_deg), Imu only, timer-driven (the transport check of ``insalign-demo --count``).

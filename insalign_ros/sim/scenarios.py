@@ -1,4 +1,5 @@
-"""Named, seedable scenarios: ship, car, static, static_navgrade, two_position.
+"""Named, seedable scenarios: ship, car, static, static_navgrade, two_position, park_drive, park_drive_navgrade,
+drive_stop_drive.
 
 ``make_scenario(name, seed=0, duration_s=None, noise=True, **overrides) -> ScenarioData``
 
@@ -114,6 +115,62 @@ SCENARIOS["static_navgrade"] = replace(
     description="static with a navigation-grade IMU (0.01 deg/h, 25 ug) so the floor is small",
 )
 
+#: A MEMS IMU for the parked-then-driving scenarios (issue 14: "5 deg/h, 1 mg"): the ADIS16488A noise densities
+#: (ARW 0.26 deg/sqrt(h), VRW 0.029 m/s/sqrt(h), 125 Hz) with a 1 mg turn-on accelerometer bias.
+PARK_MEMS = replace(error_model.ADIS16488A, name="mems_5degh_1mg", gyro_bias_deg_h=5.0, acc_bias_mg=1.0)
+
+_PARK = {
+    "engine_hz": (25.0, "Hz", "idle 750 rpm, 2nd order of a 4-cylinder (assumption, as in static)"),
+    "engine_acc_m_s2": (0.05, "m/s^2", "amplitude of the engine's linear vibration (assumption, as in static)"),
+    "engine_ang_deg": (0.005, "deg", "amplitude of the engine's angular vibration (assumption, as in static)"),
+    "sway_hz": (1.3, "Hz", "body sway on the suspension (assumption, as in static)"),
+    "sway_ang_deg": (0.02, "deg", "body sway amplitude (assumption, as in static)"),
+    "door_at_s": (30.0, "s", "a person gets in at this time (< 0: no one gets in); must be in the park/stop"),
+    "door_tilt_deg": (0.5, "deg", "permanent roll from the added load (80 kg on one side, assumption)"),
+    "door_rock_deg": (0.5, "deg", "peak of the damped rocking when the person sits down (assumption)"),
+    "door_rock_hz": (1.5, "Hz", "body roll frequency on the suspension (assumption)"),
+    "door_rock_decay_s": (0.4, "s", "time to the rocking's peak envelope, then e-fold decay (assumption)"),
+    "rock_lever_m": (0.4, "m", "height of the IMU above the roll axis: the rocking moves the IMU sideways"),
+    "drive_off_acc_m_s2": (1.5, "m/s^2", "normal drive-off/acceleration (assumption)"),
+    "brake_acc_m_s2": (2.0, "m/s^2", "normal braking (assumption)"),
+    "jerk_ramp_s": (0.5, "s", "time for the acceleration to build up (jerk about 3-4 m/s^3, comfort limit)"),
+    "cruise_speed_m_s": (12.0, "m/s", "urban cruise"),
+    "road_acc_m_s2": (0.5, "m/s^2", "vertical road vibration amplitude at 10 m/s, grows with speed (ISO 2631 ride "
+                      "0.3-0.8 m/s^2; assumption)"),
+    "road_ang_deg": (0.3, "deg", "road-induced pitch/roll amplitude at 10 m/s, grows with speed (assumption)"),
+    **{k: SCENARIOS["car"].params[k] for k in ("hill_amp_m", "hill_length_m", "lat_deg", "lon_deg", "h_m")},
+    "roll_deg": (1.0, "deg", "level angles of the parked car (as in static)"),
+    "pitch_deg": (-0.5, "deg", "parked car (as in static)"),
+    "heading_deg": (30.0, "deg", "yaw while parked (from East, CCW); random in the Monte Carlo benchmarks"),
+}
+
+
+SCENARIOS["park_drive"] = Preset(
+    "park_drive", "Engine-on parked car (a person gets in), then drive-off, turns, braking (issue 14), MEMS IMU",
+    "park_drive", PARK_MEMS,
+    {
+        **_COMMON, **_PARK,
+        "duration_s": (180.0, "s", "issue 14: park, then about 90 s of driving"),
+        "park_s": (90.0, "s", "length of the park; the drive-off starts here (params motion_start_s)"),
+    },
+)
+SCENARIOS["park_drive_navgrade"] = replace(
+    SCENARIOS["park_drive"], name="park_drive_navgrade", imu=error_model.NAVGRADE,
+    description="park_drive with a navigation-grade IMU (0.01 deg/h, 25 ug)",
+)
+SCENARIOS["drive_stop_drive"] = Preset(
+    "drive_stop_drive", "Drive-off, driving, a long engine-on stop (a person gets in), driving again (issue 14), "
+    "MEMS IMU", "drive_stop_drive", PARK_MEMS,
+    {
+        **_COMMON, **_PARK,
+        "duration_s": (200.0, "s", "60 s of driving, a 60 s stop, driving to the end"),
+        "park_s": (5.0, "s", "rest before the first drive-off (params motion_start_s)"),
+        "stop_at_s": (70.0, "s", "the car comes to rest here (params stop_start_s)"),
+        "stop_s": (60.0, "s", "length of the stop (issue 14: a long stop); drive-off at stop_at_s + stop_s"),
+        "door_at_s": (90.0, "s", "a person gets in during the stop (< 0: no one)"),
+    },
+)
+
 
 def _smoothstep(tau: np.ndarray) -> np.ndarray:
     """0 -> 1 with zero first derivative at both ends: tau - sin(2 pi tau) / (2 pi) on [0, 1]."""
@@ -150,16 +207,18 @@ def _car_profiles(t, p):
     return np.maximum(speed, 0.0), heading
 
 
-def _car(t, p):
+def _car(t, p, profiles=None):
+    """Car on a hilly road from speed/heading profiles (default: _car_profiles) -> (p_n, v_n, rpy)."""
+    profiles = profiles or _car_profiles
     # fine grid for the horizontal position integral (cumulative Simpson, error << 1e-6 m)
     tf = np.linspace(t[0], t[-1], 4 * (len(t) - 1) + 1)
-    speed_f, head_f = _car_profiles(tf, p)
+    speed_f, head_f = profiles(tf, p)
     ve_f, vn_f = speed_f * np.cos(head_f), speed_f * np.sin(head_f)
     pe_f = cumulative_simpson(ve_f, x=tf, initial=0.0)
     pn_f = cumulative_simpson(vn_f, x=tf, initial=0.0)
     s_f = cumulative_simpson(speed_f, x=tf, initial=0.0)  # distance along the path [m]
     pe, pn, s = pe_f[::4], pn_f[::4], s_f[::4]
-    speed, heading = _car_profiles(t, p)
+    speed, heading = profiles(t, p)
     k = 2 * np.pi / p["hill_length_m"]
     pu = p["hill_amp_m"] * np.sin(k * s)
     slope = p["hill_amp_m"] * k * np.cos(k * s)  # dh/ds
@@ -197,6 +256,114 @@ def _static(t, p, rng):
     return p_n, v_n, rpy
 
 
+def _ramp_integral(s, r):
+    """Integral of _smoothstep(u / r) from -inf to s [s]: 0 before 0, s - r/2 after r (a C1 velocity ramp)."""
+    tau = np.clip(s / r, 0.0, 1.0)
+    return np.where(s >= r, s - 0.5 * r, r * (0.5 * tau**2 + (np.cos(2.0 * np.pi * tau) - 1.0) / (4.0 * np.pi**2)))
+
+
+def _drive_plan(p, model):
+    """Driving manoeuvres of park_drive / drive_stop_drive and the times of their rest segments.
+
+    Returns (speed_events, heading_events, segments): speed events (t0_s, dv_m_s, acc_m_s2) change the speed by dv
+    with an acceleration pulse of magnitude acc that builds up and decays over jerk_ramp_s (the speed changes from
+    t0 to t0 + |dv|/acc + jerk_ramp_s); heading events (t0_s, duration_s, dpsi_rad) turn smoothly.
+    """
+    V, a_go, a_brk, r = p["cruise_speed_m_s"], p["drive_off_acc_m_s2"], p["brake_acc_m_s2"], p["jerk_ramp_s"]
+    if min(V, a_go, a_brk, r) <= 0 or p["park_s"] < 0:
+        raise ValueError("cruise_speed_m_s, drive_off_acc_m_s2, brake_acc_m_s2, jerk_ramp_s must be > 0, park_s >= 0")
+    t0 = p["park_s"]
+    speed = [(t0, V, a_go), (t0 + 25, -0.5 * V, a_brk), (t0 + 33, 0.5 * V, a_go), (t0 + 60, -0.4 * V, a_brk),
+             (t0 + 66, 0.4 * V, a_go)]
+    heading = [(t0 + 14, 8.0, math.pi / 2), (t0 + 40, 5.0, 0.5), (t0 + 45, 5.0, -1.0), (t0 + 50, 5.0, 0.5),
+               (t0 + 72, 9.0, -math.pi / 2)]
+    segments = {"motion_start_s": t0}
+    if model == "drive_stop_drive":
+        t_stop, t_go = p["stop_at_s"], p["stop_at_s"] + p["stop_s"]
+        t_brake = t_stop - V / a_brk - r  # the braking pulse ends exactly at t_stop
+        if t_brake < t0 + 50.0 or p["stop_s"] <= 0:
+            raise ValueError("drive_stop_drive needs stop_at_s >= park_s + 56 s and stop_s > 0")
+        speed = speed[:3] + [(t_brake, -V, a_brk), (t_go, V, a_go)]
+        heading = heading[:4] + [(t_go + 15, 9.0, -math.pi / 2), (t_go + 35, 6.0, 0.35)]
+        segments.update(stop_start_s=t_stop, stop_end_s=t_go)
+    return speed, heading, segments
+
+
+def _plan_profiles(t, p, plan):
+    """Speed [m/s], heading [rad] and longitudinal acceleration [m/s^2] of a _drive_plan."""
+    speed_events, heading_events, _ = plan
+    r = p["jerk_ramp_s"]
+    speed, accel = np.zeros_like(t), np.zeros_like(t)
+    for t0, dv, acc in speed_events:
+        a = math.copysign(acc, dv)
+        t1 = t0 + abs(dv) / acc
+        speed += a * (_ramp_integral(t - t0, r) - _ramp_integral(t - t1, r))
+        accel += a * (_smoothstep((t - t0) / r) - _smoothstep((t - t1) / r))
+    heading = p["heading_deg"] * D2R + sum(dpsi * _smoothstep((t - t0) / d) for t0, d, dpsi in heading_events)
+    return np.maximum(speed, 0.0), heading, accel
+
+
+def _vibration(t, p, rng, speed, accel):
+    """Engine (always on), body sway, a person getting in, and road vibration growing with speed.
+
+    Returns ENU position [m] and velocity [m/s] offsets (analytic derivatives of each other) and roll/pitch/yaw
+    offsets [rad]. Every term is zero-mean or a step (the load tilt), so the vehicle does not travel while parked.
+    """
+    ph = rng.uniform(0.0, 2.0 * np.pi, 12)
+    dp, dv, drpy = np.zeros((len(t), 3)), np.zeros((len(t), 3)), np.zeros((len(t), 3))
+    we, ws = 2 * np.pi * p["engine_hz"], 2 * np.pi * p["sway_hz"]
+    amp = p["engine_acc_m_s2"] / we**2 * np.array([0.6, 0.8, 1.0])  # acceleration amplitude engine_acc on Up
+    dp += amp * np.sin(we * t[:, None] + ph[:3])
+    dv += amp * we * np.cos(we * t[:, None] + ph[:3])
+    ang_e, ang_s = p["engine_ang_deg"] * D2R, p["sway_ang_deg"] * D2R
+    drpy += ang_e * np.sin(we * t[:, None] * np.array([1.0, 1.7, 1.0]) + ph[3:6]) * np.array([1.0, 1.0, 0.5])
+    drpy[:, :2] += ang_s * np.sin(ws * t[:, None] + ph[6:8]) * np.array([1.0, 0.5])
+    if p["door_at_s"] >= 0:  # load step over 1 s plus a damped rocking, both in roll about an axis below the IMU
+        s = t - p["door_at_s"]
+        on = s > 0
+        tau, wr = p["door_rock_decay_s"], 2 * np.pi * p["door_rock_hz"]
+        env = np.where(on, s / tau * np.exp(1.0 - np.where(on, s, 0.0) / tau), 0.0)
+        denv = np.where(on, (1.0 - s / tau) / tau * np.exp(1.0 - np.where(on, s, 0.0) / tau), 0.0)
+        A, tilt = p["door_rock_deg"] * D2R, p["door_tilt_deg"] * D2R
+        phi = tilt * _smoothstep(s) + A * env * np.sin(wr * s)
+        dphi = tilt * np.where((s > 0) & (s < 1), 1.0 - np.cos(2 * np.pi * s), 0.0) \
+            + A * (denv * np.sin(wr * s) + env * wr * np.cos(wr * s))
+        drpy[:, 0] += phi
+        L, psi = p["rock_lever_m"], p["heading_deg"] * D2R
+        left = np.array([-math.sin(psi), math.cos(psi), 0.0])  # body y in ENU while parked
+        up = np.array([0.0, 0.0, 1.0])
+        dp += np.outer(-L * np.sin(phi), left) + np.outer(L * (np.cos(phi) - 1.0), up)
+        dv += np.outer(-L * np.cos(phi) * dphi, left) + np.outer(-L * np.sin(phi) * dphi, up)
+    # road: vertical body bounce (1.4 Hz) and wheel hop (11 Hz), pitch/roll, amplitudes proportional to speed
+    k = speed / 10.0
+    for f_hz, rel, phase in ((1.4, 1.0, ph[8]), (11.0, 0.6, ph[9])):
+        w = 2 * np.pi * f_hz
+        c = rel * p["road_acc_m_s2"] / w**2
+        dp[:, 2] += c * k * np.sin(w * t + phase)
+        dv[:, 2] += c * (accel / 10.0 * np.sin(w * t + phase) + k * w * np.cos(w * t + phase))
+    drpy[:, 0] += p["road_ang_deg"] * D2R * k * np.sin(2 * np.pi * 1.1 * t + ph[10])
+    drpy[:, 1] += p["road_ang_deg"] * D2R * k * np.sin(2 * np.pi * 1.7 * t + ph[11])
+    return dp, dv, drpy
+
+
+def _park_drive(t, p, rng, model):
+    """park_drive / drive_stop_drive: the car model on a _drive_plan, parked level, plus _vibration."""
+    plan = _drive_plan(p, model)
+    p_n, v_n, rpy = _car(t, p, profiles=lambda tt, pp: _plan_profiles(tt, pp, plan)[:2])
+    speed, _, accel = _plan_profiles(t, p, plan)
+    dp, dv, drpy = _vibration(t, p, rng, speed, accel)
+    rpy = rpy + drpy + np.array([p["roll_deg"], p["pitch_deg"], 0.0]) * D2R
+    return p_n + dp, v_n + dv, rpy, plan[2]
+
+
+def rest_segments(params: dict) -> list[tuple[float, float]]:
+    """Intervals [t_start, t_end) [s] in which a park_drive / drive_stop_drive vehicle is parked (engine on)."""
+    rest = [(0.0, float(params["motion_start_s"]))]
+    if "stop_start_s" in params:
+        rest.append((float(params["stop_start_s"]), float(params["stop_end_s"])))
+    return rest
+
+
 def _two_position(t, p):
     t_rot = p["rotate_at_s"] if p["rotate_at_s"] >= 0 else 0.5 * p["duration_s"]
     yaw = p["heading_deg"] * D2R + np.pi * _smoothstep((t - t_rot) / p["rotate_duration_s"])
@@ -232,6 +399,7 @@ def make_scenario(name: str, seed: int = 0, duration_s: float | None = None, noi
     dt = 1.0 / spec.rate_hz
     n = int(round(params["duration_s"] * spec.rate_hz)) + 1
     t_grid = (np.arange(n + 1) - 1) * dt  # one extra epoch before t = 0 for IMU sample 0
+    segments = {}  # times of the motion segments (park_drive, drive_stop_drive)
     lat0, lon0, h0 = params["lat_deg"] * D2R, params["lon_deg"] * D2R, params["h_m"]
     if preset.model == "ship":
         p_n, v_n, rpy = _ship(t_grid, params)
@@ -239,6 +407,8 @@ def make_scenario(name: str, seed: int = 0, duration_s: float | None = None, noi
         p_n, v_n, rpy = _car(t_grid, params)
     elif preset.model == "static":
         p_n, v_n, rpy = _static(t_grid, params, rng)
+    elif preset.model in ("park_drive", "drive_stop_drive"):
+        p_n, v_n, rpy, segments = _park_drive(t_grid, params, rng, preset.model)
     else:
         p_n, v_n, rpy = _two_position(t_grid, params)
     from scipy.spatial.transform import Rotation
@@ -269,6 +439,6 @@ def make_scenario(name: str, seed: int = 0, duration_s: float | None = None, noi
         v_n=traj.v_n[sl], gnss_t_s=t_s[idx], gnss_p_e=gnss_p_e, gnss_R_e=R_e, imu_spec=spec,
         gnss_sigma_m=float(params["gnss_sigma_h_m"]), bias_gyro_b=b_g, bias_acc_b=b_a,
         omega_ib_b_true=omega_true, f_ib_b_true=f_true,
-        params={**params, "noise": bool(noise), "ref_lat_deg": params["lat_deg"], "ref_lon_deg": params["lon_deg"],
+        params={**params, **segments, "noise": bool(noise), "ref_lat_deg": params["lat_deg"], "ref_lon_deg": params["lon_deg"],
                 "ref_h_m": params["h_m"]},
     )

@@ -1,0 +1,341 @@
+"""Motion detector: is the vehicle translating? IMU window statistics and GNSS speed, with hysteresis. ROS-free.
+
+Engine vibration, body sway and a person getting in shake the IMU but do not move the vehicle; a drive-off does.
+So the detector separates *shaking* from *translation* (docs/motion_detector.md):
+
+* ``dv_h``: the horizontal velocity change over the last ``dv_window_s``, from the specific force minus the
+  specific force of the ``ref_window_s`` before it, rotated by the gyro-integrated rotation since then (a tilt from a
+  person sitting down is a rotation, not an acceleration). Projected on the plane normal to the reference specific
+  force, i.e. horizontal: heave when someone sits down is vertical and zero-mean. Motion evidence when above
+  ``dv_threshold = sqrt(chi2_2(1 - p)) VRW sqrt(T_v + T_v^2 / T_r) (+ g ARW sqrt(T_r + T_v) T_v) + dv_margin_m_s``.
+* ``spread_f``, ``spread_omega``: the standard deviation (root of the trace of the window covariance) of the
+  specific force and angular rate over ``window_s``. White noise of the IMU's VRW/ARW gives
+  ``W s^2 / sigma^2 ~ chi2(3 (W - 1))``; the threshold is that chi-square bound at ``1 - p_false_alarm`` plus the
+  allowed vibration RMS in quadrature. Below both thresholds (and ``dv_h`` small) the IMU is *quiet*: rest evidence.
+* GNSS speed (norm of the velocity, per-axis sigma): motion evidence above ``sqrt(chi2_3(1 - p)) sigma``, else
+  consistent with rest. Used while younger than ``gnss_timeout_s``.
+
+Hysteresis: motion is declared after ``enter_hold_s`` of uninterrupted motion evidence; rest after ``leave_hold_s``
+of uninterrupted rest evidence (quiet IMU, and a fresh GNSS speed if any consistent with zero). Anything else keeps
+the state: a person getting in is neither. Before the first decision the state is undecided (``decided`` False).
+
+Two paths with the same decisions (test/test_motion.py): ``detect_motion`` takes whole arrays (offline, vectorised
+statistics), ``MotionDetector`` takes samples one by one (node/session); both use ``window_statistics`` and
+``_Hysteresis``. The rates are treated as nominal (1 / rate_hz); a stamp gap over 1.5 sample intervals restarts
+the windows (the decision is kept).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import chi2
+
+from ..filters.config import ConfigDict
+from ..sim import error_model
+
+G_M_S2 = error_model.G0_M_S2
+GAP_FACTOR = 1.5  #: a stamp step over this many nominal intervals restarts the windows
+
+
+@dataclass
+class MotionConfig(ConfigDict):
+    """Motion-detector parameters. Noise densities are the IMU grade's (``from_imu_spec``)."""
+
+    #: IMU sample rate [Hz] (windows are counted in samples of 1 / rate_hz)
+    rate_hz: float = 100.0
+    #: gyro angle random walk [deg/sqrt(h)] and accelerometer velocity random walk [m/s/sqrt(h)] of the IMU
+    gyro_arw_deg_sqrt_h: float = 0.3
+    acc_vrw_m_s_sqrt_h: float = 0.1
+    #: window of the spreads [s]; velocity-change window and the reference window before it [s]
+    window_s: float = 0.5
+    dv_window_s: float = 1.0
+    ref_window_s: float = 1.0
+    #: false-alarm probability per test of the chi-square bounds (IMU windows, GNSS speed)
+    p_false_alarm: float = 1e-6
+    #: vibration allowed at rest, RMS of the vector (engine idle 0.05-0.15 m/s^2, ~1 deg/s; road at speed is more)
+    vib_acc_rms_m_s2: float = 0.25
+    vib_gyro_rms_deg_s: float = 1.5
+    #: allowance for the horizontal velocity of a rocking car body at the IMU (lever arm) [m/s]
+    dv_margin_m_s: float = 0.1
+    #: hysteresis: evidence must hold this long to declare motion / rest [s]
+    enter_hold_s: float = 0.2
+    leave_hold_s: float = 2.0
+    #: a GNSS speed older than this is not used [s]
+    gnss_timeout_s: float = 1.5
+
+    @classmethod
+    def from_imu_spec(cls, spec, **overrides) -> "MotionConfig":
+        """Config for an IMU grade (sim.types.ImuSpec or anything with arw_deg_sqrt_h, vrw_m_s_sqrt_h, rate_hz)."""
+        base = dict(rate_hz=float(spec.rate_hz), gyro_arw_deg_sqrt_h=float(spec.arw_deg_sqrt_h),
+                    acc_vrw_m_s_sqrt_h=float(spec.vrw_m_s_sqrt_h))
+        return cls.from_dict({**base, **overrides})
+
+    def validate(self) -> None:
+        self.check_field_types(non_negative=True)
+        if self.rate_hz <= 0 or not 0 < self.p_false_alarm < 1:
+            raise ValueError("rate_hz must be > 0 and p_false_alarm in (0, 1)")
+        n = self.samples()
+        if min(n.values()) < 2:
+            raise ValueError(f"windows must hold at least 2 samples at {self.rate_hz} Hz: {n}")
+        if n["window"] > n["dv"] + n["ref"]:
+            raise ValueError("window_s must not exceed dv_window_s + ref_window_s")
+
+    def samples(self) -> dict:
+        """Window lengths in samples."""
+        return {k: int(round(getattr(self, f"{k}_s" if k == "window" else f"{k}_window_s") * self.rate_hz))
+                for k in ("window", "dv", "ref")}
+
+    def thresholds(self) -> dict:
+        """The bounds, derived from the IMU noise (see the module docstring)."""
+        n = self.samples()
+        dt = 1.0 / self.rate_hz
+        arw = error_model.deg_sqrt_h_to_rad_sqrt_s(self.gyro_arw_deg_sqrt_h)
+        vrw = error_model.m_s_sqrt_h_to_m_s_sqrt_s(self.acc_vrw_m_s_sqrt_h)
+        W = n["window"]
+        q = chi2.ppf(1.0 - self.p_false_alarm, 3 * (W - 1)) / W  # bound on s^2 / sigma_sample^2
+        Tv, Tr = n["dv"] * dt, n["ref"] * dt
+        dv_noise = math.hypot(vrw * math.sqrt(Tv + Tv**2 / Tr), G_M_S2 * arw * math.sqrt(Tr + Tv) * Tv)
+        return {
+            "spread_f_m_s2": math.sqrt(vrw**2 / dt * q + self.vib_acc_rms_m_s2**2),
+            "spread_omega_rad_s": math.sqrt(arw**2 / dt * q + math.radians(self.vib_gyro_rms_deg_s) ** 2),
+            "dv_h_m_s": math.sqrt(chi2.ppf(1.0 - self.p_false_alarm, 2)) * dv_noise + self.dv_margin_m_s,
+            "gnss_speed_per_sigma": math.sqrt(chi2.ppf(1.0 - self.p_false_alarm, 3)),
+        }
+
+
+def window_statistics(omega_ib_b: np.ndarray, f_ib_b: np.ndarray, cfg: MotionConfig) -> dict:
+    """Per-sample statistics of one gap-free run of samples (vectorised; NaN until the windows are full).
+
+    omega_ib_b [rad/s], f_ib_b [m/s^2]: (N, 3). Returns arrays (N,): spread_f [m/s^2], spread_omega [rad/s],
+    dv_h [m/s] (module docstring).
+    """
+    n = cfg.samples()
+    W, Nv, Nr = n["window"], n["dv"], n["ref"]
+    dt = 1.0 / cfg.rate_hz
+    N = omega_ib_b.shape[0]
+    out = {k: np.full(N, np.nan) for k in ("spread_f", "spread_omega", "dv_h")}
+    L = Nv + Nr
+    if N < L:
+        return out
+
+    def csum(x):  # prefix sums with a leading zero
+        return np.concatenate([np.zeros((1,) + x.shape[1:]), np.cumsum(x, axis=0)])
+
+    k1 = np.arange(L, N + 1)  # k + 1 for the samples k >= L - 1 that have full windows
+    for key, x in (("spread_f", f_ib_b), ("spread_omega", omega_ib_b)):
+        xc = x - x[0]  # centred on the first sample: the sums of squares keep their precision
+        c1, c2 = csum(xc), csum(xc**2)
+        s1, s2 = c1[k1] - c1[k1 - W], c2[k1] - c2[k1 - W]
+        out[key][L - 1:] = np.sqrt(np.maximum((s2 - s1**2 / W).sum(1) / W, 0.0))
+    theta = np.cumsum(omega_ib_b, axis=0) * dt  # small-angle body rotation since the first sample [rad]
+    cf, ct = csum(f_ib_b - f_ib_b[0]), csum(theta)
+    f_ref_c = (cf[k1 - Nv] - cf[k1 - L]) / Nr  # reference specific force, centred on f_ib_b[0]
+    f_ref = f_ref_c + f_ib_b[0]
+    theta_ref = (ct[k1 - Nv] - ct[k1 - L]) / Nr
+    sum_f_c, sum_theta = cf[k1] - cf[k1 - Nv], ct[k1] - ct[k1 - Nv]
+    # sum over the window of f_j - R(theta_j - theta_ref)^T f_ref, with R^T v = v - theta x v (small angles)
+    dv = dt * (sum_f_c - Nv * f_ref_c + np.cross(sum_theta - Nv * theta_ref, f_ref))
+    u = f_ref / np.linalg.norm(f_ref, axis=1, keepdims=True)
+    dv_h = dv - np.sum(dv * u, axis=1, keepdims=True) * u
+    out["dv_h"][L - 1:] = np.linalg.norm(dv_h, axis=1)
+    return out
+
+
+def _evidence(stats: dict, gnss: tuple, thr: dict) -> tuple[bool, bool]:
+    """(motion evidence, rest evidence) of one sample from its statistics and its fresh GNSS speed (or None)."""
+    speed, sigma = gnss
+    gnss_moving = speed is not None and speed > thr["gnss_speed_per_sigma"] * sigma
+    if not np.isfinite(stats["dv_h"]):  # windows not full: only GNSS can tell
+        return gnss_moving, False
+    imu_moving = stats["dv_h"] > thr["dv_h_m_s"]
+    quiet = (stats["spread_f"] < thr["spread_f_m_s2"] and stats["spread_omega"] < thr["spread_omega_rad_s"]
+             and not imu_moving)
+    return imu_moving or gnss_moving, quiet and not gnss_moving
+
+
+class _Hysteresis:
+    """Declares motion after enter_hold_s of motion evidence, rest after leave_hold_s of rest evidence."""
+
+    def __init__(self, enter_hold_s: float, leave_hold_s: float):
+        self.enter_hold_s, self.leave_hold_s = enter_hold_s, leave_hold_s
+        self.state: bool | None = None  # None: undecided
+        self.since_s = self.declared_s = math.nan
+        self._motion_from = self._rest_from = None
+
+    def step(self, t_s: float, motion: bool, rest: bool) -> None:
+        self._motion_from = (self._motion_from if self._motion_from is not None else t_s) if motion else None
+        self._rest_from = (self._rest_from if self._rest_from is not None else t_s) if rest else None
+        if self.state is not True and motion and t_s - self._motion_from >= self.enter_hold_s:
+            self.state, self.since_s, self.declared_s = True, self._motion_from, t_s
+        elif self.state is not False and rest and t_s - self._rest_from >= self.leave_hold_s:
+            self.state, self.since_s, self.declared_s = False, self._rest_from, t_s
+
+
+@dataclass(frozen=True)
+class MotionDecision:
+    """moving: declared in motion (False also while undecided); since_s: onset of the evidence that decided it;
+    declared_s: when it was declared; decided: False until the first decision."""
+
+    moving: bool
+    decided: bool
+    since_s: float
+    declared_s: float
+
+
+@dataclass
+class MotionTrack:
+    """Offline result of detect_motion: per IMU sample (arrays (N,)), the decision and the numbers behind it."""
+
+    t_s: np.ndarray
+    moving: np.ndarray  # bool
+    decided: np.ndarray  # bool
+    since_s: np.ndarray
+    spread_f: np.ndarray  # [m/s^2]
+    spread_omega: np.ndarray  # [rad/s]
+    dv_h: np.ndarray  # [m/s]
+    gnss_speed: np.ndarray  # [m/s], NaN when no fresh GNSS speed
+    thresholds: dict
+    rejected: int = 0
+
+    def declarations(self) -> list[tuple[float, bool]]:
+        """(stamp [s], moving) of every change of the decision."""
+        d = np.flatnonzero(self.decided)
+        if d.size == 0:
+            return []
+        state = self.moving[d]
+        change = np.concatenate([[True], state[1:] != state[:-1]])
+        return [(float(self.t_s[d[i]]), bool(state[i])) for i in np.flatnonzero(change)]
+
+
+def _valid_gnss(t, speed, sigma):
+    ok = np.isfinite(t) & np.isfinite(speed) & np.isfinite(sigma) & (speed >= 0) & (sigma > 0)
+    return t[ok], speed[ok], sigma[ok]
+
+
+def _segments(t_s: np.ndarray, rate_hz: float):
+    """Slices of gap-free runs (a stamp step over GAP_FACTOR nominal intervals starts a new run)."""
+    cut = np.flatnonzero(np.diff(t_s) > GAP_FACTOR / rate_hz) + 1
+    edges = np.concatenate([[0], cut, [len(t_s)]])
+    return [slice(a, b) for a, b in zip(edges[:-1], edges[1:])]
+
+
+def detect_motion(t_s, omega_ib_b, f_ib_b, cfg: MotionConfig, gnss_t_s=None, gnss_speed_m_s=None,
+                  gnss_sigma_m_s=None) -> MotionTrack:
+    """Offline path: the decisions for whole arrays (the same as pushing them one by one into MotionDetector).
+
+    t_s (N,) [s] increasing; omega_ib_b [rad/s], f_ib_b [m/s^2] (N, 3) body FLU; optional GNSS speed: stamps [s],
+    speed (norm of the velocity) [m/s] and its per-axis sigma [m/s]. A GNSS speed applies to IMU samples with a
+    stamp >= its own (within gnss_timeout_s). Non-finite or non-increasing IMU samples are rejected (counted).
+    """
+    t_s, omega, f = (np.asarray(a, float) for a in (t_s, omega_ib_b, f_ib_b))
+    ok = np.isfinite(t_s) & np.isfinite(omega).all(1) & np.isfinite(f).all(1)
+    ok &= t_s > np.concatenate([[-np.inf], np.fmax.accumulate(np.where(ok, t_s, -np.inf))[:-1]])
+    rejected = int((~ok).sum())
+    t_s, omega, f = t_s[ok], omega[ok], f[ok]
+    N = len(t_s)
+    stats = {k: np.full(N, np.nan) for k in ("spread_f", "spread_omega", "dv_h")}
+    for sl in _segments(t_s, cfg.rate_hz):
+        for k, v in window_statistics(omega[sl], f[sl], cfg).items():
+            stats[k][sl] = v
+    g_speed = np.full(N, np.nan)
+    g_sigma = np.full(N, np.nan)
+    if gnss_t_s is not None and len(gnss_t_s):
+        gt, gs, gsig = _valid_gnss(*(np.asarray(a, float) for a in (gnss_t_s, gnss_speed_m_s, gnss_sigma_m_s)))
+        j = np.searchsorted(gt, t_s, side="right") - 1
+        fresh = (j >= 0) & (t_s - gt[np.maximum(j, 0)] <= cfg.gnss_timeout_s)
+        g_speed[fresh], g_sigma[fresh] = gs[j[fresh]], gsig[j[fresh]]
+    thr = cfg.thresholds()
+    hyst = _Hysteresis(cfg.enter_hold_s, cfg.leave_hold_s)
+    moving, decided, since = np.zeros(N, bool), np.zeros(N, bool), np.full(N, np.nan)
+    for k in range(N):
+        gnss = (g_speed[k], g_sigma[k]) if np.isfinite(g_speed[k]) else (None, None)
+        hyst.step(float(t_s[k]), *_evidence({n: stats[n][k] for n in stats}, gnss, thr))
+        moving[k], decided[k], since[k] = hyst.state is True, hyst.state is not None, hyst.since_s
+    return MotionTrack(t_s, moving, decided, since, stats["spread_f"], stats["spread_omega"], stats["dv_h"],
+                       g_speed, thr, rejected)
+
+
+class MotionDetector:
+    """Per-sample path: push IMU samples and GNSS speeds in stamp order, read ``decision`` and ``diagnostics()``."""
+
+    def __init__(self, cfg: MotionConfig):
+        self.cfg = cfg
+        self.thresholds = cfg.thresholds()
+        n = cfg.samples()
+        self._L = n["dv"] + n["ref"]
+        self._t: deque = deque(maxlen=self._L)
+        self._omega: deque = deque(maxlen=self._L)
+        self._f: deque = deque(maxlen=self._L)
+        self._gnss: deque = deque(maxlen=16)  # (stamp, speed, sigma), pending or current
+        self._hyst = _Hysteresis(cfg.enter_hold_s, cfg.leave_hold_s)
+        self._stats = {"spread_f": math.nan, "spread_omega": math.nan, "dv_h": math.nan}
+        self._gnss_now = (None, None, math.nan)  # speed, sigma, age
+        self.rejected = {"imu": 0, "gnss": 0}
+        self.last_reject_reason = ""
+
+    def _reject(self, kind: str, reason: str) -> None:
+        self.rejected[kind] += 1
+        self.last_reject_reason = reason
+
+    def push_gnss_speed(self, stamp_s: float, speed_m_s: float, sigma_m_s: float) -> bool:
+        """A GNSS speed (norm of the velocity [m/s], per-axis sigma [m/s]); False (counted) when rejected."""
+        vals = (float(stamp_s), float(speed_m_s), float(sigma_m_s))
+        if not (all(map(math.isfinite, vals)) and vals[1] >= 0 and vals[2] > 0):
+            self._reject("gnss", f"GNSS speed not finite or sigma <= 0: {vals}")
+            return False
+        if self._gnss and vals[0] <= self._gnss[-1][0]:
+            self._reject("gnss", f"GNSS speed stamp {vals[0]} not after {self._gnss[-1][0]}")
+            return False
+        self._gnss.append(vals)
+        return True
+
+    def push_imu(self, stamp_s: float, omega_ib_b, f_ib_b) -> MotionDecision:
+        """One IMU sample (stamp [s], omega_ib_b [rad/s], f_ib_b [m/s^2]); returns the decision after it."""
+        t = float(stamp_s)
+        omega, f = np.asarray(omega_ib_b, float).reshape(3), np.asarray(f_ib_b, float).reshape(3)
+        if not (math.isfinite(t) and np.isfinite(omega).all() and np.isfinite(f).all()):
+            self._reject("imu", "IMU sample not finite")
+            return self.decision
+        if self._t and t <= self._t[-1]:
+            self._reject("imu", f"IMU stamp {t} not after {self._t[-1]}")
+            return self.decision
+        if self._t and t - self._t[-1] > GAP_FACTOR / self.cfg.rate_hz:
+            self._t.clear(), self._omega.clear(), self._f.clear()  # a gap restarts the windows
+        self._t.append(t), self._omega.append(omega), self._f.append(f)
+        if len(self._t) == self._L:
+            s = window_statistics(np.array(self._omega), np.array(self._f), self.cfg)
+            self._stats = {k: float(v[-1]) for k, v in s.items()}
+        else:
+            self._stats = {k: math.nan for k in self._stats}
+        while len(self._gnss) > 1 and self._gnss[1][0] <= t:
+            self._gnss.popleft()
+        g = self._gnss[0] if self._gnss and self._gnss[0][0] <= t else None
+        fresh = g is not None and t - g[0] <= self.cfg.gnss_timeout_s
+        self._gnss_now = (g[1], g[2], t - g[0]) if fresh else (None, None, math.nan)
+        self._hyst.step(t, *_evidence(self._stats, self._gnss_now[:2], self.thresholds))
+        return self.decision
+
+    @property
+    def decision(self) -> MotionDecision:
+        h = self._hyst
+        return MotionDecision(h.state is True, h.state is not None, h.since_s, h.declared_s)
+
+    def diagnostics(self) -> dict:
+        """The decision and the numbers behind it (for /diagnostics key-values)."""
+        d, s, thr = self.decision, self._stats, self.thresholds
+        speed, sigma, age = self._gnss_now
+        return {
+            "moving": d.moving, "decided": d.decided, "since_s": d.since_s, "declared_s": d.declared_s,
+            "spread_f_m_s2": s["spread_f"], "spread_f_threshold_m_s2": thr["spread_f_m_s2"],
+            "spread_omega_deg_s": math.degrees(s["spread_omega"]),
+            "spread_omega_threshold_deg_s": math.degrees(thr["spread_omega_rad_s"]),
+            "dv_h_m_s": s["dv_h"], "dv_h_threshold_m_s": thr["dv_h_m_s"],
+            "gnss_speed_m_s": math.nan if speed is None else speed,
+            "gnss_speed_threshold_m_s": math.nan if sigma is None else thr["gnss_speed_per_sigma"] * sigma,
+            "gnss_age_s": age, "rejected_imu": self.rejected["imu"], "rejected_gnss": self.rejected["gnss"],
+            "last_reject_reason": self.last_reject_reason,
+        }

@@ -1,0 +1,113 @@
+"""Motion detector (session/motion.py, issue 14) on the park_drive / drive_stop_drive scenarios."""
+
+import math
+
+import numpy as np
+import pytest
+
+from insalign_ros.session.motion import MotionConfig, MotionDetector, detect_motion
+from insalign_ros.sim.scenarios import make_scenario
+
+SHORT_PARK = dict(duration_s=40.0, park_s=30.0, door_at_s=10.0)  # person gets in at 10 s, drive-off at 30 s
+
+
+def _run(name, seed=0, **kw):
+    sc = make_scenario(name, seed=seed, **kw)
+    return sc, detect_motion(sc.t_s, sc.omega_ib_b, sc.f_ib_b, MotionConfig.from_imu_spec(sc.imu_spec))
+
+
+@pytest.mark.parametrize("name", ["park_drive", "park_drive_navgrade"])
+def test_park_then_drive_off_within_1_s(name):
+    sc, tr = _run(name, seed=4, **SHORT_PARK)
+    t_go = sc.params["motion_start_s"]
+    dec = tr.declarations()
+    # at rest declared once the windows are full (2 s) plus the 2 s leave hold, never motion during the park,
+    # even while the person gets in (rocking 0.5 deg, tilt 0.5 deg), and motion within 1 s of the drive-off
+    assert dec[0][1] is False and dec[0][0] < 4.5, dec
+    assert [m for _, m in dec] == [False, True], dec
+    assert t_go < dec[1][0] < t_go + 1.0, (dec, t_go)
+    door = (sc.t_s > 10.0) & (sc.t_s < 14.0)
+    assert np.nanmax(tr.spread_f[door]) > 0.15  # the disturbance is there: the IMU is shaken, not translated
+    assert np.nanmax(tr.dv_h[door]) < tr.thresholds["dv_h_m_s"]
+
+
+def test_at_rest_during_the_stop_and_moving_again():
+    kw = dict(duration_s=95.0, park_s=5.0, stop_at_s=62.0, stop_s=20.0, door_at_s=70.0)
+    sc, tr = _run("drive_stop_drive", seed=2, **kw)
+    dec = tr.declarations()
+    assert [m for _, m in dec] == [False, True, False, True], dec
+    assert 62.0 < dec[2][0] < 62.0 + 5.0  # at rest within 5 s of the stop
+    assert 82.0 < dec[3][0] < 83.0  # and moving within 1 s of the restart
+
+
+def test_gnss_speed_keeps_motion_on_a_smooth_road_and_sees_the_stop():
+    # no road vibration: a car cruising at constant speed looks parked to the IMU; the GNSS speed says otherwise
+    kw = dict(duration_s=95.0, park_s=5.0, stop_at_s=62.0, stop_s=20.0, door_at_s=-1.0, road_acc_m_s2=0.0,
+              road_ang_deg=0.0)
+    sc = make_scenario("drive_stop_drive", seed=2, **kw)
+    cfg = MotionConfig.from_imu_spec(sc.imu_spec)
+    imu_only = detect_motion(sc.t_s, sc.omega_ib_b, sc.f_ib_b, cfg)
+    rng = np.random.default_rng(0)
+    g = np.arange(0, len(sc.t_s), int(sc.imu_spec.rate_hz))  # 1 Hz, Doppler sigma 0.05 m/s per axis
+    sigma = 0.05
+    speed = np.linalg.norm(sc.v_n[g] + rng.normal(0, sigma, (len(g), 3)), axis=1)
+    both = detect_motion(sc.t_s, sc.omega_ib_b, sc.f_ib_b, cfg, sc.t_s[g], speed, np.full(len(g), sigma))
+    drive = (sc.t_s > 7.0) & (sc.t_s < 60.0)
+    assert not imu_only.moving[drive].all()  # the IMU alone loses the cruise ...
+    assert both.moving[drive].all()  # ... the GNSS speed keeps it
+    assert [m for _, m in both.declarations()] == [False, True, False, True]
+
+
+def test_per_sample_path_gives_the_same_decisions():
+    sc = make_scenario("park_drive", seed=7, duration_s=14.0, park_s=8.0, door_at_s=2.0)
+    cfg = MotionConfig.from_imu_spec(sc.imu_spec)
+    gt, gs, gsig = np.arange(0.5, 14.0, 1.0), np.zeros(14), np.full(14, 0.05)
+    gs[9:] = 5.0
+    tr = detect_motion(sc.t_s, sc.omega_ib_b, sc.f_ib_b, cfg, gt, gs, gsig)
+    det = MotionDetector(cfg)
+    j, moving, dv = 0, [], []
+    for k in range(sc.n):
+        while j < len(gt) and gt[j] <= sc.t_s[k]:
+            det.push_gnss_speed(gt[j], gs[j], gsig[j])
+            j += 1
+        moving.append(det.push_imu(sc.t_s[k], sc.omega_ib_b[k], sc.f_ib_b[k]).moving)
+        dv.append(det.diagnostics()["dv_h_m_s"])
+    assert np.array_equal(np.array(moving), tr.moving) and tr.moving.any() and not tr.moving.all()
+    np.testing.assert_allclose(np.array(dv), tr.dv_h, rtol=1e-6, atol=1e-9)
+    d = det.diagnostics()
+    assert d["moving"] and d["gnss_speed_m_s"] == 5.0 and d["dv_h_threshold_m_s"] == tr.thresholds["dv_h_m_s"]
+
+
+def test_thresholds_follow_the_imu_grade():
+    # without vibration allowance the spread bound is the chi-square bound of white noise: a false-alarm rate
+    # near p_false_alarm on pure noise, and the bound scales with the noise density
+    cfg = MotionConfig(rate_hz=100.0, acc_vrw_m_s_sqrt_h=0.1, gyro_arw_deg_sqrt_h=0.3, vib_acc_rms_m_s2=0.0,
+                       vib_gyro_rms_deg_s=0.0, p_false_alarm=0.01)
+    rng = np.random.default_rng(1)
+    n = 20000
+    sa, sg = 0.1 / 60 * 10, math.radians(0.3) / 60 * 10  # per-sample sigmas at 100 Hz
+    f = rng.normal(0, sa, (n, 3)) + [0, 0, 9.8]
+    om = rng.normal(0, sg, (n, 3))
+    tr = detect_motion(np.arange(n) / 100.0, om, f, cfg)
+    thr = tr.thresholds
+    s = tr.spread_f[~np.isnan(tr.spread_f)]
+    assert 0.002 < np.mean(s > thr["spread_f_m_s2"]) < 0.03
+    assert np.mean(tr.spread_omega[~np.isnan(tr.spread_f)] > thr["spread_omega_rad_s"]) < 0.03
+    assert not tr.moving.any() and tr.decided[-1]
+    worse = MotionConfig(**{**cfg.to_dict(), "acc_vrw_m_s_sqrt_h": 0.2}).thresholds()
+    assert math.isclose(worse["spread_f_m_s2"], 2 * thr["spread_f_m_s2"])
+
+
+def test_bad_input_is_rejected_and_counted():
+    det = MotionDetector(MotionConfig())
+    det.push_imu(0.0, [0, 0, 0], [0, 0, 9.8])
+    assert not det.push_imu(0.01, [np.nan, 0, 0], [0, 0, 9.8]).moving
+    det.push_imu(0.0, [0, 0, 0], [0, 0, 9.8])  # stamp not increasing
+    assert not det.push_gnss_speed(0.0, 1.0, 0.0)
+    d = det.diagnostics()
+    assert d["rejected_imu"] == 2 and d["rejected_gnss"] == 1 and "sigma" in d["last_reject_reason"]
+    t = np.arange(5) * 0.01
+    tr = detect_motion(t, np.zeros((5, 3)), np.where(t[:, None] == 0.02, np.nan, [0, 0, 9.8]), MotionConfig())
+    assert tr.rejected == 1 and len(tr.t_s) == 4
+    with pytest.raises(ValueError, match="window"):
+        MotionConfig.from_dict({"window_s": 3.0})
