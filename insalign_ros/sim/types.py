@@ -58,6 +58,10 @@ class ScenarioData:
     omega_ib_b_true: np.ndarray | None = None  # error-free IMU (simulators only)
     f_ib_b_true: np.ndarray | None = None
     params: dict = field(default_factory=dict)  # scenario parameters, for metadata and docs
+    # per-sample validity where the source has one (io/kitti.py fill rows, the bag's *_invalid topics): False =
+    # the source flags the sample as not measured (to be treated as a gap); None = every sample valid
+    imu_valid: np.ndarray | None = None  # (N,) bool
+    gnss_valid: np.ndarray | None = None  # (M,) bool
 
     @property
     def n(self) -> int:
@@ -66,6 +70,17 @@ class ScenarioData:
     @property
     def has_truth(self) -> bool:
         return self.C_b_n is not None
+
+    @property
+    def imu_valid_mask(self) -> np.ndarray:
+        """(N,) bool: ``imu_valid``, or all True when the source has no per-sample validity."""
+        return np.ones(self.n, bool) if self.imu_valid is None else np.asarray(self.imu_valid, bool)
+
+    @property
+    def gnss_valid_mask(self) -> np.ndarray:
+        """(M,) bool: ``gnss_valid``, or all True."""
+        m = self.gnss_t_s.shape[0]
+        return np.ones(m, bool) if self.gnss_valid is None else np.asarray(self.gnss_valid, bool)
 
     def imu_samples(self, start: int = 0, stop: int | None = None) -> Iterator[ImuSample]:
         for k in range(start, self.n if stop is None else stop):
