@@ -189,26 +189,28 @@ def _stamp_ns(msg) -> int:
     return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
 
-def _hold_interp(t_s: np.ndarray, t_key_s: np.ndarray, values: np.ndarray) -> np.ndarray:
+def interp_held(t_s: np.ndarray, t_key_s: np.ndarray, values: np.ndarray) -> np.ndarray:
     """Linear interpolation of (K, m) ``values`` at ``t_s``, held constant outside [t_key_s[0], t_key_s[-1]]."""
+    values = np.asarray(values, float)
     return np.column_stack([np.interp(t_s, t_key_s, values[:, i]) for i in range(values.shape[1])])
 
 
-def interpolate_poses(t_s: np.ndarray, t_key_s: np.ndarray, p_key: np.ndarray, q_key_xyzw: np.ndarray):
-    """Poses at their own stamps -> poses at ``t_s``: position linear, attitude slerp (scipy Slerp), both held
-    constant outside the key span. Returns (C (N, 3, 3), p (N, 3), held: (N,) bool = outside the span)."""
-    t_s, t_key_s = np.asarray(t_s, float), np.asarray(t_key_s, float)
+def slerp_held(t_s: np.ndarray, t_key_s: np.ndarray, q_key_xyzw: np.ndarray) -> np.ndarray:
+    """Attitudes (K, 4) quaternions x y z w -> (N, 3, 3) matrices at ``t_s`` by slerp (scipy), held outside the span."""
     rots = Rotation.from_quat(q_key_xyzw)
-    tc = np.clip(t_s, t_key_s[0], t_key_s[-1])
-    if t_key_s.shape[0] == 1:
-        C = np.repeat(rots.as_matrix(), t_s.shape[0], axis=0)
-        p = np.repeat(np.asarray(p_key, float), t_s.shape[0], axis=0)
-    else:
-        from scipy.spatial.transform import Slerp
+    if np.asarray(t_key_s).shape[0] == 1:
+        return np.repeat(rots.as_matrix(), np.asarray(t_s).shape[0], axis=0)
+    from scipy.spatial.transform import Slerp
 
-        C = Slerp(t_key_s, rots)(tc).as_matrix()
-        p = _hold_interp(tc, t_key_s, np.asarray(p_key, float))
-    return C, p, tc != t_s
+    return Slerp(t_key_s, rots)(np.clip(t_s, t_key_s[0], t_key_s[-1])).as_matrix()
+
+
+def interpolate_poses(t_s: np.ndarray, t_key_s: np.ndarray, p_key: np.ndarray, q_key_xyzw: np.ndarray):
+    """Poses at their own stamps -> poses at ``t_s``: position linear, attitude slerp, both held constant outside
+    the key span. Returns (C (N, 3, 3), p (N, 3), held: (N,) bool = outside the span)."""
+    t_s, t_key_s = np.asarray(t_s, float), np.asarray(t_key_s, float)
+    held = (t_s < t_key_s[0]) | (t_s > t_key_s[-1])
+    return slerp_held(t_s, t_key_s, q_key_xyzw), interp_held(t_s, t_key_s, p_key), held
 
 
 def velocity_n_from_positions(t_s: np.ndarray, lat_rad, lon_rad, h_m) -> np.ndarray:
@@ -313,7 +315,7 @@ def _truth_reference(meta: dict, ref_llh_deg, gps: dict, tr_t_ns, tr_p, warnings
         warnings.append("truth present but no ENU reference (no metadata, no valid fix, no ref_llh_deg): truth dropped")
         return None
     t_f = gps["t"][first]
-    p_f = _hold_interp(np.array([(t_f - tr_t_ns[0]) * 1e-9]), (tr_t_ns - tr_t_ns[0]) * 1e-9, tr_p)
+    p_f = interp_held(np.array([(t_f - tr_t_ns[0]) * 1e-9]), (tr_t_ns - tr_t_ns[0]) * 1e-9, tr_p)
     lat_f, lon_f, h_f = gps["llh"][first]
     # the origin O with enu(fix; O) = p_f: start in the fix's tangent plane, then correct the residual (the two
     # tangent planes differ by |p_f| / R rad: mm at 100 m); three steps reach 1e-9 m
@@ -439,5 +441,5 @@ def _truth_at_imu(t_s, tr_t_s, tr_p_n, tr_q, ref, warnings: list) -> dict:
         warnings.append(f"truth has a gap of {np.max(np.diff(tr_t_s)):.2f} s: interpolated across it")
     lat, lon, h = pymap3d.enu2geodetic(p_n[:, 0], p_n[:, 1], p_n[:, 2], math.radians(lat0), math.radians(lon0), h0,
                                        deg=False)
-    v_n = None if v_k is None else _hold_interp(t_s, tr_t_s, v_k)
+    v_n = None if v_k is None else interp_held(t_s, tr_t_s, v_k)
     return dict(C_b_n=C, lat_rad=np.asarray(lat), lon_rad=np.asarray(lon), h_m=np.asarray(h), v_n=v_n)
