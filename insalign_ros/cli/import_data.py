@@ -57,12 +57,14 @@ def main(argv=None) -> int:
 
 
 def format_report(rep: dict) -> str:
+    from ..io.validation import format_counts
+
     s = (f"{rep['file']}: {rep['valid']} valid of {rep['rows']} rows ({rep['imu']}, axes {rep['axes']} -> FLU), "
          f"{rep['gnss_fixes']} GNSS fixes, {rep['reference_rows']} reference attitude rows ({rep['euler']})")
     if rep["rejected"]:
-        s += "\n  rejected rows: " + ", ".join(f"{k}: {n}" for k, n in sorted(rep["rejected"].items()))
+        s += "\n  rejected rows: " + format_counts(rep["rejected"])
     if rep.get("gnss_rejected"):
-        s += "\n  rejected fixes: " + ", ".join(f"{k}: {n}" for k, n in sorted(rep["gnss_rejected"].items()))
+        s += "\n  rejected fixes: " + format_counts(rep["gnss_rejected"])
     return s
 
 

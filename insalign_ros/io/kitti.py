@@ -248,7 +248,7 @@ def format_report(rep: dict) -> str:
     s = (f"{rep['dir']}: {rep['valid']} valid of {rep['lines']} timestamps / {rep['files']} files, "
          f"rate {rep['rate_hz']:.2f} Hz, {rep.get('gnss_fixes', 0)} GNSS fixes")
     if rep["rejected"]:
-        s += "\n  rejected: " + ", ".join(f"{k}: {n}" for k, n in sorted(rep["rejected"].items()))
+        s += "\n  rejected: " + validation.format_counts(rep["rejected"])
     if rep.get("fill_rows"):
         what = {"mark": "marked invalid (bag: /imu/data_invalid, /gps/fix_invalid)", "drop": "dropped (gaps)",
                 "keep": "KEPT AS DATA (--fill-rows keep)"}[rep["fill_policy"]]
