@@ -125,3 +125,15 @@ def test_real_drive_fill_rows(drive, expected):
     assert (~data.imu_valid_mask).sum() == expected
     # every mode -1 row not at the start of the file is also an exact interpolation of its neighbours
     assert rep["fill_by_interpolation"] == expected - sum(a == 0 for a, _, _ in rep["fill_blocks"])
+
+
+def test_until_cuts_every_per_sample_array_consistently():
+    s = make_scenario("ship", seed=1, duration_s=10.0)
+    s.imu_valid = np.arange(s.n) % 7 != 0
+    s.gnss_valid = np.arange(s.gnss_t_s.shape[0]) % 2 == 0
+    c = s.until(4.0)
+    assert c.n == 401 and c.t_s[-1] == 4.0 and c.gnss_t_s.tolist() == [0.0, 1.0, 2.0, 3.0, 4.0]
+    for name in ("omega_ib_b", "f_ib_b", "C_b_n", "lat_rad", "v_n", "omega_ib_b_true", "imu_valid"):
+        np.testing.assert_array_equal(getattr(c, name), getattr(s, name)[:401], err_msg=name)
+    np.testing.assert_array_equal(c.gnss_valid, s.gnss_valid[:5])
+    np.testing.assert_array_equal(c.gnss_R_e, s.gnss_R_e[:5])

@@ -91,18 +91,7 @@ def load_data(source: str, scenario: str, seed: int, duration_s: float, rate_hz:
 
 
 def _truncate(data, duration_s: float):
-    from dataclasses import replace
-
-    t_end = data.t_s[0] + duration_s
-    k = int(np.searchsorted(data.t_s, t_end, side="right"))
-    j = int(np.searchsorted(data.gnss_t_s, t_end, side="right"))
-    cut = {}
-    for name in ("C_b_n", "lat_rad", "lon_rad", "h_m", "v_n", "omega_ib_b_true", "f_ib_b_true", "imu_valid"):
-        v = getattr(data, name)
-        cut[name] = None if v is None else v[:k]
-    cut["gnss_valid"] = None if data.gnss_valid is None else data.gnss_valid[:j]
-    return replace(data, t_s=data.t_s[:k], omega_ib_b=data.omega_ib_b[:k], f_ib_b=data.f_ib_b[:k],
-                   gnss_t_s=data.gnss_t_s[:j], gnss_p_e=data.gnss_p_e[:j], gnss_R_e=data.gnss_R_e[:j], **cut)
+    return data.until(data.t_s[0] + duration_s)
 
 
 class ImuSimNode(Node):

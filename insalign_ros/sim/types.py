@@ -82,6 +82,19 @@ class ScenarioData:
         m = self.gnss_t_s.shape[0]
         return np.ones(m, bool) if self.gnss_valid is None else np.asarray(self.gnss_valid, bool)
 
+    def until(self, t_end_s: float) -> "ScenarioData":
+        """A copy holding the IMU samples (with truth and validity) and the fixes with stamps <= t_end_s [s]."""
+        from dataclasses import replace
+
+        k = int(np.searchsorted(self.t_s, t_end_s, side="right"))
+        j = int(np.searchsorted(self.gnss_t_s, t_end_s, side="right"))
+        per_imu = ("omega_ib_b", "f_ib_b", "C_b_n", "lat_rad", "lon_rad", "h_m", "v_n", "omega_ib_b_true",
+                   "f_ib_b_true", "imu_valid")
+        cut = {name: None if getattr(self, name) is None else getattr(self, name)[:k] for name in per_imu}
+        cut.update({name: None if getattr(self, name) is None else getattr(self, name)[:j]
+                    for name in ("gnss_p_e", "gnss_R_e", "gnss_valid")})
+        return replace(self, t_s=self.t_s[:k], gnss_t_s=self.gnss_t_s[:j], **cut)
+
     def imu_samples(self, start: int = 0, stop: int | None = None) -> Iterator[ImuSample]:
         for k in range(start, self.n if stop is None else stop):
             yield ImuSample(float(self.t_s[k]), self.omega_ib_b[k], self.f_ib_b[k])
