@@ -14,6 +14,7 @@ CONSOLE_SCRIPTS = [
     "alignment_node = insalign_ros.nodes.alignment_node:main",
     "insalign-simulate = insalign_ros.cli.simulate:main",
     "insalign-kitti2bag = insalign_ros.cli.kitti2bag:main",
+    "insalign-import = insalign_ros.cli.import_data:main",
     "insalign-align = insalign_ros.cli.align:main",
 ]
 

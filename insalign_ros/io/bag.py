@@ -6,6 +6,9 @@ Topics (names configurable in read_bag for bags from other sources):
   /ground_truth/pose  geometry_msgs/msg/PoseStamped frame "enu" (local ENU about the metadata reference),
                                                     orientation = body FLU -> ENU
   /insalign/metadata  std_msgs/msg/String           JSON, written once before the first sample
+  /imu/data_invalid   sensor_msgs/msg/Imu          samples the source flags as not measured (e.g. KITTI fill rows);
+                                                    only when there are any: /imu/data then has a gap there
+  /gps/fix_invalid    sensor_msgs/msg/NavSatFix    likewise for fixes (status STATUS_NO_FIX)
 
 Stamps: header.stamp = bag timestamp = stamp_offset_ns + round(t_s * 1e9) ns (``stamp_offset_ns`` in the
 metadata: 0 for the simulators, the first absolute stamp for converted drives; integer, so no float rounding). The IMU covariances follow REP 145: white-noise variance of one sample = noise density^2 * rate
@@ -34,11 +37,18 @@ IMU_TOPIC = "/imu/data"
 GPS_TOPIC = "/gps/fix"
 TRUTH_TOPIC = "/ground_truth/pose"
 META_TOPIC = "/insalign/metadata"
+INVALID_SUFFIX = "_invalid"  #: flagged samples go to <topic>_invalid (docs/bag_contract.md, "Validity")
+IMU_INVALID_TOPIC, GPS_INVALID_TOPIC = IMU_TOPIC + INVALID_SUFFIX, GPS_TOPIC + INVALID_SUFFIX
+#: 1-sigma per axis [m] for a fix with position_covariance_type UNKNOWN: the same rule and default as
+#: alignment_node's ``gnss_sigma_m`` (R_n = sigma^2 I)
+DEFAULT_UNKNOWN_FIX_SIGMA_M = 1.0
 IMU_FRAME, GPS_FRAME, TRUTH_FRAME = "imu_link", "gps", "enu"
 STORAGES = ("sqlite3", "mcap")
+COVARIANCE_TYPE_UNKNOWN = 0
 COVARIANCE_TYPE_DIAGONAL_KNOWN = 2
 COVARIANCE_TYPE_KNOWN = 3
 STATUS_FIX = 0
+STATUS_NO_FIX = -1
 
 
 def typestore():
@@ -103,6 +113,7 @@ def write_bag(data: ScenarioData, path, storage: str = "sqlite3", write_truth: b
     glat, glon, galt = np.atleast_1d(glat), np.atleast_1d(glon), np.atleast_1d(galt)
     from ..core import earth
 
+    imu_ok, gnss_ok = data.imu_valid_mask, data.gnss_valid_mask
     events = []  # (ns, order, topic, msg)
     for k in range(data.n):
         st, ns = _stamp(ts, float(data.t_s[k]), off_ns)
@@ -115,7 +126,7 @@ def write_bag(data: ScenarioData, path, storage: str = "sqlite3", write_truth: b
             angular_velocity_covariance=np.diag([var_g] * 3).ravel().astype(float),
             linear_acceleration=T["geometry_msgs/msg/Vector3"](x=float(f[0]), y=float(f[1]), z=float(f[2])),
             linear_acceleration_covariance=np.diag([var_a] * 3).ravel().astype(float))
-        events.append((ns, 0, IMU_TOPIC, msg))
+        events.append((ns, 0, IMU_TOPIC if imu_ok[k] else IMU_INVALID_TOPIC, msg))
     for j in range(data.gnss_t_s.shape[0]):
         st, ns = _stamp(ts, float(data.gnss_t_s[j]), off_ns)
         C_en = earth.C_e_n(math.radians(glat[j]), math.radians(glon[j]))
@@ -124,11 +135,11 @@ def write_bag(data: ScenarioData, path, storage: str = "sqlite3", write_truth: b
         diag = np.allclose(R_n, np.diag(np.diag(R_n)), rtol=0, atol=1e-12 * np.trace(R_n))
         msg = T["sensor_msgs/msg/NavSatFix"](
             header=T["std_msgs/msg/Header"](stamp=st, frame_id=GPS_FRAME),
-            status=T["sensor_msgs/msg/NavSatStatus"](status=STATUS_FIX, service=1),
+            status=T["sensor_msgs/msg/NavSatStatus"](status=STATUS_FIX if gnss_ok[j] else STATUS_NO_FIX, service=1),
             latitude=float(glat[j]), longitude=float(glon[j]), altitude=float(galt[j]),
             position_covariance=R_n.ravel().astype(float),
             position_covariance_type=COVARIANCE_TYPE_DIAGONAL_KNOWN if diag else COVARIANCE_TYPE_KNOWN)
-        events.append((ns, 1, GPS_TOPIC, msg))
+        events.append((ns, 1, GPS_TOPIC if gnss_ok[j] else GPS_INVALID_TOPIC, msg))
     if write_truth and data.has_truth:
         e, n_, u = pymap3d.geodetic2enu(data.lat_rad, data.lon_rad, data.h_m, math.radians(lat0),
                                         math.radians(lon0), h0, deg=False)
@@ -154,6 +165,10 @@ def write_bag(data: ScenarioData, path, storage: str = "sqlite3", write_truth: b
             IMU_TOPIC: w.add_connection(IMU_TOPIC, "sensor_msgs/msg/Imu", typestore=ts),
             GPS_TOPIC: w.add_connection(GPS_TOPIC, "sensor_msgs/msg/NavSatFix", typestore=ts),
         }
+        if not imu_ok.all():
+            conns[IMU_INVALID_TOPIC] = w.add_connection(IMU_INVALID_TOPIC, "sensor_msgs/msg/Imu", typestore=ts)
+        if not gnss_ok.all():
+            conns[GPS_INVALID_TOPIC] = w.add_connection(GPS_INVALID_TOPIC, "sensor_msgs/msg/NavSatFix", typestore=ts)
         if write_truth and data.has_truth:
             conns[TRUTH_TOPIC] = w.add_connection(TRUTH_TOPIC, "geometry_msgs/msg/PoseStamped", typestore=ts)
         first_ns = events[0][0] if events else 0
@@ -164,33 +179,76 @@ def write_bag(data: ScenarioData, path, storage: str = "sqlite3", write_truth: b
     return path
 
 
-def read_bag(path, imu_topic: str = IMU_TOPIC, gps_topic: str = GPS_TOPIC, truth_topic: str = TRUTH_TOPIC,
-             meta_topic: str = META_TOPIC, report: dict | None = None) -> ScenarioData:
-    """Read a contract bag (or a foreign bag with an Imu and optionally a NavSatFix topic) into ScenarioData.
+#: truth message types read_bag understands -> their Pose (orientation body FLU -> ENU, position ENU [m])
+TRUTH_POSE = {"geometry_msgs/msg/PoseStamped": lambda m: m.pose,
+              "geometry_msgs/msg/PoseWithCovarianceStamped": lambda m: m.pose.pose,
+              "nav_msgs/msg/Odometry": lambda m: m.pose.pose}
 
-    Invalid samples (validation.py) are dropped and counted; the counts are logged as warnings and stored in
-    ``report`` (if given) as {"rejected": {topic: {reason: count}}, "warnings": [...]}.
-    Truth is None when the bag has no truth topic. v_n is not carried by the contract (None).
+
+def _stamp_ns(msg) -> int:
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+def interp_held(t_s: np.ndarray, t_key_s: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Linear interpolation of (K, m) ``values`` at ``t_s``, held constant outside [t_key_s[0], t_key_s[-1]]."""
+    values = np.asarray(values, float)
+    return np.column_stack([np.interp(t_s, t_key_s, values[:, i]) for i in range(values.shape[1])])
+
+
+def slerp_held(t_s: np.ndarray, t_key_s: np.ndarray, q_key_xyzw: np.ndarray) -> np.ndarray:
+    """Attitudes (K, 4) quaternions x y z w -> (N, 3, 3) matrices at ``t_s`` by slerp (scipy), held outside the span."""
+    rots = Rotation.from_quat(q_key_xyzw)
+    if np.asarray(t_key_s).shape[0] == 1:
+        return np.repeat(rots.as_matrix(), np.asarray(t_s).shape[0], axis=0)
+    from scipy.spatial.transform import Slerp
+
+    return Slerp(t_key_s, rots)(np.clip(t_s, t_key_s[0], t_key_s[-1])).as_matrix()
+
+
+def interpolate_poses(t_s: np.ndarray, t_key_s: np.ndarray, p_key: np.ndarray, q_key_xyzw: np.ndarray):
+    """Poses at their own stamps -> poses at ``t_s``: position linear, attitude slerp, both held constant outside
+    the key span. Returns (C (N, 3, 3), p (N, 3), held: (N,) bool = outside the span)."""
+    t_s, t_key_s = np.asarray(t_s, float), np.asarray(t_key_s, float)
+    held = (t_s < t_key_s[0]) | (t_s > t_key_s[-1])
+    return slerp_held(t_s, t_key_s, q_key_xyzw), interp_held(t_s, t_key_s, p_key), held
+
+
+def velocity_n_from_positions(t_s: np.ndarray, lat_rad, lon_rad, h_m) -> np.ndarray:
+    """ENU velocity relative to the Earth [m/s] at each sample: np.gradient (2nd-order central differences) of the
+    ECEF positions over t_s [s], rotated into the local ENU frame of each sample."""
+    x, y, z = pymap3d.geodetic2ecef(lat_rad, lon_rad, h_m, deg=False)
+    v_e = np.gradient(np.column_stack([x, y, z]), np.asarray(t_s, float), axis=0, edge_order=2)
+    from ..core import earth
+
+    return np.array([earth.C_e_n(a, b) @ v for a, b, v in zip(lat_rad, lon_rad, v_e)])
+
+
+def _read_messages(path, streams: dict, meta_topic: str, unknown_fix_sigma_m: float | None, rep: dict):
+    """All messages of the wanted topics, validated (validation.py); rejected ones counted per topic and reason.
+
+    ``streams``: topic -> (kind in imu/gps/truth, valid). Stamps are checked per kind (a topic and its
+    ``_invalid`` sibling form one stream). Returns (meta or None, {kind: lists}, rejected, frames, n_unknown_cov).
     """
     from rosbags.rosbag2 import Reader
 
     ts = typestore()
-    rep = report if report is not None else {}
-    rep.setdefault("rejected", {})
-    rep.setdefault("warnings", [])
-    rejected: dict[str, Counter] = {imu_topic: Counter(), gps_topic: Counter(), truth_topic: Counter()}
-    frames: dict[str, set] = {imu_topic: set(), gps_topic: set(), truth_topic: set()}
-    meta = None
-    imu_t, imu_w, imu_f = [], [], []
-    g_t, g_llh, g_cov = [], [], []
-    tr_t, tr_p, tr_q = [], [], []
-    prev = {imu_topic: None, gps_topic: None, truth_topic: None}
+    rejected = {topic: Counter() for topic in streams}
+    frames = {topic: set() for topic in streams}
+    got = {"imu": {"t": [], "w": [], "f": [], "ok": []}, "gps": {"t": [], "llh": [], "cov": [], "ok": []},
+           "truth": {"t": [], "p": [], "q": []}}
+    prev = {"imu": None, "gps": None, "truth": None}
+    meta, n_unknown = None, 0
     with Reader(Path(path)) as r:
-        topics = {c.topic for c in r.connections}
+        topics = {c.topic: c.msgtype for c in r.connections}
+        imu_topic = next(t for t, (kind, ok) in streams.items() if kind == "imu" and ok)
         if imu_topic not in topics:
             raise ValueError(f"{path}: no IMU topic {imu_topic!r}; topics: {sorted(topics)}")
-        conns = [c for c in r.connections if c.topic in (imu_topic, gps_topic, truth_topic, meta_topic)]
-        for conn, bag_ns, raw in r.messages(connections=conns):
+        for topic, (kind, _) in streams.items():
+            if kind == "truth" and topic in topics and topics[topic] not in TRUTH_POSE:
+                rep["warnings"].append(f"{topic}: type {topics[topic]} is not a pose ({sorted(TRUTH_POSE)}): ignored")
+        conns = [c for c in r.connections if c.topic == meta_topic or (
+            c.topic in streams and (streams[c.topic][0] != "truth" or c.msgtype in TRUTH_POSE))]
+        for conn, _, raw in r.messages(connections=conns):
             msg = ts.deserialize_cdr(raw, conn.msgtype)
             if conn.topic == meta_topic:
                 if meta is None:
@@ -199,92 +257,189 @@ def read_bag(path, imu_topic: str = IMU_TOPIC, gps_topic: str = GPS_TOPIC, truth
                     except (ValueError, AttributeError) as exc:
                         rep["warnings"].append(f"metadata not JSON ({exc}); ignored")
                 continue
-            t_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-            t = t_ns * 1e-9
+            kind, ok = streams[conn.topic]
+            t_ns = _stamp_ns(msg)
             frames[conn.topic].add(msg.header.frame_id)
-            reason = validation.check_stamp(t, prev[conn.topic])
-            if conn.topic == imu_topic:
+            reason = validation.check_stamp(t_ns * 1e-9, prev[kind])
+            g = got[kind]
+            if kind == "imu":
                 w = np.array([msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z])
                 f = np.array([msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z])
                 reason = reason or validation.check_imu(w, f)
                 if not reason:
-                    imu_t.append(t_ns), imu_w.append(w), imu_f.append(f)
-            elif conn.topic == gps_topic:
+                    g["t"].append(t_ns), g["w"].append(w), g["f"].append(f), g["ok"].append(ok)
+            elif kind == "gps":
                 cov = np.asarray(msg.position_covariance, float).reshape(3, 3)
-                if msg.position_covariance_type == 0:
+                unknown = msg.position_covariance_type == COVARIANCE_TYPE_UNKNOWN
+                if unknown and unknown_fix_sigma_m is None:
                     reason = reason or "position_covariance_type UNKNOWN"
+                elif unknown:
+                    cov = np.eye(3) * unknown_fix_sigma_m**2
+                # a flagged fix carries STATUS_NO_FIX by contract: judge the rest of it
                 reason = reason or validation.check_fix(msg.latitude, msg.longitude, msg.altitude, cov,
-                                                        msg.status.status)
+                                                        msg.status.status if ok else STATUS_FIX)
                 if not reason:
-                    g_t.append(t_ns), g_llh.append((msg.latitude, msg.longitude, msg.altitude)), g_cov.append(cov)
+                    g["t"].append(t_ns), g["llh"].append((msg.latitude, msg.longitude, msg.altitude))
+                    g["cov"].append(cov), g["ok"].append(ok)
+                    n_unknown += int(unknown)
             else:
-                p = msg.pose.position
-                q = msg.pose.orientation
+                pose = TRUTH_POSE[conn.msgtype](msg)
+                p, q = pose.position, pose.orientation
                 qa = np.array([q.x, q.y, q.z, q.w])
                 if not np.all(np.isfinite(qa)) or abs(np.linalg.norm(qa) - 1.0) > 1e-6:
                     reason = reason or "orientation not a unit quaternion"
+                if not np.all(np.isfinite([p.x, p.y, p.z])):
+                    reason = reason or "non-finite position"
                 if not reason:
-                    tr_t.append(t_ns), tr_p.append((p.x, p.y, p.z)), tr_q.append(qa)
+                    g["t"].append(t_ns), g["p"].append((p.x, p.y, p.z)), g["q"].append(qa)
             if reason:
                 rejected[conn.topic][reason] += 1
             else:
-                prev[conn.topic] = t
-    expect = {imu_topic: IMU_FRAME, gps_topic: GPS_FRAME, truth_topic: TRUTH_FRAME}
+                prev[kind] = t_ns * 1e-9
+    return meta, got, rejected, frames, n_unknown
+
+
+def _truth_reference(meta: dict, ref_llh_deg, gps: dict, tr_t_ns, tr_p, warnings: list):
+    """ENU origin (lat, lon [deg], h [m]) of the truth positions, or None: the metadata's; else ``ref_llh_deg``;
+    else placed so that the truth position at the first valid fix inside the truth's span (else the first valid
+    fix) equals that fix (antenna lever arm ignored)."""
+    ref = tuple(float(meta.get(k, float("nan"))) for k in ("ref_lat_deg", "ref_lon_deg", "ref_h_m"))
+    if all(math.isfinite(v) for v in ref):
+        return ref
+    if ref_llh_deg is not None:
+        return tuple(float(v) for v in ref_llh_deg)
+    ok = [j for j, good in enumerate(gps["ok"]) if good]
+    inside = [j for j in ok if tr_t_ns[0] <= gps["t"][j] <= tr_t_ns[-1]]  # no extrapolated truth if avoidable
+    first = (inside or ok or [None])[0]
+    if first is None:
+        warnings.append("truth present but no ENU reference (no metadata, no valid fix, no ref_llh_deg): truth dropped")
+        return None
+    t_f = gps["t"][first]
+    p_f = interp_held(np.array([(t_f - tr_t_ns[0]) * 1e-9]), (tr_t_ns - tr_t_ns[0]) * 1e-9, tr_p)
+    lat_f, lon_f, h_f = gps["llh"][first]
+    # the origin O with enu(fix; O) = p_f: start in the fix's tangent plane, then correct the residual (the two
+    # tangent planes differ by |p_f| / R rad: mm at 100 m); three steps reach 1e-9 m
+    lat0, lon0, h0 = pymap3d.enu2geodetic(-p_f[0, 0], -p_f[0, 1], -p_f[0, 2], lat_f, lon_f, h_f)
+    for _ in range(3):
+        r = np.array(pymap3d.geodetic2enu(lat_f, lon_f, h_f, lat0, lon0, h0)) - p_f[0]
+        lat0, lon0, h0 = pymap3d.enu2geodetic(r[0], r[1], r[2], lat0, lon0, h0)
+    warnings.append(f"no ENU reference in metadata: truth origin placed so that the truth at the first fix "
+                    f"({lat_f:.7f}, {lon_f:.7f}, {h_f:.2f} m) coincides with it (lever arm ignored)")
+    return float(lat0), float(lon0), float(h0)
+
+
+def read_bag(path, imu_topic: str = IMU_TOPIC, gps_topic: str = GPS_TOPIC, truth_topic: str = TRUTH_TOPIC,
+             meta_topic: str = META_TOPIC, report: dict | None = None,
+             unknown_fix_sigma_m: float | None = DEFAULT_UNKNOWN_FIX_SIGMA_M, imu_invalid_topic: str | None = None,
+             gps_invalid_topic: str | None = None, ref_llh_deg=None) -> ScenarioData:
+    """Read a contract bag, or any bag with an Imu topic (and optionally NavSatFix and pose topics), into ScenarioData.
+
+    Parameters
+    ----------
+    imu_topic, gps_topic, truth_topic, meta_topic : topic names (truth: PoseStamped, PoseWithCovarianceStamped or
+        Odometry, orientation body FLU -> ENU, position in a local ENU frame [m]).
+    unknown_fix_sigma_m : 1-sigma per axis [m] for fixes with position_covariance_type UNKNOWN (the node's
+        ``gnss_sigma_m`` rule, R_n = sigma^2 I); None drops such fixes.
+    imu_invalid_topic, gps_invalid_topic : topics of flagged samples (default ``<topic>_invalid``): read into
+        ``imu_valid`` / ``gnss_valid`` (False), in stamp order with the valid ones.
+    ref_llh_deg : (lat [deg], lon [deg], h [m]) ENU origin of the truth positions when the metadata has none.
+
+    Invalid samples (validation.py) are dropped and counted; the counts are logged as warnings and stored in
+    ``report`` (if given) as {"rejected": {topic: {reason: count}}, "warnings": [...], "unknown_covariance_fixes": n}.
+    Truth at its own rate is interpolated to the IMU stamps (slerp), held outside its span (counted in a warning);
+    its ENU origin comes from the metadata, else ``ref_llh_deg``, else the first valid fix (_truth_reference).
+    v_n is the truth positions differentiated (velocity_n_from_positions) at the truth stamps, interpolated to the
+    IMU stamps. Without metadata, t_s is relative to the first IMU stamp (params["stamp_offset_ns"]).
+    """
+    if unknown_fix_sigma_m is not None and not (math.isfinite(unknown_fix_sigma_m) and unknown_fix_sigma_m > 0):
+        raise ValueError(f"unknown_fix_sigma_m must be > 0 (or None to drop such fixes), got {unknown_fix_sigma_m}")
+    rep = report if report is not None else {}
+    rep.setdefault("rejected", {})
+    rep.setdefault("warnings", [])
+    streams = {imu_topic: ("imu", True), imu_invalid_topic or imu_topic + INVALID_SUFFIX: ("imu", False),
+               gps_topic: ("gps", True), gps_invalid_topic or gps_topic + INVALID_SUFFIX: ("gps", False),
+               truth_topic: ("truth", True)}
+    meta, got, rejected, frames, n_unknown = _read_messages(path, streams, meta_topic, unknown_fix_sigma_m, rep)
+    expect = {"imu": IMU_FRAME, "gps": GPS_FRAME, "truth": TRUTH_FRAME}
     for topic, fs in frames.items():
-        if fs and fs != {expect[topic]}:
-            rep["warnings"].append(f"{topic}: frame_id {sorted(fs)} != contract {expect[topic]!r}")
+        if fs and fs != {expect[streams[topic][0]]}:
+            rep["warnings"].append(f"{topic}: frame_id {sorted(fs)} != contract {expect[streams[topic][0]]!r}")
     for topic, c in rejected.items():
         if c:
             rep["rejected"][topic] = dict(c)
             rep["warnings"].append(f"{topic}: rejected {sum(c.values())} sample(s): {dict(c)}")
-    if meta is None:
-        rep["warnings"].append(f"no metadata on {meta_topic}: scenario/seed/biases/reference unknown")
-        meta = {}
-    for wmsg in rep["warnings"]:
-        log.warning("%s: %s", path, wmsg)
-    if not imu_t:
+    rep["unknown_covariance_fixes"] = n_unknown
+    if n_unknown:
+        rep["warnings"].append(f"{gps_topic}: {n_unknown} fix(es) with UNKNOWN covariance: sigma "
+                               f"{unknown_fix_sigma_m:g} m per axis (unknown_fix_sigma_m)")
+    imu, gps, tru = got["imu"], got["gps"], got["truth"]
+    if not imu["t"]:
+        for wmsg in rep["warnings"]:
+            log.warning("%s: %s", path, wmsg)
         raise ValueError(f"{path}: no valid IMU sample on {imu_topic}")
+    if meta is None:
+        rep["warnings"].append(f"no metadata on {meta_topic}: scenario/seed/biases/reference unknown; "
+                               "times relative to the first IMU stamp")
+        meta = {"stamp_offset_ns": int(imu["t"][0])}
     off = int(meta.get("stamp_offset_ns", 0))
     rel = lambda a: (np.array(a, dtype=np.int64) - off) * 1e-9  # noqa: E731
-    t_s = rel(imu_t)
+    t_s = rel(imu["t"])
     # GNSS -> ECEF position and ECEF covariance
-    if g_t:
-        llh = np.array(g_llh)
+    if gps["t"]:
+        llh = np.array(gps["llh"])
         x, y, z = pymap3d.geodetic2ecef(llh[:, 0], llh[:, 1], llh[:, 2])
         gnss_p_e = np.column_stack([x, y, z])
         from ..core import earth
 
         R_e = np.array([earth.C_n_e(math.radians(a), math.radians(b)) @ c @ earth.C_e_n(math.radians(a),
                                                                                         math.radians(b))
-                        for (a, b, _), c in zip(llh, g_cov)])
+                        for (a, b, _), c in zip(llh, gps["cov"])])
     else:
         gnss_p_e, R_e = np.zeros((0, 3)), np.zeros((0, 3, 3))
     spec = ImuSpec(**meta["imu_spec"]) if meta.get("imu_spec") else None
-    truth = dict(C_b_n=None, lat_rad=None, lon_rad=None, h_m=None)
-    if tr_t:
-        lat0, lon0, h0 = (meta.get(k, float("nan")) for k in ("ref_lat_deg", "ref_lon_deg", "ref_h_m"))
-        tr_t_a = rel(tr_t)
-        if not all(math.isfinite(v) for v in (lat0, lon0, h0)):
-            rep["warnings"].append("truth present but no reference lat/lon/h in metadata: truth dropped")
-        elif tr_t_a.shape != t_s.shape or np.max(np.abs(tr_t_a - t_s)) > 1e-9:
-            rep["warnings"].append("truth stamps differ from the IMU stamps: truth dropped (contract: aligned)")
-        else:
-            p = np.array(tr_p)
-            lat, lon, h = pymap3d.enu2geodetic(p[:, 0], p[:, 1], p[:, 2], math.radians(lat0), math.radians(lon0),
-                                               h0, deg=False)
-            truth = dict(C_b_n=Rotation.from_quat(np.array(tr_q)).as_matrix(), lat_rad=np.asarray(lat),
-                         lon_rad=np.asarray(lon), h_m=np.asarray(h))
-        for wmsg in rep["warnings"][-1:]:
-            log.warning("%s: %s", path, wmsg)
+    truth = dict(C_b_n=None, lat_rad=None, lon_rad=None, h_m=None, v_n=None)
+    ref = None
+    if tru["t"]:
+        tr_t_ns, tr_p, tr_q = np.array(tru["t"], dtype=np.int64), np.array(tru["p"]), np.array(tru["q"])
+        ref = _truth_reference(meta, ref_llh_deg, gps, tr_t_ns, tr_p, rep["warnings"])
+        if ref is not None:
+            truth = _truth_at_imu(t_s, rel(tr_t_ns), tr_p, tr_q, ref, rep["warnings"])
+    for wmsg in rep["warnings"]:
+        log.warning("%s: %s", path, wmsg)
     arr = lambda v: None if v is None else np.asarray(v, float)  # noqa: E731
     params = dict(meta.get("params", {}))
+    params["stamp_offset_ns"] = off
+    if ref is not None:
+        params.update(zip(("ref_lat_deg", "ref_lon_deg", "ref_h_m"), ref))
     for k in ("ref_lat_deg", "ref_lon_deg", "ref_h_m"):
         if k in meta:
             params[k] = meta[k]
     return ScenarioData(
         name=meta.get("scenario", Path(path).name), seed=int(meta.get("seed", -1)),
-        t0_s=float(meta.get("t0_s", t_s[0])), t_s=t_s, omega_ib_b=np.array(imu_w), f_ib_b=np.array(imu_f),
-        v_n=None, gnss_t_s=rel(g_t) if g_t else np.zeros(0), gnss_p_e=gnss_p_e, gnss_R_e=R_e,
+        t0_s=float(meta.get("t0_s", t_s[0])), t_s=t_s, omega_ib_b=np.array(imu["w"]), f_ib_b=np.array(imu["f"]),
+        gnss_t_s=rel(gps["t"]) if gps["t"] else np.zeros(0), gnss_p_e=gnss_p_e, gnss_R_e=R_e,
         imu_spec=spec, gnss_sigma_m=float(meta.get("gnss_sigma_m", float("nan"))),
         bias_gyro_b=arr(meta.get("bias_gyro_b_rad_s")), bias_acc_b=arr(meta.get("bias_acc_b_m_s2")),
-        params=params, **truth)
+        params=params, imu_valid=np.array(imu["ok"], bool), gnss_valid=np.array(gps["ok"], bool), **truth)
+
+
+def _truth_at_imu(t_s, tr_t_s, tr_p_n, tr_q, ref, warnings: list) -> dict:
+    """Truth poses (own stamps, ENU about ``ref``) -> C_b_n, lat/lon/h, v_n at the IMU stamps ``t_s``."""
+    lat0, lon0, h0 = ref
+    lat_k, lon_k, h_k = pymap3d.enu2geodetic(tr_p_n[:, 0], tr_p_n[:, 1], tr_p_n[:, 2], math.radians(lat0),
+                                             math.radians(lon0), h0, deg=False)
+    v_k = velocity_n_from_positions(tr_t_s, lat_k, lon_k, h_k) if tr_t_s.shape[0] > 1 else None
+    if tr_t_s.shape == t_s.shape and np.array_equal(tr_t_s, t_s):  # the contract: truth on the IMU stamps
+        C = Rotation.from_quat(tr_q).as_matrix()
+        return dict(C_b_n=C, lat_rad=np.asarray(lat_k), lon_rad=np.asarray(lon_k), h_m=np.asarray(h_k), v_n=v_k)
+    C, p_n, held = interpolate_poses(t_s, tr_t_s, tr_p_n, tr_q)
+    if held.any():
+        gap = np.max(np.abs(np.clip(t_s, tr_t_s[0], tr_t_s[-1]) - t_s))
+        warnings.append(f"truth ({tr_t_s.shape[0]} poses) held constant for {int(held.sum())} IMU sample(s) outside "
+                        f"its span (up to {gap:.3f} s)")
+    if tr_t_s.shape[0] > 1 and np.max(np.diff(tr_t_s)) > max(1.0, 5.0 * np.median(np.diff(tr_t_s))):
+        warnings.append(f"truth has a gap of {np.max(np.diff(tr_t_s)):.2f} s: interpolated across it")
+    lat, lon, h = pymap3d.enu2geodetic(p_n[:, 0], p_n[:, 1], p_n[:, 2], math.radians(lat0), math.radians(lon0), h0,
+                                       deg=False)
+    v_n = None if v_k is None else interp_held(t_s, tr_t_s, v_k)
+    return dict(C_b_n=C, lat_rad=np.asarray(lat), lon_rad=np.asarray(lon), h_m=np.asarray(h), v_n=v_n)

@@ -15,6 +15,13 @@ Field mapping (dataformat.txt; indices 0..29):
 af/al/au and wf/wl/wu are NOT used: they are resolved in the vehicle's tangent-plane frame (forward and left
 parallel to the Earth surface, up along the local vertical), not in the body frame the IMU measures in.
 
+Fill rows: the RT3003 writes rows with posmode/velmode/orimode = -1 where it had no measurement; every field of
+such a row is an exact linear interpolation (by index) of the rows around the block. ``fill_rows`` finds them by
+the mode flags and, independently, by second differences at rounding level across every float field (a sensor
+row never is one: the smallest relative second difference of a real row in the shared drives is 2e-3).
+``convert_drive(fill_rows=...)``: "mark" (default) keeps them with ``imu_valid``/``gnss_valid`` False (the bag's
+``_invalid`` topics), "drop" removes them (a gap), "keep" passes them as data (the report still counts them).
+
 Robustness: a missing timestamps.txt or data/ is an error (KittiError); a line with != 30 fields, a non-finite
 field, an unparsable or missing stamp, a duplicate or non-monotonic stamp, or a missing data file drops that
 sample and is counted in the report (never silently). Stamps are KITTI's local time strings, used as-is
@@ -41,6 +48,13 @@ IDX = {n: i for i, n in enumerate(FIELDS)}
 DEFAULT_SIGMA_H_M = 5.0  #: no pos_accuracy: stand-alone GPS-class horizontal 1-sigma [m]
 DEFAULT_SIGMA_V_M = 10.0  #: [m]; vertical GNSS error is typically about twice the horizontal one
 MAX_GAP_FACTOR = 1.5  #: a step longer than 1.5 median steps is reported as a gap
+MODE_FIELDS = ("posmode", "velmode", "orimode")
+FILL_MODE = -1  #: posmode/velmode/orimode of a fill row
+FILL_FIELDS = slice(0, IDX["vel_accuracy"] + 1)  #: the float fields (lat .. vel_accuracy) a fill interpolates
+FILL_REL_TOL = 1e-11  #: |second difference| <= tol * (|v_k-1| + |v_k| + |v_k+1|) + FILL_ABS_TOL, every field
+FILL_ABS_TOL = 1e-13
+IMU_FIELDS = [IDX[n] for n in ("ax", "ay", "az", "wx", "wy", "wz")]
+FILL_POLICIES = ("mark", "drop", "keep")
 
 
 class KittiError(ValueError):
@@ -135,18 +149,70 @@ def read_drive(drive_dir, progress: bool = False):
     return stamps_a, np.array(rows), report
 
 
-def gnss_indices(t_s: np.ndarray, gnss_rate_hz: float) -> np.ndarray:
-    """First sample of each 1/gnss_rate_hz window from t_s[0]; gnss_rate_hz <= 0 keeps every sample."""
+def fill_rows(values: np.ndarray):
+    """Rows that are fills, not measurements. Returns (fill, by_mode, by_interpolation), each (N,) bool.
+
+    by_mode: any of posmode/velmode/orimode == -1. by_interpolation: an interior row whose every float field
+    (lat .. vel_accuracy) is the mean of its neighbours to rounding (FILL_REL_TOL), while the IMU fields are not
+    constant across the three rows (a noise-free simulated straight run would otherwise look like a fill).
+    A fill at either end of the file can only be found by its mode.
+    """
+    v = np.asarray(values, float)
+    n = v.shape[0]
+    by_mode = np.any(v[:, [IDX[m] for m in MODE_FIELDS]] == FILL_MODE, axis=1)
+    by_interp = np.zeros(n, bool)
+    if n >= 3:
+        a, b, c = v[:-2], v[1:-1], v[2:]
+        f = FILL_FIELDS
+        d2 = np.abs(c[:, f] - 2.0 * b[:, f] + a[:, f])
+        tol = FILL_REL_TOL * (np.abs(a[:, f]) + np.abs(b[:, f]) + np.abs(c[:, f])) + FILL_ABS_TOL
+        moving = np.any(np.abs(c[:, IMU_FIELDS] - a[:, IMU_FIELDS]) > 1e-6 * (1.0 + np.abs(b[:, IMU_FIELDS])), axis=1)
+        by_interp[1:-1] = np.all(d2 <= tol, axis=1) & moving
+    return by_mode | by_interp, by_mode, by_interp
+
+
+def blocks(mask: np.ndarray) -> list[tuple[int, int]]:
+    """Runs of True in ``mask`` as inclusive (first, last) index pairs."""
+    m = np.r_[False, np.asarray(mask, bool), False].astype(np.int8)
+    starts, ends = np.flatnonzero(np.diff(m) == 1), np.flatnonzero(np.diff(m) == -1) - 1
+    return [(int(a), int(b)) for a, b in zip(starts, ends)]
+
+
+def gnss_indices(t_s: np.ndarray, gnss_rate_hz: float, valid: np.ndarray | None = None) -> np.ndarray:
+    """One sample per 1/gnss_rate_hz window from t_s[0]: the first valid one (``valid``, default all), else the
+    window's first sample. gnss_rate_hz <= 0 keeps every sample."""
     if gnss_rate_hz <= 0:
         return np.arange(t_s.shape[0])
     win = np.floor((t_s - t_s[0]) * gnss_rate_hz + 1e-6).astype(np.int64)
-    return np.flatnonzero(np.r_[True, win[1:] != win[:-1]])
+    ok = np.ones(t_s.shape[0], bool) if valid is None else np.asarray(valid, bool)
+    # sort key: window, then invalid after valid, then index -> the first of each window is the pick
+    order = np.lexsort((np.arange(t_s.shape[0]), ~ok, win))
+    w_sorted = win[order]
+    return np.sort(order[np.r_[True, w_sorted[1:] != w_sorted[:-1]]])
 
 
-def convert_drive(drive_dir, gnss_rate_hz: float = 1.0, progress: bool = False):
+def convert_drive(drive_dir, gnss_rate_hz: float = 1.0, progress: bool = False, fill_policy: str = "mark"):
     """KITTI drive -> (ScenarioData with truth, report). The IMU values are the RT3003's instantaneous outputs
-    at each stamp (not averages over the preceding interval as the simulators produce; see docs)."""
+    at each stamp (not averages over the preceding interval as the simulators produce; see docs).
+
+    fill_policy: what to do with fill rows (``fill_rows``): "mark" (imu_valid/gnss_valid False), "drop", "keep".
+    The report counts them: fill_rows, fill_by_mode, fill_by_interpolation, fill_blocks [(first, last, seconds)]
+    (indices among the valid rows read).
+    """
+    if fill_policy not in FILL_POLICIES:
+        raise KittiError(f"fill policy must be one of {FILL_POLICIES}, got {fill_policy!r}")
     stamps, v, report = read_drive(drive_dir, progress=progress)
+    fill, by_mode, by_interp = fill_rows(v)
+    t_all = (stamps - stamps[0]) * 1e-9
+    report.update(fill_rows=int(fill.sum()), fill_by_mode=int(by_mode.sum()), fill_by_interpolation=int(by_interp.sum()),
+                  fill_policy=fill_policy,
+                  fill_blocks=[(a, b, float(t_all[min(b + 1, len(t_all) - 1)] - t_all[max(a - 1, 0)]))
+                               for a, b in blocks(fill)])
+    if fill_policy == "drop" and fill.any():
+        if fill.all():
+            raise KittiError(f"{drive_dir}: every row is a fill row: nothing to convert")
+        stamps, v, fill = stamps[~fill], v[~fill], fill[~fill]
+    valid = ~fill if fill_policy == "mark" else np.ones(len(stamps), bool)
     t_s = (stamps - stamps[0]) * 1e-9
     lat, lon, alt = np.radians(v[:, 0]), np.radians(v[:, 1]), v[:, 2]
     rpy = v[:, 3:6]
@@ -156,7 +222,7 @@ def convert_drive(drive_dir, gnss_rate_hz: float = 1.0, progress: bool = False):
     v_n = np.column_stack([v[:, IDX["ve"]], v[:, IDX["vn"]], v[:, IDX["vu"]]])
     omega = v[:, [IDX["wx"], IDX["wy"], IDX["wz"]]]
     f = v[:, [IDX["ax"], IDX["ay"], IDX["az"]]]
-    gi = gnss_indices(t_s, gnss_rate_hz)
+    gi = gnss_indices(t_s, gnss_rate_hz, valid)
     x, y, z = pymap3d.geodetic2ecef(lat[gi], lon[gi], alt[gi], deg=False)
     acc = v[gi, IDX["pos_accuracy"]]
     sig_h = np.where(acc > 0, acc, DEFAULT_SIGMA_H_M)
@@ -167,12 +233,14 @@ def convert_drive(drive_dir, gnss_rate_hz: float = 1.0, progress: bool = False):
     report["gnss_default_sigma"] = int(np.sum(acc <= 0))
     params = {"source": "kitti_oxts", "drive": str(Path(drive_dir)), "ref_lat_deg": float(v[0, 0]),
               "ref_lon_deg": float(v[0, 1]), "ref_h_m": float(v[0, 2]), "stamp_offset_ns": int(stamps[0]),
-              "gnss_rate_hz": float(gnss_rate_hz), "imu_rate_hz": report["rate_hz"]}
+              "gnss_rate_hz": float(gnss_rate_hz), "imu_rate_hz": report["rate_hz"], "fill_policy": fill_policy,
+              "fill_rows": report["fill_rows"]}
     data = ScenarioData(
         name=f"kitti:{Path(drive_dir).resolve().name}", seed=-1, t0_s=0.0, t_s=t_s, omega_ib_b=omega, f_ib_b=f,
         C_b_n=C_b_n, lat_rad=lat, lon_rad=lon, h_m=alt, v_n=v_n, gnss_t_s=t_s[gi],
         gnss_p_e=np.column_stack([x, y, z]), gnss_R_e=R_e, imu_spec=None,
-        gnss_sigma_m=float(np.median(sig_h)), params=params)
+        gnss_sigma_m=float(np.median(sig_h)), params=params, imu_valid=None if valid.all() else valid,
+        gnss_valid=None if valid[gi].all() else valid[gi])
     return data, report
 
 
@@ -180,7 +248,15 @@ def format_report(rep: dict) -> str:
     s = (f"{rep['dir']}: {rep['valid']} valid of {rep['lines']} timestamps / {rep['files']} files, "
          f"rate {rep['rate_hz']:.2f} Hz, {rep.get('gnss_fixes', 0)} GNSS fixes")
     if rep["rejected"]:
-        s += "\n  rejected: " + ", ".join(f"{k}: {n}" for k, n in sorted(rep["rejected"].items()))
+        s += "\n  rejected: " + validation.format_counts(rep["rejected"])
+    if rep.get("fill_rows"):
+        what = {"mark": "marked invalid (bag: /imu/data_invalid, /gps/fix_invalid)", "drop": "dropped (gaps)",
+                "keep": "KEPT AS DATA (--fill-rows keep)"}[rep["fill_policy"]]
+        s += (f"\n  warning: {rep['fill_rows']} fill row(s) (mode -1: {rep['fill_by_mode']}, exact interpolation of "
+              f"neighbours: {rep['fill_by_interpolation']}) in {len(rep['fill_blocks'])} block(s): "
+              + ", ".join(f"rows {a}-{b} ({dt:.1f} s)" for a, b, dt in rep["fill_blocks"]) + f"; {what}")
+    elif "fill_rows" in rep:
+        s += "\n  fill rows: 0"
     for n in rep["notes"]:
         s += "\n  warning: " + n
     if rep.get("gnss_default_sigma"):

@@ -84,3 +84,8 @@ def check_fix(lat_deg: float, lon_deg: float, alt_m: float, cov_enu=None, status
         if float(np.sqrt(np.max(np.diag(np.asarray(cov_enu, float).reshape(3, 3))))) > MAX_GNSS_SIGMA_M:
             return "position sigma > 10 km"
     return None
+
+
+def format_counts(counts: dict) -> str:
+    """{reason: count} -> 'reason: n, ...' sorted by reason (the converters' and readers' reports)."""
+    return ", ".join(f"{k}: {n}" for k, n in sorted(counts.items()))

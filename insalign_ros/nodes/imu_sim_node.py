@@ -5,7 +5,11 @@ Sources (parameter ``source``):
 - ``scenario``: ``make_scenario(scenario, seed, duration_s, rate_hz=rate_hz, gnss_rate_hz=gps_rate_hz)``
   (sim/scenarios.py: ship, car, static, static_navgrade, two_position, park_drive, park_drive_navgrade,
   drive_stop_drive), generated before publishing (a 300 s ship run at 100 Hz takes ~0.1 s);
-- ``bag``: a contract rosbag2 (docs/bag_contract.md) read with ``io.bag.read_bag(bag_path)``;
+- ``bag``: a contract rosbag2 (docs/bag_contract.md), or any bag with an Imu topic, read with ``io.bag.read_bag``:
+  topic names ``bag_imu_topic``, ``bag_gps_topic``, ``bag_truth_topic`` (a pose topic at any rate, interpolated to
+  the IMU stamps), ``unknown_fix_sigma_m`` (1-sigma per axis [m] for fixes with UNKNOWN covariance, the rule of
+  alignment_node's ``gnss_sigma_m``; 0 drops them). Samples the bag flags invalid (``<topic>_invalid``, e.g. KITTI
+  fill rows) are not published as Imu (a gap, as the session treats them); flagged fixes go out with STATUS_NO_FIX;
 - ``rest``: a body at rest on the rotating Earth at (lat_deg, lon_deg, h_m) with attitude (roll_deg, pitch_deg,
   yaw_deg), Imu only, timer-driven (the transport check of ``insalign-demo --count``).
 
@@ -69,12 +73,12 @@ def _set_stamp(msg, t_s: float) -> None:
 
 
 def load_data(source: str, scenario: str, seed: int, duration_s: float, rate_hz: float, gps_rate_hz: float,
-              bag_path: str):
-    """ScenarioData of the source (scenario generated, or bag read)."""
+              bag_path: str, bag_options: dict | None = None):
+    """ScenarioData of the source (scenario generated, or bag read; ``bag_options``: read_bag keyword arguments)."""
     if source == "bag":
         from ..io.bag import read_bag
 
-        data = read_bag(bag_path)
+        data = read_bag(bag_path, **(bag_options or {}))
         if duration_s > 0:
             data = _truncate(data, duration_s)
         return data
@@ -87,17 +91,7 @@ def load_data(source: str, scenario: str, seed: int, duration_s: float, rate_hz:
 
 
 def _truncate(data, duration_s: float):
-    from dataclasses import replace
-
-    t_end = data.t_s[0] + duration_s
-    k = int(np.searchsorted(data.t_s, t_end, side="right"))
-    j = int(np.searchsorted(data.gnss_t_s, t_end, side="right"))
-    cut = {}
-    for name in ("C_b_n", "lat_rad", "lon_rad", "h_m", "v_n", "omega_ib_b_true", "f_ib_b_true"):
-        v = getattr(data, name)
-        cut[name] = None if v is None else v[:k]
-    return replace(data, t_s=data.t_s[:k], omega_ib_b=data.omega_ib_b[:k], f_ib_b=data.f_ib_b[:k],
-                   gnss_t_s=data.gnss_t_s[:j], gnss_p_e=data.gnss_p_e[:j], gnss_R_e=data.gnss_R_e[:j], **cut)
+    return data.until(data.t_s[0] + duration_s)
 
 
 class ImuSimNode(Node):
@@ -127,6 +121,18 @@ class ImuSimNode(Node):
         self.pace_topic = str(p("pace_topic", "").value)
         self.max_lead_s = float(p("max_lead_s", 2.0).value)
         self.pace_timeout_s = float(p("pace_timeout_s", 5.0).value)
+        from rcl_interfaces.msg import ParameterDescriptor
+
+        from ..io import bag as bag_io
+
+        any_number = ParameterDescriptor(dynamic_typing=True)  # 2 and 2.0 both accepted
+        unknown_sigma = float(p("unknown_fix_sigma_m", bag_io.DEFAULT_UNKNOWN_FIX_SIGMA_M, any_number).value)
+        if not (math.isfinite(unknown_sigma) and unknown_sigma >= 0):
+            raise ValueError(f"unknown_fix_sigma_m must be >= 0 (0: drop such fixes), got {unknown_sigma}")
+        self.bag_options = {"imu_topic": str(p("bag_imu_topic", bag_io.IMU_TOPIC).value),
+                            "gps_topic": str(p("bag_gps_topic", bag_io.GPS_TOPIC).value),
+                            "truth_topic": str(p("bag_truth_topic", bag_io.TRUTH_TOPIC).value),
+                            "unknown_fix_sigma_m": unknown_sigma if unknown_sigma > 0 else None}
         if self.source not in SOURCES:
             raise ValueError(f"source must be one of {SOURCES}, got {self.source!r}")
         if not (0.0 < self.rate_hz <= 2000.0):
@@ -149,13 +155,14 @@ class ImuSimNode(Node):
         self.gave_up = False  # no subscriber matched within wait_timeout_s
         self.data = None
         self.sent_fix = self.sent_truth = 0
+        self.skipped_flagged = 0  # Imu samples the source flags invalid: not published (a gap)
         if self.source == "rest":
             self.omega_ib_b, self.f_ib_b = rest_imu(lat, lon, h, rpy)
             self.timer = self.create_timer(1.0 / self.rate_hz, self._tick)
             return
         t0 = time.monotonic()
         self.data = load_data(self.source, self.scenario, self.seed, self.duration_s, self.rate_hz,
-                              self.gps_rate_hz, self.bag_path)
+                              self.gps_rate_hz, self.bag_path, self.bag_options)
         self.get_logger().info(f"{self.source} {self.data.name!r}: {self.data.n} IMU samples, "
                                f"{len(self.data.gnss_t_s)} fixes, truth {'yes' if self.data.has_truth else 'no'}; "
                                f"ready in {time.monotonic() - t0:.2f} s; rate factor {self.rate_factor:g}")
@@ -182,6 +189,7 @@ class ImuSimNode(Node):
             dt = 1.0 / spec.rate_hz
             self.cov_gyro = deg_sqrt_h_to_rad_sqrt_s(spec.arw_deg_sqrt_h) ** 2 / dt
             self.cov_acc = m_s_sqrt_h_to_m_s_sqrt_s(spec.vrw_m_s_sqrt_h) ** 2 / dt
+        self.imu_valid, self.gnss_valid = d.imu_valid_mask, d.gnss_valid_mask
         self.fix_geo = [earth.ecef_to_geodetic(p) for p in d.gnss_p_e]
         self.fix_cov_n = [earth.C_e_n(la, lo) @ R @ earth.C_e_n(la, lo).T
                           for (la, lo, _), R in zip(self.fix_geo, d.gnss_R_e)]
@@ -276,25 +284,29 @@ class ImuSimNode(Node):
             o.x, o.y, o.z, o.w = (float(x) for x in q)
             self.pub_truth.publish(m)
             self.sent_truth += 1
-        msg = Imu()
-        _set_stamp(msg, stamp)
-        msg.header.frame_id = self.frame_id
-        msg.orientation_covariance[0] = -1.0
-        w, f = d.omega_ib_b[k], d.f_ib_b[k]
-        msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = float(w[0]), float(w[1]), float(w[2])
-        a = msg.linear_acceleration
-        a.x, a.y, a.z = float(f[0]), float(f[1]), float(f[2])
-        for i in (0, 4, 8):
-            msg.angular_velocity_covariance[i] = self.cov_gyro
-            msg.linear_acceleration_covariance[i] = self.cov_acc
-        self.pub.publish(msg)
-        self.sent += 1
+        if self.imu_valid[k]:
+            msg = Imu()
+            _set_stamp(msg, stamp)
+            msg.header.frame_id = self.frame_id
+            msg.orientation_covariance[0] = -1.0
+            w, f = d.omega_ib_b[k], d.f_ib_b[k]
+            msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = (float(w[0]), float(w[1]),
+                                                                                      float(w[2]))
+            a = msg.linear_acceleration
+            a.x, a.y, a.z = float(f[0]), float(f[1]), float(f[2])
+            for i in (0, 4, 8):
+                msg.angular_velocity_covariance[i] = self.cov_gyro
+                msg.linear_acceleration_covariance[i] = self.cov_acc
+            self.pub.publish(msg)
+            self.sent += 1
+        else:  # flagged by the source (e.g. a KITTI fill row): a gap, as the session treats it
+            self.skipped_flagged += 1
         while self.j < len(d.gnss_t_s) and d.gnss_t_s[self.j] <= t:
             self._publish_fix(self.j)
             self.j += 1
         if t >= self.next_clock_t:
             c = Clock()
-            c.clock.sec, c.clock.nanosec = msg.header.stamp.sec, msg.header.stamp.nanosec
+            c.clock.sec, c.clock.nanosec = divmod(int(round(stamp * 1e9)), 1_000_000_000)
             self.pub_clock.publish(c)
             self.next_clock_t = t + self.clock_period_s
 
@@ -303,7 +315,7 @@ class ImuSimNode(Node):
         m = NavSatFix()
         _set_stamp(m, self.stamp0_s + float(self.data.gnss_t_s[j]))
         m.header.frame_id = self.gps_frame_id
-        m.status.status = NavSatStatus.STATUS_FIX
+        m.status.status = NavSatStatus.STATUS_FIX if self.gnss_valid[j] else NavSatStatus.STATUS_NO_FIX
         m.status.service = NavSatStatus.SERVICE_GPS
         m.latitude, m.longitude, m.altitude = math.degrees(lat), math.degrees(lon), float(h)
         m.position_covariance = [float(x) for x in self.fix_cov_n[j].reshape(-1)]
@@ -313,7 +325,8 @@ class ImuSimNode(Node):
 
     def summary(self) -> dict:
         return {"source": self.source, "scenario": getattr(self.data, "name", "rest"), "imu_sent": self.sent,
-                "fix_sent": self.sent_fix, "truth_sent": self.sent_truth, "rate_factor": self.rate_factor,
+                "fix_sent": self.sent_fix, "truth_sent": self.sent_truth,
+                "imu_flagged_skipped": self.skipped_flagged, "rate_factor": self.rate_factor,
                 "first_stamp_ns": self.t_start_ns, "gave_up": self.gave_up,
                 "paused_s": round(getattr(self, "paused_s", 0.0), 3)}
 

@@ -58,6 +58,10 @@ class ScenarioData:
     omega_ib_b_true: np.ndarray | None = None  # error-free IMU (simulators only)
     f_ib_b_true: np.ndarray | None = None
     params: dict = field(default_factory=dict)  # scenario parameters, for metadata and docs
+    # per-sample validity where the source has one (io/kitti.py fill rows, the bag's *_invalid topics): False =
+    # the source flags the sample as not measured (to be treated as a gap); None = every sample valid
+    imu_valid: np.ndarray | None = None  # (N,) bool
+    gnss_valid: np.ndarray | None = None  # (M,) bool
 
     @property
     def n(self) -> int:
@@ -66,6 +70,30 @@ class ScenarioData:
     @property
     def has_truth(self) -> bool:
         return self.C_b_n is not None
+
+    @property
+    def imu_valid_mask(self) -> np.ndarray:
+        """(N,) bool: ``imu_valid``, or all True when the source has no per-sample validity."""
+        return np.ones(self.n, bool) if self.imu_valid is None else np.asarray(self.imu_valid, bool)
+
+    @property
+    def gnss_valid_mask(self) -> np.ndarray:
+        """(M,) bool: ``gnss_valid``, or all True."""
+        m = self.gnss_t_s.shape[0]
+        return np.ones(m, bool) if self.gnss_valid is None else np.asarray(self.gnss_valid, bool)
+
+    def until(self, t_end_s: float) -> "ScenarioData":
+        """A copy holding the IMU samples (with truth and validity) and the fixes with stamps <= t_end_s [s]."""
+        from dataclasses import replace
+
+        k = int(np.searchsorted(self.t_s, t_end_s, side="right"))
+        j = int(np.searchsorted(self.gnss_t_s, t_end_s, side="right"))
+        per_imu = ("omega_ib_b", "f_ib_b", "C_b_n", "lat_rad", "lon_rad", "h_m", "v_n", "omega_ib_b_true",
+                   "f_ib_b_true", "imu_valid")
+        cut = {name: None if getattr(self, name) is None else getattr(self, name)[:k] for name in per_imu}
+        cut.update({name: None if getattr(self, name) is None else getattr(self, name)[:j]
+                    for name in ("gnss_p_e", "gnss_R_e", "gnss_valid")})
+        return replace(self, t_s=self.t_s[:k], gnss_t_s=self.gnss_t_s[:j], **cut)
 
     def imu_samples(self, start: int = 0, stop: int | None = None) -> Iterator[ImuSample]:
         for k in range(start, self.n if stop is None else stop):
