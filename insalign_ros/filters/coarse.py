@@ -269,7 +269,8 @@ class CoarseAlignment(AlignmentCore):
         d = self.disturbance(C_b_n)
         S = d["S_theta_n"]
         mean_f_var = (q_a**2 / T + b_a**2 + 2.0 * d["sigma_v_m_s"] ** 2 / T**2) / g**2  # tilt of the mean f
-        lvl = mean_f_var + np.diag(S)[:2]
+        # isotropic: the East/North split of S rides on the estimated heading, which may be the initial guess
+        lvl = np.full(2, mean_f_var + max(S[0, 0], S[1, 1]))
         rate_sheet = q_g**2 / T + b_g**2  # [rad^2/s^2] of the horizontal rate (datasheet)
         if self.cfg.method == "average" or len(self._blk_t) < 3:
             rate_dist = 2.0 * d["S_int_rate_n"][0, 0] / T**2  # net rocking rotation over the window, about East
