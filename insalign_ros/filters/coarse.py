@@ -7,7 +7,7 @@ Two methods (config ``method``):
   the specific force integrated in that frozen frame, ``v_b0(t) = int C_b0_b f_b dt``, must equal the integrated
   gravity reaction in the frozen start-ENU frame, known in closed form for a body at rest on the rotating Earth,
   ``v_i0(t) = g [z sin(Wt)/W + (a x z)(1 - cos Wt)/W + a (a.z)(t - sin(Wt)/W)]`` with ``a`` the Earth axis in ENU
-  ``[0, cos L, sin L]``, ``z`` = Up. ``C_i0_b0`` is the Wahba solution over the pairs stored every second
+  ``[0, cos L, sin L]``, ``z`` = Up. ``C_i0_b0`` is the Wahba solution over the pairs stored every 0.1 s, centred
   (``scipy Rotation.align_vectors``); the attitude now is ``C_b_n(t) = R(a, Wt)^T C_i0_b0 C_b0_b(t)``, of which the
   heading is used; roll and pitch come from the window-mean specific force (floor b_acc/g), because ``C_b0_b``
   carries the gyro bias times the window into the level (0.1 deg after 100 s of a 5 deg/h gyro). A sway of the
@@ -22,16 +22,15 @@ over the window and the bias floor) plus the disturbance the window itself shows
 suspension) and vibrates; the integral of the disturbance is bounded (an angle for the rates, a velocity for the
 specific force), and it is measured from the data: the gyro-tracked rotation ``C_b0_b`` sampled every 0.1 s, and the
 frozen-frame velocity's residual from the closed-form gravity integral, each detrended by a quadratic (Earth rate,
-biases), give the rocking angle spread ``S_theta`` and the velocity spread ``sigma_v`` with its integrated
-correlation time ``tau_v``. Propagated through the equations:
+biases), give the rocking angle spread ``S_theta`` and the velocity spread ``sigma_v`` with its autocovariance. Propagated through the equations:
 
 - level (both methods, from the window-mean specific force): ``(VRW^2/T + b_acc^2 + 2 sigma_v^2/T^2)/g^2`` plus the
-  rocking angle spread about East/North (the attitude now differs from the window mean by the rocking);
+  larger rocking angle spread of East/North on both (the attitude now differs from the window mean by the rocking);
 - azimuth, ``average``: the window-mean horizontal rate is wrong by the rocking's net rotation ``(theta(T) -
-  theta(0))/T``, variance ``2 S_theta,E / T^2``: ``(ARW^2/T + b_gyro^2 + 2 S_theta,E/T^2)/(W cos lat)^2`` plus
+  theta(0))/T``, variance ``2 S_int,E / T^2`` (integrated rate): ``(ARW^2/T + b_gyro^2 + 2 S_int,E/T^2)/(W cos lat)^2`` plus
   ``tan^2(lat)`` times the mean-f level term (the tilt enters ``omega x f``) plus the yaw rocking spread;
-- azimuth, ``inertial``: the Wahba rotation's linearised covariance, ``H^-1 = (sum_j [v_j x]^T [v_j x])^-1`` over the
-  pairs, times ``sigma_v^2 max(1, tau_v / 1 s)`` (the disturbance) plus the exact velocity-random-walk term
+- azimuth, ``inertial``: the Wahba rotation's linearised covariance, ``H = sum_j [v_j x]^T [v_j x]`` over the
+  pairs with the measured velocity autocovariance (Bartlett, to 10 s: the disturbance) plus the exact random-walk term
   (``VRW^2 min(t_j, t_k)``), plus the ARW and gyro-bias terms above.
 
 When the azimuth sigma exceeds ``max_azimuth_sigma_deg`` the core cannot give a heading: status WAITING_FOR_DATA
