@@ -93,6 +93,15 @@ SCENARIOS: dict[str, Preset] = {
             "engine_ang_deg": (0.005, "deg", "amplitude of the engine's angular vibration (assumption)"),
             "sway_hz": (1.3, "Hz", "body sway on the suspension (assumption)"),
             "sway_ang_deg": (0.02, "deg", "body sway amplitude (assumption)"),
+            "rock_amp_deg": (0.0, "deg", "rms roll and pitch rocking of the parked car (wind, people, suspension); 0: "
+                             "off. Issue 15: a real parked car rocked ~0.2 deg"),
+            "rock_min_hz": (0.5, "Hz", "lowest rocking frequency (issue 15: 0.5-2 Hz)"),
+            "rock_max_hz": (2.0, "Hz", "highest rocking frequency (issue 15: 0.5-2 Hz)"),
+            "rock_components": (3.0, "-", "sinusoids per axis, frequencies uniform in [min, max] and phases drawn "
+                                "per seed (assumption)"),
+            "rock_yaw_ratio": (0.25, "-", "yaw rocking rms as a fraction of rock_amp_deg (assumption)"),
+            "rock_lever_m": (0.5, "m", "IMU height above the rocking centre (suspension roll centre; assumption): "
+                             "turns the rocking into linear motion of the IMU"),
         },
     ),
     "two_position": Preset(
@@ -253,6 +262,11 @@ def _static(t, p, rng):
         p["pitch_deg"] * D2R + ang_e * np.sin(1.7 * we * t + ph[5]) + 0.5 * ang_s * np.sin(ws * t + ph[6]),
         p["heading_deg"] * D2R + 0.5 * ang_e * np.sin(we * t + ph[7]),
     ], -1)
+    if p["rock_amp_deg"] > 0:  # drawn only when on, so the quiet presets keep their random streams
+        rock = _rocking(p, rng)
+        rpy = rpy + rock(t)
+        dp, dv = _rocking_lever(rock, t, p)
+        p_n, v_n = p_n + dp, v_n + dv
     return p_n, v_n, rpy
 
 
@@ -362,6 +376,38 @@ def rest_segments(params: dict) -> list[tuple[float, float]]:
     if "stop_start_s" in params:
         rest.append((float(params["stop_start_s"]), float(params["stop_end_s"])))
     return rest
+
+def _rocking(p, rng):
+    """Rocking of a parked car: per axis (roll, pitch, yaw) a sum of K sinusoids with frequencies uniform in
+    [rock_min_hz, rock_max_hz] and random phases; rms rock_amp_deg in roll and pitch, rock_yaw_ratio times it in yaw.
+    Returns t [s] -> (n, 3) angle offsets [rad]."""
+    K = max(1, int(round(p["rock_components"])))
+    f = rng.uniform(p["rock_min_hz"], p["rock_max_hz"], (3, K))
+    ph = rng.uniform(0.0, 2 * np.pi, (3, K))
+    amp = p["rock_amp_deg"] * D2R * math.sqrt(2.0 / K) * np.array([1.0, 1.0, p["rock_yaw_ratio"]])
+
+    def angles(t):
+        t = np.asarray(t, float)[:, None, None]
+        return np.sum(amp[:, None] * np.sin(2 * np.pi * f * t + ph), axis=-1)
+
+    return angles
+
+
+def _rocking_lever(rock, t, p):
+    """ENU displacement [m] and velocity [m/s] of an IMU rock_lever_m above the rocking centre: (C(t) - C_0) r_b with
+    C(t) the attitude of the level angles plus the rocking, r_b = [0, 0, lever]; velocity by a central difference of
+    this analytic function (h = 1e-4 s: truncation ~1e-8 m/s at 2 Hz)."""
+    from scipy.spatial.transform import Rotation
+
+    base = np.array([p["roll_deg"], p["pitch_deg"], p["heading_deg"]]) * D2R
+    r_b = np.array([0.0, 0.0, p["rock_lever_m"]])
+
+    def pos(tt):
+        rpy = base + rock(tt)
+        return Rotation.from_euler("ZYX", rpy[:, ::-1]).apply(r_b) - Rotation.from_euler("ZYX", base[::-1]).apply(r_b)
+
+    h = 1e-4
+    return pos(t), (pos(t + h) - pos(t - h)) / (2 * h)
 
 
 def _two_position(t, p):
