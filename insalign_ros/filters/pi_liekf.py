@@ -62,21 +62,27 @@ class _Job:
 
 class _SolveWorker:
     """One daemon thread that runs jobs one at a time and holds at most one waiting job: a newer submit replaces
-    the waiting one, which then never runs. Daemon, so a solve that overruns never blocks the interpreter's exit."""
+    the waiting one, which then never runs. The thread starts with the first job and ends after ``IDLE_EXIT_S``
+    without work (the next submit starts another), so a core that is dropped without close() keeps no thread.
+    Daemon, so a solve that overruns never blocks the interpreter's exit."""
+
+    IDLE_EXIT_S = 2.0
 
     def __init__(self):
         self._cv = threading.Condition()
         self._waiting: _Job | None = None
         self._running: _Job | None = None
         self._closed = False
-        self._thread = threading.Thread(target=self._loop, name="pi_liekf_lmi", daemon=True)
-        self._thread.start()
+        self._thread: threading.Thread | None = None
 
     def submit(self, fn) -> _Job:
         job = _Job(fn)
         with self._cv:
             self._drop_waiting()
             self._waiting = job
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._loop, name="pi_liekf_lmi", daemon=True)
+                self._thread.start()
             self._cv.notify()
         return job
 
@@ -95,9 +101,11 @@ class _SolveWorker:
     def _loop(self) -> None:
         while True:
             with self._cv:
-                while self._waiting is None and not self._closed:
-                    self._cv.wait()
-                if self._closed:
+                if self._waiting is None and not self._closed:
+                    self._cv.wait(self.IDLE_EXIT_S)
+                if self._closed or self._waiting is None:  # closed, or idle: end (a submit starts a new thread)
+                    if self._thread is threading.current_thread():
+                        self._thread = None
                     return
                 job, self._waiting = self._waiting, None
                 self._running = job
@@ -115,10 +123,10 @@ class _SolveWorker:
         with self._cv:
             self._closed = True
             self._drop_waiting()
-            idle = self._running is None
+            thread, idle = self._thread, self._running is None
             self._cv.notify()
-        if idle and self._thread is not threading.current_thread():
-            self._thread.join(1.0)  # it only has to see the flag
+        if idle and thread is not None and thread is not threading.current_thread():
+            thread.join(1.0)  # it only has to see the flag
 
 
 class PiLiekf(Liekf):
