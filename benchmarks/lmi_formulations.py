@@ -9,7 +9,7 @@ this benchmark hands them to the core (``PiLiekf(cfg, gain_solver_factory=...)``
 * ``interval_paper`` / ``interval_structured``: eq. (22) on one frozen interval as the paper writes it
   (unstructured J, N + least-squares eq. (23) / the eq. (23) structure built in): never feasible on the INS;
 * ``window``: eq. (20) on the transition lifted over W intervals, k_I synthesised (structured, max integral gain);
-* ``fixed:KP/KI``: fixed gains switched in at the first full window (a stub in place of the LMI);
+* ``fixed:KP/KI``: fixed gains switched in at the first full window of W intervals (a stub in place of the LMI);
 * ``liekf``: the LIEKF, for reference (= PI-LIEKF with the safe gains).
 
 Per formulation: RMSE roll / pitch / yaw over the run, steady-state |yaw| mean / max over the seeds (last 60 s),
@@ -43,7 +43,8 @@ from insalign_ros.sim.scenarios import make_scenario  # noqa: E402
 
 
 class FixedGains:
-    """A stub gain solver: the same k_P, k_I at every solve, switched in once the certifier's window is full."""
+    """A stub gain solver: the same k_P, k_I at every solve, switched in at the first full window of
+    ``lmi_window_updates`` intervals (as the docs' fixed-gain table was measured)."""
 
     def __init__(self, k_P: float, k_I: float, history_needed: int):
         self.k_P, self.k_I, self.history_needed = k_P, k_I, history_needed
@@ -60,9 +61,7 @@ def make(formulation: str, params: dict):
         return make_core("liekf", {k: v for k, v in params.items() if k in make_core("liekf").cfg.to_dict()})
     if formulation.startswith("fixed:"):
         kp, ki = (float(x) for x in formulation[6:].split("/"))
-        W = cfg.lmi_window_updates
-        hist = lmi.WindowGainCertifier.history_for(W, 3, max(1, W // 3))
-        return PiLiekf(cfg, gain_solver_factory=lambda c: FixedGains(kp, ki, hist))
+        return PiLiekf(cfg, gain_solver_factory=lambda c: FixedGains(kp, ki, c.lmi_window_updates))
     if formulation == "window":
         return PiLiekf(cfg, gain_solver_factory=lmi.research_solver_factory("window"))
     if formulation in ("interval_paper", "interval_structured"):
