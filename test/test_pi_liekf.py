@@ -344,12 +344,20 @@ def test_async_solve_that_overruns_the_budget_is_discarded_and_counted():
 
 def test_a_slow_lmi_on_a_weakly_excited_ship_is_cut_at_the_budget():
     """Reproduction of a slow solve: a ship at 4 m/s in low waves, whose first window (t = 61 s) no candidate
-    certifies; CLARABEL fails and SCS ran to its iteration limit on 3 candidates (99 s for that one solve, the
-    200-s run 100 s instead of 1.5 s, before the budget). Now the solve stops at the 0.5-s budget."""
+    certifies. CLARABEL fails there (rejected at once); SCS iterates near infeasibility (as the SCS fallback did:
+    99 s for that one solve, the 200-s run 100 s instead of 1.5 s, before the budget). With SCS the solve now stops
+    at the 0.5-s budget."""
     from insalign_ros.sim.scenarios import make_scenario
 
     d = make_scenario("ship", seed=0, duration_s=62.0, speed_m_s=4.0, amp_e_m=0.5, amp_n_m=0.5, amp_u_m=0.3)
-    core = make_core("pi_liekf", {"lmi_time_budget_s": 0.5})
+    # default CLARABEL: the candidates it fails on are rejected at once (no SCS fallback), within the budget
+    core = make_core("pi_liekf")
+    run_offline(core, d, [10.0, 10.0, 60.0], output_period_s=1.0)
+    diag = core.diagnostics()
+    assert diag["lmi_budget_misses"] == 0 and diag["lmi_fallbacks"] == 1 and "CLARABEL failed" in diag["lmi_reason"]
+    assert core.lmi.extra["solver_errors"] >= 1 and diag["lmi_solve_time_max_s"] < core.cfg.lmi_time_budget_s
+    core.close()
+    core = make_core("pi_liekf", {"lmi_solver": "SCS", "lmi_time_budget_s": 0.5})
     t0 = time.perf_counter()
     run_offline(core, d, [10.0, 10.0, 60.0], output_period_s=1.0)
     wall = time.perf_counter() - t0

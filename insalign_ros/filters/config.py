@@ -158,7 +158,7 @@ class PiLiekfConfig(InMotionGnssConfig):
     #: decay-rate parameter of eq. (20) per GNSS update (PI-LIEKF Table 2: 0.01), compounded to (1 - 2 rho)^W over a
     #: window
     rho: float = 0.01
-    #: cvxpy solver for the LMI; SCS is tried only when this one raises
+    #: cvxpy solver for the LMI ("CLARABEL" or "SCS"); a candidate it fails on is rejected (no second solver)
     lmi_solver: str = "CLARABEL"
     #: candidate gains "k_P:k_I,..." (scalars times I; k_I in 1/s) in order of preference; the first one that the
     #: eq. (20) LMI certifies on the exact window product is used

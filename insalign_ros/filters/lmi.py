@@ -16,7 +16,8 @@ on the exact window product of eq. (18) for candidate gains, the first certified
 gains ``k_P = I, k_I = safe`` (the PI-LIEKF then reduces to the LIEKF) with the reason. Every solve takes a
 ``deadline_s`` (``time.perf_counter()`` clock): each cvxpy call gets the time left as the solver's own time limit
 (CLARABEL ``time_limit``, SCS ``time_limit_secs``), and a solve that runs out returns the safe gains with
-``budget_miss`` set. Only an "optimal" solve certifies; "optimal_inaccurate" or "infeasible" reject the candidate.
+``budget_miss`` set. Only an "optimal" solve certifies; "optimal_inaccurate", "infeasible" or a solver failure
+reject the candidate (no second solver: near infeasibility SCS took seconds and never certified).
 
 Research formulations (not user options; ``benchmarks/lmi_formulations.py`` runs them, docs/inmotion_cores.md
 has the derivations and the measurements): the per-interval eq. (22) as the paper writes it (:class:`PiGainSolver`,
@@ -71,12 +72,11 @@ class _GainSolverBase:
         return cp, n + m
 
 
-def _solve(prob, first: str, deadline_s: float | None = None):
-    """Solve ``prob`` with ``first`` (SCS only when it raises) within ``deadline_s``: (status, solver used).
-
-    The status is BUDGET_STATUS when the deadline has passed before or during the solve."""
+def _solve(prob, first: str, deadline_s: float | None = None, scs_fallback: bool = True):
+    """Solve ``prob`` with ``first`` (then SCS if it raises and ``scs_fallback``) within ``deadline_s``:
+    (status, solver used). The status is BUDGET_STATUS when the deadline has passed before or during the solve."""
     status, used = "not solved", ""
-    for solver in dict.fromkeys([first, "SCS"]):
+    for solver in dict.fromkeys([first, "SCS"] if scs_fallback else [first]):
         opts = {}
         if deadline_s is not None:
             left = deadline_s - time.perf_counter() - _UNPACK_RESERVE_S
@@ -89,7 +89,7 @@ def _solve(prob, first: str, deadline_s: float | None = None):
                 prob.solve(solver=solver, **opts)
             status, used = prob.status, solver
         except Exception as exc:  # solver failure: try the next one
-            status, used = f"error: {exc}", solver
+            status, used = f"error: {type(exc).__name__}", solver
             continue
         break  # SCS only when the first solver raised: a status (even "infeasible") is an answer
     if status != "optimal" and deadline_s is not None and time.perf_counter() >= deadline_s - 2 * _UNPACK_RESERVE_S:
@@ -199,6 +199,7 @@ class WindowGainCertifier(_GainSolverBase):
         t0 = time.perf_counter()
         tried = []
         status, used = "not solved", ""
+        errors = 0  # candidates the solver failed on (counted for the benchmarks)
         N = len(w.Ts)
         for kp, ki in self.candidates:
             k_P, k_I = kp * np.eye(m), ki * np.eye(m)
@@ -213,7 +214,10 @@ class WindowGainCertifier(_GainSolverBase):
                 continue
             for par, P in zip(self.Pi, Pis):
                 par.value = P
-            status, used = _solve(self.prob, self.solver, deadline_s)
+            # no SCS after a CLARABEL failure: that happens near infeasibility, where SCS took 1-40 s per candidate
+            # and never certified one on the ship and car sweeps (docs/inmotion_cores.md, 'Bounded solve time')
+            status, used = _solve(self.prob, self.solver, deadline_s, scs_fallback=False)
+            errors += status.startswith("error")
             if status == BUDGET_STATUS:
                 dt = time.perf_counter() - t0
                 return LmiResult(status, self.safe_k_P, self.safe_k_I, True,
@@ -221,7 +225,7 @@ class WindowGainCertifier(_GainSolverBase):
                                  + (f" (rejected before: {'; '.join(tried)})" if tried else "") + ": safe gains",
                                  solver=used, solve_time_s=dt, budget_miss=True)
             if status != "optimal" or self.J.value is None:  # optimal_inaccurate is no certificate
-                tried.append(f"{kp:g}/{ki:g}: {status}")
+                tried.append(f"{kp:g}/{ki:g}: " + (f"{used} failed" if status.startswith("error") else status))
                 continue
             lmi_max = max(float(np.linalg.eigvalsh(np.asarray(e.value)).max()) for e in self.exprs)
             if lmi_max > -0.5 * self.eps:
@@ -234,11 +238,12 @@ class WindowGainCertifier(_GainSolverBase):
                              f"gains k_P = {kp:g} I, k_I = {ki:g} I certified: eq. (20) rate (1-2 rho)^W with one J "
                              f"over {self.S} windows (W = {self.W}), worst spectral radius {srad:.3f}"
                              + (f"; rejected before: {'; '.join(tried)}" if tried else ""),
-                             0.0, lmi_max, margin, srad, used, dt, extra={"candidate": (kp, ki)})
+                             0.0, lmi_max, margin, srad, used, dt,
+                             extra={"candidate": (kp, ki), "solver_errors": errors})
         dt = time.perf_counter() - t0
         return LmiResult(status, self.safe_k_P, self.safe_k_I, True,
                          f"no gain candidate certified ({'; '.join(tried)}): safe gains", solver=used,
-                         solve_time_s=dt)
+                         solve_time_s=dt, extra={"solver_errors": errors})
 
 
 # ------------------------------------------------------------------------------ research formulations
