@@ -42,6 +42,9 @@ BUDGET_STATUS = "budget_exceeded"
 _TIME_LIMIT_OPTION = {"CLARABEL": "time_limit", "SCS": "time_limit_secs"}
 #: time kept back from the solver's limit for cvxpy's unpacking and the eigenvalue checks [s]
 _UNPACK_RESERVE_S = 0.01
+# The status says it (and an inaccurate solve certifies nothing). A filter, not warnings.catch_warnings(), which is not
+# thread-safe and the solves run in a worker thread.
+warnings.filterwarnings("ignore", message="Solution may be inaccurate", category=UserWarning)
 
 
 @dataclass
@@ -84,9 +87,7 @@ def _solve(prob, first: str, deadline_s: float | None = None, scs_fallback: bool
                 return BUDGET_STATUS, used or solver
             opts[_TIME_LIMIT_OPTION[solver]] = left
         try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                prob.solve(solver=solver, **opts)
+            prob.solve(solver=solver, **opts)
             status, used = prob.status, solver
         except Exception as exc:  # solver failure: try the next one
             status, used = f"error: {type(exc).__name__}", solver
