@@ -256,6 +256,8 @@ class PiLiekf(Liekf):
 
     def _result_of(self, job: _Job):
         """The job's LmiResult; a solve that raised (bad window data, solver crash) gives the safe gains + reason."""
+        if job.cancelled:  # close() from another thread while the update waited
+            return self._safe_result("cancelled", "LMI solve dropped before it ran (the core was closed)")
         if job.error is not None:
             exc = job.error
             return self._safe_result(f"error: {type(exc).__name__}", f"LMI solve raised {type(exc).__name__}: {exc}",
