@@ -50,7 +50,7 @@ def sweep(scenario: str, seeds: int, yaws: list[float], duration_s: float, budge
     from tqdm import tqdm
 
     times, statuses, misses, fallbacks, walls, worst = [], Counter(), 0, 0, [], (0.0, "")
-    by_scs = 0  # certificates that only the SCS fallback found (CLARABEL raised on that candidate; before 2026-12)
+    by_scs = 0  # certificates found by SCS (the removed fallback after a CLARABEL failure, or lmi_solver SCS)
     solver_errors = 0  # candidates the solver failed on (rejected: no SCS fallback)
     for seed in tqdm(range(seeds), desc=scenario, file=sys.stderr):
         data = make_scenario(scenario, seed=seed, duration_s=duration_s)
@@ -72,7 +72,8 @@ def sweep(scenario: str, seeds: int, yaws: list[float], duration_s: float, budge
     t = np.array(times) if times else np.zeros(1)
     return {"scenario": scenario, "runs": len(walls), "solves": len(times), "fallbacks": fallbacks,
             "misses": misses, "max": float(t.max()), "p99": float(np.percentile(t, 99)),
-            "median": float(np.median(t)), "statuses": dict(statuses), "worst": worst[1], "by_scs": by_scs, "solver_errors": solver_errors,
+            "median": float(np.median(t)), "statuses": dict(statuses), "worst": worst[1], "by_scs": by_scs,
+            "solver_errors": solver_errors,
             "run_wall_median": float(np.median(walls)), "run_wall_max": float(np.max(walls))}
 
 
