@@ -1,12 +1,14 @@
-"""insalign-align: offline alignment of a contract bag or a simulated scenario with one in-motion core.
+"""insalign-align: offline alignment of a contract bag or a simulated scenario with any registered core.
 
-    insalign-align BAG --core iekf --rpy-error 10 10 60 [--duration 300] [--out-dir out]
+    insalign-align BAG --core iekf [--rpy-error 10 10 60 | --initial-rpy R P Y] [--duration 300] [--out-dir out]
     insalign-align --scenario ship --seed 0 --core pi_liekf --rpy-error 10 10 60
+    insalign-align --scenario static --core pkf --param zupt_rate_hz=10
 
-Starts from the truth plus the Euler error (or, when the bag has no truth, from --initial-rpy plus nothing), feeds
-the events through filters.runner (the same code path as the ROS node), writes <out>/<name>_<core>.csv (time,
-Euler estimate, Euler error, 3-sigma), a metrics JSON (RMSE, final error, time after which |yaw error| stays < 1
-deg, NEES) and a PNG like the PI-LIEKF paper's Fig. 3.
+A thin CLI over ``insalign_ros.align`` (the same AlignmentSession as alignment_node). Initialisation: with
+``--initial-rpy`` from that guess; otherwise, when the data have truth, from the truth plus ``--rpy-error``.
+Static cores get zero-velocity updates from the session (``--session-param zupt_rate_hz=10``). Writes
+<out>/<name>_<core>.csv (time, Euler estimate, error, 3-sigma, NEES, flag), a metrics JSON and a PNG like the
+PI-LIEKF paper's Fig. 3. Every user error is one line on stderr and exit status 2.
 """
 
 from __future__ import annotations
@@ -21,21 +23,40 @@ from pathlib import Path
 import numpy as np
 
 
+def _kv(items: list[str], what: str) -> dict:
+    out = {}
+    for kv in items:
+        k, sep, v = kv.partition("=")
+        if not sep or not k:
+            raise ValueError(f"{what}: expected KEY=VALUE, got {kv!r}")
+        try:
+            out[k] = json.loads(v)
+        except json.JSONDecodeError:
+            out[k] = v
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="insalign-align", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("bag", nargs="?", help="contract bag (insalign_ros.io.bag)")
     ap.add_argument("--scenario", help="simulate instead: ship, car, static, ...")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--core", default="iekf", help="liekf, pi_liekf, iekf, ekf (or any registered core)")
-    ap.add_argument("--rpy-error", nargs=3, type=float, default=[10.0, 10.0, 60.0], metavar=("R", "P", "Y"))
+    ap.add_argument("--core", default="iekf", help="any registered core (insalign_ros.core_names())")
+    ap.add_argument("--rpy-error", nargs=3, type=float, default=None, metavar=("R", "P", "Y"),
+                    help="initial Euler error added to the truth [deg] (data with truth; default 10 10 60)")
     ap.add_argument("--initial-rpy", nargs=3, type=float, metavar=("R", "P", "Y"),
-                    help="initial attitude guess [deg] when the data have no truth")
+                    help="initial attitude guess [deg] (yaw from East, CCW); used whether or not the data have truth")
     ap.add_argument("--duration", type=float, default=None, help="seconds of data to use")
-    ap.add_argument("--param", action="append", default=[], metavar="KEY=VALUE", help="core parameter override")
+    ap.add_argument("--param", action="append", default=[], metavar="KEY=VALUE", help="core parameter")
+    ap.add_argument("--session-param", action="append", default=[], metavar="KEY=VALUE",
+                    help="session parameter (insalign_ros.session.config.SessionConfig)")
+    ap.add_argument("--fix-delay", type=float, default=0.0, metavar="S",
+                    help="deliver each fix S seconds of data time after its stamp (receiver latency)")
     ap.add_argument("--out-dir", default=".")
     ap.add_argument("--output-period", type=float, default=0.5)
     ap.add_argument("--no-progress", action="store_true")
+    ap.add_argument("--no-plot", action="store_true")
     ap.add_argument("--backtrack", type=int, default=0, metavar="N",
                     help="forward-backward alignment: N backward+forward passes over the stored window "
                          "(filters/backtrack.py; earth_iekf, liekf)")
@@ -44,101 +65,90 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if bool(args.bag) == bool(args.scenario):
         ap.error("give exactly one of BAG or --scenario")
-
-    from ..core import earth
-    from ..eval import metrics as MT
-    from ..eval.plots import plot_euler_errors
-    from ..filters.registry import make_core
-    from ..filters.runner import run_offline
-
-    params = {}
-    for kv in args.param:
-        k, _, v = kv.partition("=")
-        try:
-            params[k] = json.loads(v)
-        except json.JSONDecodeError:
-            params[k] = v
     try:
-        core = make_core(args.core, params)
-    except ValueError as exc:
+        return _run(args)
+    except (ValueError, FileNotFoundError, KeyError) as exc:
         print(f"insalign-align: {exc}", file=sys.stderr)
         return 2
-    if args.scenario:
-        from ..sim.scenarios import make_scenario
 
-        data = make_scenario(args.scenario, seed=args.seed, duration_s=args.duration)
-        name = f"{args.scenario}_s{args.seed}"
-    else:
-        from ..io.bag import read_bag
 
-        data = read_bag(args.bag)
-        name = Path(args.bag).stem
-        if args.duration is not None:
-            from dataclasses import replace
-
-            n = int(np.searchsorted(data.t_s, data.t_s[0] + args.duration, side="right"))
-            m = int(np.searchsorted(data.gnss_t_s, data.t_s[n - 1], side="right"))
-            data = replace(data, t_s=data.t_s[:n], omega_ib_b=data.omega_ib_b[:n], f_ib_b=data.f_ib_b[:n],
-                           gnss_t_s=data.gnss_t_s[:m], gnss_p_e=data.gnss_p_e[:m], gnss_R_e=data.gnss_R_e[:m],
-                           **({} if not data.has_truth else dict(
-                               C_b_n=data.C_b_n[:n], lat_rad=data.lat_rad[:n], lon_rad=data.lon_rad[:n],
-                               h_m=data.h_m[:n], v_n=data.v_n[:n])))
-    init_C = None
-    if not data.has_truth:
-        if args.initial_rpy is None:
-            ap.error("the data have no truth: give --initial-rpy R P Y [deg]")
-        init_C = earth.C_b_n_from_rpy(*np.radians(args.initial_rpy))
+def _run(args) -> int:
     from tqdm import tqdm
 
-    if args.backtrack > 0:
-        from ..filters.backtrack import make_backtrackable, run_offline_backtrack
+    from ..session.offline import AlignResult, align, load_source
 
-        if not data.has_truth:
-            ap.error("--backtrack needs data with truth for the initial guess (not implemented for truth-free bags)")
-        try:
-            make_backtrackable(core)
-        except ValueError as exc:
-            print(f"insalign-align: {exc}", file=sys.stderr)
-            return 2
-        ests, bt = run_offline_backtrack(core, data, args.rpy_error, args.backtrack_window, args.backtrack,
-                                         output_period_s=args.output_period)
-        runner, core = bt.runner, bt.live
-        print(f"backtracking: {bt.stats['window_samples']} samples x {args.backtrack} passes in "
-              f"{bt.stats['pass_wall_s']:.2f} s", file=sys.stderr)
+    from ..filters.registry import make_config
+    from ..session.config import SessionConfig
+
+    core_params = _kv(args.param, "--param")
+    sp = _kv(args.session_param, "--session-param")
+    SessionConfig.from_dict({"core": args.core, **sp})  # user errors before any work
+    make_config(args.core, core_params)
+    data = load_source(args.bag or args.scenario, args.duration, args.seed)
+    name = Path(args.bag).stem if args.bag else f"{args.scenario}_s{args.seed}"
+    if args.initial_rpy is not None:
+        sp.update(init_mode="guess", initial_rpy_deg=list(args.initial_rpy))
+        rpy_error = None
+    elif data.has_truth:
+        rpy_error = list(args.rpy_error) if args.rpy_error is not None else [10.0, 10.0, 60.0]
+        sp.update(init_mode="truth", init_rpy_error_deg=rpy_error)
     else:
-        with tqdm(total=data.n, desc=f"{args.core}", disable=args.no_progress, file=sys.stderr,
-                  mininterval=1) as bar:
-            ests, runner = run_offline(core, data, args.rpy_error if data.has_truth else [0, 0, 0],
-                                       output_period_s=args.output_period, progress=bar, initial_C_b_n=init_C)
+        raise ValueError("the data have no truth: give --initial-rpy R P Y [deg]")
+    if args.backtrack > 0:
+        sp.update(backtrack_passes=args.backtrack, backtrack_window_s=args.backtrack_window,
+                  backtrack_budget_s=math.inf)
+    sp.setdefault("output_period_s", args.output_period)
+    with tqdm(total=data.n, desc=args.core, disable=args.no_progress, file=sys.stderr, mininterval=1) as bar:
+        r: AlignResult = align(data, core=args.core, core_params=core_params, fix_delay_s=args.fix_delay,
+                               progress=bar, **sp)
+    if args.backtrack > 0:
+        d = r.diagnostics
+        print(f"backtracking: {d.get('backtrack_window_samples')} samples x {args.backtrack} passes in "
+              f"{float(d.get('backtrack_pass_wall_s', float('nan'))):.2f} s", file=sys.stderr)
+    if not len(r.t_s):
+        raise ValueError(f"no estimate: the session never initialised ({r.diagnostics.get('message')})")
     out = Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     stem = out / f"{name}_{args.core}"
-    t_init = float(data.t_s[0])
-    if data.has_truth:
-        r = MT.evaluate(args.core, ests, data.t_s, data.C_b_n, t_init)
-    else:
-        r = MT.evaluate(args.core, ests, np.array([e.stamp_s for e in ests]), np.array([e.C_b_n for e in ests]),
-                        t_init)
-        r.rpy_err_deg[:] = math.nan
-        r.nees[:] = math.nan
     with open(f"{stem}.csv", "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["t_s", "roll_deg", "pitch_deg", "yaw_deg", "roll_err_deg", "pitch_err_deg", "yaw_err_deg",
-                    "sigma3_e_deg", "sigma3_n_deg", "sigma3_u_deg", "nees"])
+                    "sigma3_roll_deg", "sigma3_pitch_deg", "sigma3_yaw_deg", "nees", "aligned"])
         for i in range(len(r.t_s)):
-            w.writerow([f"{r.t_s[i]:.3f}", *(f"{x:.6f}" for x in r.rpy_est_deg[i]),
-                        *(f"{x:.6f}" for x in r.rpy_err_deg[i]), *(f"{x:.6f}" for x in r.sigma3_deg[i]),
-                        f"{r.nees[i]:.4f}"])
-    summ = MT.summary(r) if data.has_truth else {"core": args.core, "duration_s": float(r.t_s[-1])}
-    summ.update(data=name, rpy_error_deg=args.rpy_error, counters={**runner.counters, **getattr(core, "counters", {})})
-    if hasattr(core, "diagnostics"):
-        summ["diagnostics"] = core.diagnostics()
-    Path(f"{stem}_metrics.json").write_text(json.dumps(summ, indent=2, default=float))
-    plot_euler_errors([r], f"{stem}.png", title=f"{name}: {args.core}, initial error {args.rpy_error} deg")
-    print(json.dumps({k: summ[k] for k in ("rmse_rpy_deg", "final_err_rpy_deg", "time_yaw_below_deg_s",
-                                           "mean_nees_after_s") if k in summ}, default=float))
-    print(f"wrote {stem}.csv, {stem}_metrics.json, {stem}.png")
+            w.writerow([f"{r.t_s[i]:.3f}", *(f"{x:.6f}" for x in r.rpy_deg[i]), *(f"{x:.6f}" for x in r.rpy_err_deg[i]),
+                        *(f"{x:.6f}" for x in r.sigma3_deg[i]), f"{r.nees[i]:.4f}", int(r.aligned[i])])
+    summ = dict(r.metrics)
+    summ.update(data=name, init_mode=sp["init_mode"], counters=r.counters,
+                diagnostics={k: v for k, v in r.diagnostics.items() if k.startswith("core.")})
+    if rpy_error is not None:
+        summ["rpy_error_deg"] = rpy_error
+    else:
+        summ["initial_rpy_deg"] = list(args.initial_rpy)
+    Path(f"{stem}_metrics.json").write_text(json.dumps(summ, indent=2, default=_json_default))
+    if not args.no_plot and data.has_truth:
+        from ..eval import metrics as MT
+        from ..eval.plots import plot_euler_errors
+
+        res = MT.evaluate(args.core, r.estimates, data.t_s, data.C_b_n, r.init_t_s)
+        title = f"{name}: {args.core}, " + (f"initial error {rpy_error} deg" if rpy_error is not None
+                                            else f"initial guess {list(args.initial_rpy)} deg")
+        plot_euler_errors([res], f"{stem}.png", title=title)
+    keys = ("rmse_rpy_deg", "final_err_rpy_deg", "time_yaw_below_deg_s", "mean_nees_after_s",
+            "aligned_first_raised_at_s")
+    line = {k: summ[k] for k in keys if k in summ}
+    line["final_rpy_deg"] = r.rpy_deg[-1].tolist()
+    line["final_3sigma_deg"] = r.sigma3_deg[-1].tolist()
+    print(json.dumps(line, default=_json_default))
+    print(f"wrote {stem}.csv, {stem}_metrics.json" + ("" if args.no_plot or not data.has_truth else f", {stem}.png"))
     return 0
+
+
+def _json_default(x):
+    if isinstance(x, (np.floating, np.integer)):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    return str(x)
 
 
 if __name__ == "__main__":

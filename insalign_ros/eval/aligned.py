@@ -159,24 +159,26 @@ class AlignedFlag:
         return self.aligned
 
 
-def euler_3sigma_deg(C_b_n: np.ndarray, P_att_n: np.ndarray, eps_rad: float = 1e-6) -> np.ndarray:
+def euler_rate_matrix(C_b_n: np.ndarray) -> np.ndarray:
+    """E with ``psi = E d(roll, pitch, yaw)`` for ZYX Euler angles and a small ENU rotation ``psi``
+    (``C_true = exp(psi_x) C_est``): columns Rz(yaw) Ry(pitch) e1, Rz(yaw) e2, e3."""
+    C = np.asarray(C_b_n, float)
+    pitch = -math.asin(max(-1.0, min(1.0, C[2, 0])))
+    yaw = math.atan2(C[1, 0], C[0, 0])
+    cp, sp, cy, sy = math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
+    return np.array([[cy * cp, -sy, 0.0], [sy * cp, cy, 0.0], [-sp, 0.0, 1.0]])
+
+
+def euler_3sigma_deg(C_b_n: np.ndarray, P_att_n: np.ndarray) -> np.ndarray:
     """3-sigma [deg] of roll, pitch, yaw for an attitude C_b_n with ENU error covariance P_att_n.
 
-    Maps the covariance of ``psi`` (C_true = exp(psi_x) C_est) through the Jacobian of the Euler angles
-    d(rpy)/d(psi) (central differences), so roll and pitch are about the body axes, not East and North.
-    """
-    from scipy.spatial.transform import Rotation
-
-    C = np.asarray(C_b_n, float)
-    J = np.zeros((3, 3))
-    for i in range(3):
-        e = np.zeros(3)
-        e[i] = eps_rad
-        a = Rotation.from_rotvec(e).as_matrix() @ C
-        b = Rotation.from_rotvec(-e).as_matrix() @ C
-        ya, pa, ra = Rotation.from_matrix(a).as_euler("ZYX")
-        yb, pb, rb = Rotation.from_matrix(b).as_euler("ZYX")
-        d = np.array([ra - rb, pa - pb, ya - yb])
-        J[:, i] = (np.mod(d + np.pi, 2 * np.pi) - np.pi) / (2 * eps_rad)
+    Maps the covariance of ``psi`` (C_true = exp(psi_x) C_est) through the Jacobian of the Euler angles,
+    ``d(rpy)/d(psi) = E^-1`` (:func:`euler_rate_matrix`), so roll and pitch are about the body axes, not East and
+    North. Closed form (test_session.py checks it against central differences); singular at pitch +-90 deg,
+    where the roll/yaw split is undefined and the result is infinite."""
+    E = euler_rate_matrix(C_b_n)
+    if abs(E[2, 0]) > 1.0 - 1e-12 or abs(np.linalg.det(E)) < 1e-12:
+        return np.full(3, np.inf)
+    J = np.linalg.inv(E)
     cov = J @ np.asarray(P_att_n, float) @ J.T
     return 3.0 * np.degrees(np.sqrt(np.clip(np.diag(cov), 0.0, None)))

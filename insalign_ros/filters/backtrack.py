@@ -68,28 +68,19 @@ class BacktrackLiekf(Liekf):
 
 def make_backtrackable(core: AlignmentCore) -> AlignmentCore:
     """Return ``core`` itself when it supports backtracking; a plain Liekf is converted in place."""
-    if getattr(core, "supports_backtracking", False):
+    if core.supports_backtracking:
         return core
     if type(core) is Liekf:
         core.__class__ = BacktrackLiekf
         return core
-    raise ValueError(f"core {getattr(core, 'name', type(core).__name__)!r} does not support backtracking "
+    raise ValueError(f"core {core.name!r} does not support backtracking "
                      "(needs propagate_backward); use earth_iekf or liekf")
 
 
 def _propagate(core, t, w, f, backward: bool) -> None:
     if len(t) == 0:
         return
-    if hasattr(core, "propagate_arrays"):
-        core.propagate_arrays(t, w, f, backward=backward)
-    elif backward:
-        t_cur = core.estimate().stamp_s
-        for k in range(len(t)):
-            core.propagate_backward(ImuSample(t_cur, w[k], f[k]), float(t[k]))
-            t_cur = float(t[k])
-    else:
-        for k in range(len(t)):
-            core.propagate(ImuSample(float(t[k]), w[k], f[k]))
+    core.propagate_arrays(t, w, f, backward=backward)  # every backtracking core has the batched backward path
 
 
 class BacktrackingAligner:
@@ -109,7 +100,7 @@ class BacktrackingAligner:
         #: measurement is counted once and the handed-over covariance is the forward-only one (docs/backtracking.md);
         #: "reuse": the covariance after the backward pass (the paper's scheme; counts the data twice: optimistic)
         self.covariance = covariance
-        self._P0 = np.array(core.P, float, copy=True) if getattr(core, "P", None) is not None else None
+        self._P0 = np.array(core.P, float, copy=True) if core.P is not None else None
         if passes > 0:
             make_backtrackable(core)
         self.live = core
@@ -161,8 +152,7 @@ class BacktrackingAligner:
         self.state = "passes"
 
     def live_flush(self) -> None:
-        if hasattr(self.live, "flush"):
-            self.live.flush()
+        self.live.flush()
 
     # ------------------------------------------------------------------ background work
     def _fix_times(self):

@@ -15,6 +15,8 @@ with ``psi ~ N(0, P_att_n)`` (psi[2] is the azimuth error about Up).
 from __future__ import annotations
 
 import enum
+from collections.abc import Mapping
+from types import MappingProxyType
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 
@@ -74,10 +76,25 @@ class AlignmentCore(ABC):
     """
 
     name: str = "base"
+    #: capabilities a caller may rely on (declared here, never probed with hasattr)
     needs_motion: bool = False
     supports_gnss: bool = False
     supports_zero_velocity: bool = False
+    #: ``propagate_backward`` (and ``propagate_arrays(..., backward=True)``) work (filters/backtrack.py)
     supports_backtracking: bool = False
+    #: the core runs its own zero-velocity updates (earth_iekf's ``auto_zupt_period_s``: its backward passes need
+    #: them inside the passes); the session then schedules none for it
+    schedules_own_zero_velocity: bool = False
+    #: state indices of the attitude and velocity error blocks in ``P`` (for :meth:`inflate_navigation`);
+    #: ``None``: the core keeps no such covariance
+    att_index: tuple[int, ...] | None = None
+    vel_index: tuple[int, ...] | None = None
+    #: per-core counters (imu, rejected, ...) merged into the session's diagnostics; cores that count assign
+    #: their own dict in __init__
+    counters: Mapping[str, int] = MappingProxyType({})
+
+    #: covariance [state order]; cores without one leave it None
+    P: np.ndarray | None = None
 
     @abstractmethod
     def initialize(
@@ -111,6 +128,52 @@ class AlignmentCore(ABC):
         """Optional (``supports_backtracking``): inverse step from ``imu.stamp_s`` (the core's current time) back
         to ``t_prev_s`` with the sample covering ``(t_prev_s, imu.stamp_s]`` (filters/backtrack.py)."""
         raise NotImplementedError(f"{self.name} does not support backward propagation")
+
+    def propagate_arrays(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
+        """Propagate with arrays of samples (t_s (N,), omega_ib_b (N, 3) [rad/s], f_ib_b (N, 3) [m/s^2]).
+
+        Default: one ``propagate`` per sample forward; cores with a faster batched path override it."""
+        if backward:
+            raise NotImplementedError(f"{self.name} does not support backward propagation")
+        for k in range(len(t_s)):
+            self.propagate(ImuSample(float(t_s[k]), omega_ib_b[k], f_ib_b[k]))
+
+    def flush(self) -> None:
+        """Apply buffered IMU samples now (batched cores buffer; the default keeps none)."""
+
+    def inflate_navigation(self, var_att_rad2: float, var_v_m2_s2: float) -> None:
+        """Add ``var_att_rad2`` [rad^2] to each attitude-error variance and ``var_v_m2_s2`` [m^2/s^2] to each
+        velocity-error variance (isotropic, so the frame of the error states does not matter).
+
+        The session calls it across an IMU gap: the motion during the gap is unknown, and what the missing
+        samples would have told the filter is lost (docs/session.md, "Gaps")."""
+        if self.P is None or self.att_index is None:
+            return
+        self.flush()
+        a = list(self.att_index)
+        self.P[a, a] += var_att_rad2
+        if self.vel_index is not None:
+            v = list(self.vel_index)
+            self.P[v, v] += var_v_m2_s2
+
+    def default_initial_sigmas(self) -> tuple[tuple[float, float, float], float, float]:
+        """Initial 1-sigmas the core was tuned for: ((roll, pitch, yaw) [deg], velocity [m/s], position [m]).
+
+        The session uses them unless the user gives others. Default: level known to a few degrees from the
+        accelerometers, heading unknown (the static cores' bootstrap handles any azimuth)."""
+        return (5.0, 5.0, 100.0), 0.01, 1.0
+
+    def diagnostics(self) -> dict:
+        """Core-specific diagnostics (key -> value) for /diagnostics and the metrics JSON."""
+        return {}
+
+    @property
+    def busy(self) -> bool:
+        """True while background work (an asynchronous solve) is pending."""
+        return False
+
+    def close(self) -> None:
+        """Release threads and other resources. Idempotent; the session calls it on every reset and shutdown."""
 
     @abstractmethod
     def estimate(self) -> AlignmentEstimate:

@@ -123,6 +123,16 @@ class EarthIekf(AlignmentCore):
     needs_motion = False
     supports_zero_velocity = True
     supports_backtracking = True
+    att_index = (0, 1, 2)
+    vel_index = (3, 4, 5)
+
+    def default_initial_sigmas(self):
+        c = self.cfg
+        return (c.init_sigma_roll_deg, c.init_sigma_pitch_deg, c.init_sigma_yaw_deg), c.init_sigma_v_m_s, c.init_sigma_p_m
+
+    @property
+    def schedules_own_zero_velocity(self) -> bool:  # its backward passes need the ZUPTs inside the passes
+        return self.cfg.auto_zupt_period_s > 0
     state_names = ("phi_x", "phi_y", "phi_z", "nu_x", "nu_y", "nu_z", "rho_x", "rho_y", "rho_z",
                    "bg_x", "bg_y", "bg_z", "ba_x", "ba_y", "ba_z", "L_x", "L_y", "L_z")
 

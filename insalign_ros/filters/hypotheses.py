@@ -55,6 +55,9 @@ class YawHypothesisBank(AlignmentCore):
         self.supports_gnss = proto.supports_gnss
         self.supports_zero_velocity = proto.supports_zero_velocity
         self.supports_backtracking = False
+        self.att_index, self.vel_index = proto.att_index, proto.vel_index
+        self._proto_sigmas = proto.default_initial_sigmas()
+        proto.close()
         self.hyps: list[AlignmentCore] = []
         self.offsets_rad: list[float] = []
         self.logw = np.zeros(0)
@@ -84,6 +87,7 @@ class YawHypothesisBank(AlignmentCore):
                                       + 1e-300) for o in offs])
         else:
             logw = np.array([0.0] + [-np.inf] * (K - 1))
+        self.close()  # a re-initialisation replaces the components
         self.hyps, self.offsets_rad = [], []
         for o, lw in zip(offs, logw):
             if not np.isfinite(lw):
@@ -111,10 +115,29 @@ class YawHypothesisBank(AlignmentCore):
     def best(self) -> AlignmentCore:
         return self.hyps[int(np.argmax(self.logw))]
 
-    def __getattr__(self, attr):  # counters, diagnostics helpers, lmi_history, ... of the most probable core
-        if attr.startswith("_") or attr in ("hyps", "logw"):
-            raise AttributeError(attr)
-        return getattr(self.best, attr)
+    def default_initial_sigmas(self):
+        return self._proto_sigmas
+
+    @property
+    def counters(self) -> dict:
+        """The most probable component's counters plus the bank's own."""
+        return {**self.best.counters, **self.bank_counters} if self.hyps else dict(self.bank_counters)
+
+    @property
+    def P(self):
+        return self.best.P if self.hyps else None
+
+    @property
+    def busy(self) -> bool:
+        return any(h.busy for h in self.hyps)
+
+    def close(self) -> None:
+        for h in self.hyps:
+            h.close()
+
+    def inflate_navigation(self, var_att_rad2: float, var_v_m2_s2: float) -> None:
+        for h in self.hyps:
+            h.inflate_navigation(var_att_rad2, var_v_m2_s2)
 
     # ------------------------------------------------------------------ events
     def propagate(self, imu) -> None:
@@ -127,8 +150,7 @@ class YawHypothesisBank(AlignmentCore):
 
     def flush(self) -> None:
         for h in self.hyps:
-            if hasattr(h, "flush"):
-                h.flush()
+            h.flush()
 
     def update_gnss(self, fix) -> UpdateResult:
         return self._update([h.update_gnss(fix) for h in self.hyps])
@@ -184,6 +206,8 @@ class YawHypothesisBank(AlignmentCore):
     def _select(self, keep: list[int]) -> None:
         if len(keep) == len(self.hyps):
             return
+        for k in set(range(len(self.hyps))) - set(keep):
+            self.hyps[k].close()
         self.hyps = [self.hyps[k] for k in keep]
         self.offsets_rad = [self.offsets_rad[k] for k in keep]
         self.logw = self.logw[keep] - np.max(self.logw[keep])
@@ -211,7 +235,7 @@ class YawHypothesisBank(AlignmentCore):
         return est
 
     def diagnostics(self) -> dict:
-        d = dict(self.best.diagnostics()) if hasattr(self.best, "diagnostics") else {}
+        d = dict(self.best.diagnostics())
         d.update(yaw_hypotheses_alive=len(self.hyps), yaw_hypothesis_weights=self.weights.round(4).tolist(),
                  yaw_hypothesis_offsets_deg=[round(math.degrees(o), 1) for o in self.offsets_rad],
                  yaw_hypotheses_collapsed_at_s=self.collapsed_at_s, **self.bank_counters)

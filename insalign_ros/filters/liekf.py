@@ -220,6 +220,8 @@ class BatchedEciCore(AlignmentCore):
 
     needs_motion = True
     supports_gnss = True
+    att_index = (0, 1, 2)
+    vel_index = (3, 4, 5)
     _n_states = 9
     state_names: tuple[str, ...] = ()
 
@@ -304,6 +306,10 @@ class BatchedEciCore(AlignmentCore):
         self.C = Rotation.from_matrix(C).as_matrix()  # re-orthonormalise once per batch
         self.v, self.p = v, p
         self.t_s = float(t[-1])
+
+    def default_initial_sigmas(self):
+        c = self.cfg
+        return (c.init_sigma_roll_deg, c.init_sigma_pitch_deg, c.init_sigma_yaw_deg), c.init_sigma_v_m_s, c.init_sigma_p_m
 
     # ---------------------------------------------------------------- hooks
     def _P0(self, C_b_n, P_att_n, sigma_v, sigma_p) -> np.ndarray:

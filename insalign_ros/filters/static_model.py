@@ -197,6 +197,11 @@ class StaticZuptCore(AlignmentCore):
 
     name = "static"
     supports_zero_velocity = True
+    vel_index = (0, 1)  # dvN dvE
+    att_index = (2, 3, 4)  # phiN phiE phiD
+
+    def default_initial_sigmas(self):
+        return (5.0, 5.0, 100.0), self.cfg.init_sigma_v_m_s, 1.0
     n_bias = 0
 
     def __init__(self, cfg: StaticConfig):

@@ -1,0 +1,127 @@
+"""Session configuration: one dataclass, units in the names, validated once (ValueError with the field and reason).
+
+The node declares these as ROS parameters (``config/alignment_node.yaml``), ``insalign-align`` and
+:func:`insalign_ros.align` take them as keyword arguments. docs/session.md explains each choice.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, fields
+
+NAN3 = [float("nan")] * 3
+
+
+@dataclass
+class SessionConfig:
+    """What the session does around the core: initialisation, time-line hygiene, schedule, outputs."""
+
+    #: alignment core (filters/registry.py)
+    core: str = "iekf"
+    #: initial attitude: "guess" (``initial_rpy_deg``) or "truth" (a ground-truth pose at an IMU stamp plus
+    #: ``init_rpy_error_deg``: simulations and tests)
+    init_mode: str = "guess"
+    #: initial attitude guess roll, pitch, yaw [deg] (yaw from East, counter-clockwise)
+    initial_rpy_deg: list = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    #: initial velocity guess, ENU [m/s]
+    initial_velocity_enu_m_s: list = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    #: Euler error added to the truth in init_mode "truth" [deg]
+    init_rpy_error_deg: list = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    #: initial roll, pitch, yaw 1-sigma [deg]; NaN: the core's own defaults (AlignmentCore.default_initial_sigmas)
+    init_sigma_rpy_deg: list = field(default_factory=lambda: list(NAN3))
+    #: static cores: lat [deg], lon [deg], h [m] of the site (NaN: wait for a GNSS fix)
+    static_position_deg_m: list = field(default_factory=lambda: list(NAN3))
+    #: plausibility bounds of an IMU sample (io/validation.py)
+    max_rate_rad_s: float = 34.9
+    max_acc_m_s2: float = 490.0
+    #: an IMU stamp more than this away from the newest one is a suspect time jump [s]
+    max_gap_s: float = 2.0
+    #: consecutive self-consistent samples that confirm a time jump (then the session resets)
+    time_jump_confirm: int = 5
+    #: an IMU interval longer than this factor times the median interval is a gap (counted, covariance inflated)
+    gap_factor: float = 1.5
+    #: fixes up to this far behind the newest IMU sample are fused at their own stamp: the filter runs this far
+    #: behind the newest IMU sample (fusion delay) [s data time]
+    max_fix_lag_s: float = 0.5
+    #: a fix ahead of the newest IMU sample by more than this is rejected [s]; nearer ones wait in the buffer
+    max_fix_ahead_s: float = 10.0
+    #: estimate output period [s data time] (0: every IMU sample)
+    output_period_s: float = 0.1
+    #: zero-velocity updates for static cores [Hz data time] and their 1-sigma [m/s]
+    zupt_rate_hz: float = 10.0
+    zupt_sigma_m_s: float = 0.01
+    #: watchdog: no IMU sample pushed for this long [s wall time] drops the flag (0: off)
+    imu_timeout_s: float = 1.0
+    #: warn when no fix was accepted for this long [s data time] (GNSS cores)
+    gnss_timeout_s: float = 5.0
+    #: no input for this long [s wall time]: process the buffered tail (the fusion delay holds otherwise)
+    idle_drain_s: float = 0.5
+    #: backtracking passes over the stored window (filters/backtrack.py; 0: off) and its options
+    backtrack_passes: int = 0
+    backtrack_window_s: float = 60.0
+    backtrack_covariance: str = "reset"
+    #: wall time per process() call spent on backtracking passes [s] (inf offline: run them at once)
+    backtrack_budget_s: float = 0.02
+
+    @classmethod
+    def from_dict(cls, params: dict | None = None) -> "SessionConfig":
+        params = dict(params or {})
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(params) - known)
+        if unknown:
+            raise ValueError(f"unknown session parameter(s) {unknown}; known: {sorted(known)}")
+        cfg = cls(**params)
+        cfg.validate()
+        return cfg
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def validate(self) -> None:
+        """Raise ValueError naming the field when a value would disable or break the session."""
+        from ..filters import registry
+
+        if self.core not in registry.CORES:
+            raise ValueError(f"core: unknown core {self.core!r}; choose one of {sorted(registry.core_names())}")
+        if self.init_mode not in ("guess", "truth"):
+            raise ValueError(f"init_mode: must be 'guess' or 'truth', got {self.init_mode!r}")
+        for name in ("initial_rpy_deg", "initial_velocity_enu_m_s", "init_rpy_error_deg"):
+            v = list(getattr(self, name))
+            if len(v) != 3 or not all(_is_num(x) and math.isfinite(x) for x in v):
+                raise ValueError(f"{name}: need 3 finite numbers, got {v}")
+            setattr(self, name, [float(x) for x in v])
+        for name in ("init_sigma_rpy_deg", "static_position_deg_m"):
+            v = list(getattr(self, name))
+            if len(v) != 3 or not all(_is_num(x) for x in v):
+                raise ValueError(f"{name}: need 3 numbers (NaN = unset), got {v}")
+            setattr(self, name, [float(x) for x in v])
+        if any(math.isfinite(x) and not x > 0 for x in self.init_sigma_rpy_deg):
+            raise ValueError(f"init_sigma_rpy_deg: must be > 0 (or NaN), got {self.init_sigma_rpy_deg}")
+        positive = ("max_rate_rad_s", "max_acc_m_s2", "max_gap_s", "gap_factor", "max_fix_ahead_s",
+                    "zupt_sigma_m_s", "gnss_timeout_s", "backtrack_window_s", "backtrack_budget_s", "idle_drain_s")
+        for name in positive:
+            v = getattr(self, name)
+            if not (_is_num(v) and v > 0) or (math.isinf(v) and name != "backtrack_budget_s"):
+                raise ValueError(f"{name}: must be a finite number > 0, got {v!r}")
+        for name in ("max_fix_lag_s", "output_period_s", "zupt_rate_hz", "imu_timeout_s"):
+            v = getattr(self, name)
+            if not (_is_num(v) and math.isfinite(v) and v >= 0):
+                raise ValueError(f"{name}: must be a finite number >= 0, got {v!r}")
+        # values that would silently disable the pipeline are refused with the reason
+        if self.max_gap_s < 0.05:
+            raise ValueError(f"max_gap_s: {self.max_gap_s} s would make every IMU interval a time jump "
+                             "(must be >= 0.05 s, well above the IMU period)")
+        if self.gap_factor < 1.1:
+            raise ValueError(f"gap_factor: {self.gap_factor} would count ordinary stamp jitter as gaps (>= 1.1)")
+        if self.max_fix_lag_s > 10.0:
+            raise ValueError(f"max_fix_lag_s: {self.max_fix_lag_s} s delays every output that long (<= 10 s)")
+        if not (isinstance(self.time_jump_confirm, int) and 1 <= self.time_jump_confirm <= 1000):
+            raise ValueError(f"time_jump_confirm: must be an integer in [1, 1000], got {self.time_jump_confirm!r}")
+        if not (isinstance(self.backtrack_passes, int) and 0 <= self.backtrack_passes <= 10):
+            raise ValueError(f"backtrack_passes: must be an integer in [0, 10], got {self.backtrack_passes!r}")
+        if self.backtrack_covariance not in ("reset", "reuse"):
+            raise ValueError(f"backtrack_covariance: must be 'reset' or 'reuse', got {self.backtrack_covariance!r}")
+
+
+def _is_num(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool)

@@ -1,0 +1,188 @@
+"""Offline use of the session: ``align(source, core=...)`` on a bag, a scenario name or a ScenarioData.
+
+The same :class:`AlignmentSession` the node runs: inputs are pushed in arrival order (a simulation's events in
+stamp order; fixes delayed by ``fix_delay_s`` when asked, to reproduce receiver latency) and processed with
+the same fusion delay, then drained at the end.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..core import earth
+from ..core.types import GnssFix, ImuSample
+from ..eval.aligned import AlignedCriteria
+from ..sim.types import ScenarioData
+from .config import SessionConfig
+from .session import AlignmentSession, Output, TruthSample
+
+
+@dataclass
+class AlignResult:
+    """Arrays of one offline alignment run (one row per output), plus metrics when truth exists.
+
+    ``t_s`` [s data time]; ``rpy_deg`` roll, pitch, yaw estimate [deg] (yaw from East, CCW); ``sigma3_deg``
+    their 3-sigma [deg]; ``aligned`` the session's flag; ``rpy_err_deg`` estimate minus truth (NaN without
+    truth); ``nees`` attitude NEES (NaN without truth)."""
+
+    core: str
+    t_s: np.ndarray
+    rpy_deg: np.ndarray
+    sigma3_deg: np.ndarray
+    aligned: np.ndarray
+    rpy_err_deg: np.ndarray
+    nees: np.ndarray
+    status: list
+    outputs: list = field(repr=False, default_factory=list)
+    counters: dict = field(default_factory=dict)
+    diagnostics: dict = field(default_factory=dict)
+    metrics: dict = field(default_factory=dict)
+    init_t_s: float = float("nan")
+
+    @property
+    def estimates(self):
+        return [o.estimate for o in self.outputs]
+
+
+def load_source(source, duration_s: float | None = None, seed: int = 0, **reader_kwargs) -> ScenarioData:
+    """A ScenarioData from a ScenarioData (returned as is), a bag path, or a scenario name (simulated)."""
+    if isinstance(source, ScenarioData):
+        data = source
+    elif isinstance(source, (str, Path)) and Path(source).exists():
+        from ..io.bag import read_bag
+
+        data = read_bag(source, **reader_kwargs)
+    elif isinstance(source, str):
+        from ..sim.scenarios import make_scenario
+
+        return make_scenario(source, seed=seed, duration_s=duration_s)
+    else:
+        raise ValueError(f"source: not a ScenarioData, an existing bag path or a scenario name: {source!r}")
+    return truncate(data, duration_s) if duration_s is not None else data
+
+
+def truncate(data: ScenarioData, duration_s: float) -> ScenarioData:
+    """The first ``duration_s`` seconds of ``data`` (IMU, fixes and whatever truth arrays exist)."""
+    from dataclasses import replace
+
+    if not duration_s > 0:
+        raise ValueError(f"duration: must be > 0, got {duration_s}")
+    n = int(np.searchsorted(data.t_s, data.t_s[0] + duration_s, side="right"))
+    m = int(np.searchsorted(data.gnss_t_s, data.t_s[n - 1], side="right"))
+    cut = lambda a: None if a is None else a[:n]  # noqa: E731
+    kw = dict(t_s=data.t_s[:n], omega_ib_b=data.omega_ib_b[:n], f_ib_b=data.f_ib_b[:n], gnss_t_s=data.gnss_t_s[:m],
+              gnss_p_e=data.gnss_p_e[:m], gnss_R_e=data.gnss_R_e[:m], C_b_n=cut(data.C_b_n),
+              lat_rad=cut(data.lat_rad), lon_rad=cut(data.lon_rad), h_m=cut(data.h_m), v_n=cut(data.v_n))
+    for name in ("omega_ib_b_true", "f_ib_b_true"):
+        kw[name] = cut(getattr(data, name))
+    return replace(data, **kw)
+
+
+def truth_samples(data: ScenarioData):
+    """TruthSample per IMU stamp of ``data`` (empty without truth): attitude, geodetic position, ENU velocity."""
+    if not data.has_truth:
+        return []
+    out = []
+    for k in range(data.n):
+        v = None if data.v_n is None else data.v_n[k]
+        out.append(TruthSample(float(data.t_s[k]), data.C_b_n[k], None, v,
+                               (float(data.lat_rad[k]), float(data.lon_rad[k]), float(data.h_m[k]))))
+    if data.v_n is None:  # velocity by differences of the truth positions (same rule as the node)
+        p_e = np.array([earth.geodetic_to_ecef(s.llh[0], s.llh[1], s.llh[2]) for s in out])
+        p_n = np.array([earth.ecef_to_enu(p, *out[0].llh) for p in p_e])
+        for s, p in zip(out, p_n):
+            s.p_n = p
+    return out
+
+
+def events_in_arrival_order(data: ScenarioData, fix_delay_s: float = 0.0):
+    """(kind, item) in the order a live system would receive them: IMU in stamp order, a fix once the IMU has
+    reached ``stamp + fix_delay_s``, truth with its IMU sample."""
+    truth = truth_samples(data)
+    j = 0
+    g_t = data.gnss_t_s
+    for k in range(data.n):
+        t = float(data.t_s[k])
+        if truth:
+            yield "truth", truth[k]
+        yield "imu", ImuSample(t, data.omega_ib_b[k], data.f_ib_b[k])
+        while j < g_t.shape[0] and g_t[j] + fix_delay_s <= t:
+            yield "fix", GnssFix(float(g_t[j]), data.gnss_p_e[j], data.gnss_R_e[j])
+            j += 1
+
+
+def run_session(session: AlignmentSession, data: ScenarioData, fix_delay_s: float = 0.0, chunk: int = 1000,
+                progress=None) -> list[Output]:
+    """Push ``data`` into ``session`` in arrival order, processing every ``chunk`` IMU samples; drain at the end."""
+    out: list[Output] = []
+    n_imu = 0
+    for kind, item in events_in_arrival_order(data, fix_delay_s):
+        if kind == "imu":
+            session.push_imu(item)
+            n_imu += 1
+            if n_imu % chunk == 0:
+                out += session.process()
+                if progress is not None:
+                    progress.update(chunk)
+        elif kind == "fix":
+            session.push_fix(item)
+        else:
+            session.push_truth(item)
+    out += session.finish()
+    if progress is not None:
+        progress.update(n_imu % chunk)
+    return out
+
+
+def align(source, core: str = "iekf", duration_s: float | None = None, seed: int = 0,
+          core_params: dict | None = None, criteria: dict | None = None, fix_delay_s: float = 0.0,
+          progress=None, reader_kwargs: dict | None = None, **session_params) -> AlignResult:
+    """Align ``source`` (a bag path, a scenario name or a ScenarioData) with one core; return arrays and metrics.
+
+    ``session_params``: fields of :class:`SessionConfig` (e.g. ``init_mode="truth"``, ``init_rpy_error_deg``,
+    ``initial_rpy_deg``, ``output_period_s``); ``core_params``: the core's config fields; ``criteria``: the
+    aligned-flag criteria (eval/aligned.py). A source without truth cannot use ``init_mode="truth"``."""
+    data = load_source(source, duration_s, seed, **(reader_kwargs or {}))
+    cfg = SessionConfig.from_dict({"core": core, **session_params})
+    if cfg.init_mode == "truth" and not data.has_truth:
+        raise ValueError("init_mode 'truth': the data have no truth; give initial_rpy_deg (init_mode 'guess')")
+    session = AlignmentSession(cfg, core_params, AlignedCriteria(**(criteria or {})))
+    try:
+        outs = run_session(session, data, fix_delay_s, progress=progress)
+        return result_from_outputs(cfg.core, outs, session, data)
+    finally:
+        session.close()
+
+
+def result_from_outputs(core: str, outs: list[Output], session: AlignmentSession, data: ScenarioData) -> AlignResult:
+    from ..eval import metrics as MT
+
+    n = len(outs)
+    t = np.array([o.stamp_s for o in outs])
+    rpy = np.array([np.degrees(earth.rpy_from_C_b_n(o.estimate.C_b_n)) for o in outs]).reshape(n, 3)
+    s3 = np.array([o.euler_3sigma_deg for o in outs]).reshape(n, 3)
+    err = np.full((n, 3), np.nan)
+    nees = np.full(n, np.nan)
+    metrics: dict = {}
+    init_t = session.init_t if session.init_t is not None else float("nan")
+    if data.has_truth and n:
+        r = MT.evaluate(core, [o.estimate for o in outs], data.t_s, data.C_b_n, init_t)
+        err, nees = r.rpy_err_deg, r.nees
+        metrics = MT.summary(r)
+    aligned = np.array([o.aligned for o in outs], bool)
+    metrics.update(core=core, duration_s=float(t[-1] - init_t) if n else 0.0,
+                   aligned_first_raised_at_s=session.flag.first_raised_at_s,
+                   final_aligned=bool(aligned[-1]) if n else False)
+    return AlignResult(core, t, rpy, s3, aligned, err, nees, [o.status.value for o in outs], outs,
+                       dict(session.counters), session.diagnostics(), metrics, init_t)
+
+
+def flag_up_with_error_above(result: AlignResult, bound_deg: float) -> int:
+    """Outputs with the flag up while |yaw error| > bound (0 without truth): the aligned flag's safety count."""
+    if not np.any(np.isfinite(result.rpy_err_deg)):
+        return 0
+    return int(np.sum(result.aligned & (np.abs(result.rpy_err_deg[:, 2]) > bound_deg)))
+

@@ -1,0 +1,689 @@
+"""AlignmentSession: the whole alignment pipeline behind the node, ``insalign-align``, the API and the benchmarks.
+
+Push inputs in arrival order (``push_imu``, ``push_fix``, ``push_truth``), call ``process()`` (a node timer, or
+the offline loop), read the returned :class:`Output` records and ``diagnostics()``. No ROS import.
+
+Time line (docs/session.md):
+
+* inputs are validated at the door (counted per reason, never raised) and kept in a time-ordered buffer;
+* the filter runs ``max_fix_lag_s`` behind the newest IMU sample (a fixed fusion delay), so a fix that arrives
+  up to that late is fused at its own stamp, exactly as if it had been on time; an IMU sample that arrives out of
+  order inside that window is put back in order;
+* a fix is applied after the first IMU sample stamped at or after it (as ``ScenarioData.events``);
+* an IMU interval longer than ``gap_factor`` times the median interval is a gap: counted, and the attitude and
+  velocity covariance are inflated by what the unknown motion during the gap may have done;
+* a run of ``time_jump_confirm`` self-consistent samples more than ``max_gap_s`` away from the time line is a
+  time jump: the session resets;
+* watchdog: no IMU pushed for ``imu_timeout_s`` of wall time drops the flag with the reason.
+
+One meaning of "aligned": the session's flag (eval/aligned.py criteria); the core reports status and covariance.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+import time
+import traceback
+from collections import OrderedDict, deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..core import earth
+from ..core.types import GnssFix, ImuSample
+from ..eval.aligned import AlignedCriteria, AlignedFlag, euler_3sigma_deg
+from ..filters import registry
+from ..filters.base import AlignmentCore, AlignmentEstimate, AlignmentStatus
+from .config import SessionConfig
+
+D2R = math.pi / 180.0
+
+COUNTERS = (
+    "imu_received", "imu_processed", "imu_rejected", "imu_invalid", "imu_duplicate", "imu_out_of_order",
+    "imu_reordered", "imu_future", "imu_gaps", "imu_before_init", "gnss_received", "gnss_accepted", "gnss_rejected",
+    "gnss_invalid", "gnss_duplicate", "gnss_stale", "gnss_future", "gnss_before_init", "gnss_filter_rejected",
+    "gnss_unused", "truth_received", "truth_invalid", "time_resets", "core_faults", "zupt_accepted",
+    "watchdog_trips", "inputs_dropped")
+
+
+@dataclass
+class TruthSample:
+    """A reference attitude (and optionally position/velocity) at a stamp: simulations, tests, evaluation.
+
+    ``p_n``: position in the truth's own ENU frame [m] (any origin; only differences are used, for the initial
+    velocity); ``llh``: (lat_rad, lon_rad, h_m) when known; ``v_n``: ENU velocity [m/s] when known."""
+
+    stamp_s: float
+    C_b_n: np.ndarray
+    p_n: np.ndarray | None = None
+    v_n: np.ndarray | None = None
+    llh: tuple[float, float, float] | None = None
+
+
+@dataclass
+class Output:
+    """One estimate output (every ``output_period_s`` of data time)."""
+
+    stamp_s: float
+    estimate: AlignmentEstimate
+    aligned: bool
+    status: AlignmentStatus
+    reason: str
+    euler_3sigma_deg: np.ndarray  # roll, pitch, yaw 3-sigma [deg]
+    euler_error_deg: np.ndarray | None = None  # estimate minus truth [deg] (when a truth pose is at this stamp)
+    truth_C_b_n: np.ndarray | None = None
+
+
+@dataclass
+class _Pending:
+    """Time-ordered input buffer (IMU and fixes in stamp order; truth by stamp)."""
+
+    imu_t: list = field(default_factory=list)
+    imu: list = field(default_factory=list)  # (t, omega (3,), f (3,))
+    fix_t: list = field(default_factory=list)
+    fix: list = field(default_factory=list)
+    truth: "OrderedDict[float, TruthSample]" = field(default_factory=OrderedDict)
+
+
+class AlignmentSession:
+    """The alignment pipeline. ``core_params``: the core's config fields; ``criteria``: the aligned-flag criteria."""
+
+    #: the most IMU samples held for reordering / the fusion delay; beyond it the oldest are processed at once
+    MAX_BUFFER = 200_000
+
+    def __init__(self, config: SessionConfig | dict | None = None, core_params: dict | None = None,
+                 criteria: AlignedCriteria | None = None, log=None) -> None:
+        self.cfg = config if isinstance(config, SessionConfig) else SessionConfig.from_dict(config)
+        self.cfg.validate()
+        self.core_params = dict(core_params or {})
+        registry.make_config(self.cfg.core, self.core_params)  # validate now (ValueError with the reason)
+        self.flag = AlignedFlag(criteria or AlignedCriteria())
+        self.log = log or (lambda level, key, text: None)
+        self.counters: OrderedDict[str, int] = OrderedDict((k, 0) for k in COUNTERS)
+        self.core: AlignmentCore | None = None
+        self.bt = None  # filters/backtrack.BacktrackingAligner when backtrack_passes > 0
+        self.last_reject = ""
+        self.timing = {"process_s": 0.0, "process_calls": 0, "samples": 0}
+        self._reset_state("start")
+
+    # ------------------------------------------------------------------ configuration
+    def reconfigure(self, config: SessionConfig, core_params: dict, criteria: AlignedCriteria) -> bool:
+        """Apply new parameters. Returns True when the alignment was restarted (core or core parameters changed)."""
+        config.validate()
+        registry.make_config(config.core, core_params)
+        restart = (config.core != self.cfg.core or core_params != self.core_params
+                   or config.init_mode != self.cfg.init_mode or config.backtrack_passes != self.cfg.backtrack_passes)
+        self.cfg, self.core_params = config, dict(core_params)
+        self.flag.set_criteria(criteria)
+        if restart:
+            self.reset("parameters changed")
+        return restart
+
+    def reset(self, why: str) -> None:
+        """Drop the core and every buffered input; start over (the flag goes down)."""
+        self._reset_state(why)
+
+    def close(self) -> None:
+        self._close_core()
+
+    def _close_core(self) -> None:
+        if self.core is not None:
+            self.core.close()
+        if self.bt is not None and self.bt.live is not self.core:
+            self.bt.live.close()
+        self.core, self.bt = None, None
+
+    def _reset_state(self, why: str) -> None:
+        self._close_core()
+        self.buf = _Pending()
+        self.status = AlignmentStatus.WAITING_FOR_DATA
+        self.reason = f"waiting for IMU data ({why})"
+        self.fault_reason = ""
+        self.newest_imu_t: float | None = None
+        self.processed_t: float | None = None  # stamp of the last processed IMU sample (= the core's time)
+        self.recent_stamps: deque = deque(maxlen=4096)
+        self._recent_set: set = set()
+        self.fix_stamps: deque = deque(maxlen=256)
+        self.jump_candidates: list = []
+        self.dts: deque = deque(maxlen=101)
+        self._median_dt: float | None = None
+        self._dt_count = 0
+        self.hist_w: deque = deque(maxlen=200)
+        self.hist_f: deque = deque(maxlen=200)
+        self.init_t: float | None = None
+        self.anchor: tuple[float, float, float] | None = None
+        self.next_out_t = -math.inf
+        self.next_zupt_t = -math.inf
+        self.last_output: Output | None = None
+        self.last_nis = float("nan")
+        self.last_accepted_fix_t: float | None = None
+        self.last_imu_wall: float | None = None
+        self.last_input_wall: float | None = None
+        self.watchdog_reason = ""
+        self._used_fix_stamp: float | None = None
+        self.flag_changes: list[tuple[float, bool, str]] = []
+        self.flag.reset()
+
+    # ------------------------------------------------------------------ inputs
+    def push_imu(self, sample: ImuSample, wall_s: float | None = None) -> bool:
+        """Validate and buffer one IMU sample (omega_ib_b [rad/s], f_ib_b [m/s^2], body FLU). False if rejected."""
+        c = self.counters
+        c["imu_received"] += 1
+        self._touch(wall_s, imu=True)
+        t = float(sample.stamp_s)
+        w, f = sample.omega_ib_b, sample.f_ib_b
+        reason = _check_imu(t, w, f, self.cfg.max_rate_rad_s, self.cfg.max_acc_m_s2)
+        if reason:
+            return self._reject_imu("imu_invalid", reason)
+        if t in self._recent_set:
+            return self._reject_imu("imu_duplicate", f"duplicate stamp {t:.6f}")
+        newest = self.newest_imu_t
+        if newest is not None and (t - newest > self.cfg.max_gap_s or newest - t > self.cfg.max_gap_s):
+            return self._jump_candidate(sample, t - newest)
+        self.jump_candidates.clear()
+        if self.processed_t is not None and t <= self.processed_t:
+            return self._reject_imu("imu_out_of_order", f"stamp {t:.6f} is {self.processed_t - t:.3f} s before "
+                                                        "the filter time (beyond the fusion delay)")
+        self._remember(t)
+        item = (t, np.asarray(w, float), np.asarray(f, float))
+        if newest is None or t > newest:
+            self.buf.imu_t.append(t)
+            self.buf.imu.append(item)
+            self.newest_imu_t = t
+        else:
+            c["imu_reordered"] += 1
+            i = bisect.bisect(self.buf.imu_t, t)
+            self.buf.imu_t.insert(i, t)
+            self.buf.imu.insert(i, item)
+        if len(self.buf.imu_t) > self.MAX_BUFFER:
+            self._process(until=self.buf.imu_t[len(self.buf.imu_t) - self.MAX_BUFFER])
+        return True
+
+    def push_fix(self, fix: GnssFix, wall_s: float | None = None) -> bool:
+        """Validate and buffer one GNSS position fix (ECEF p_e [m], R_e [m^2]). False if rejected."""
+        c = self.counters
+        c["gnss_received"] += 1
+        self._touch(wall_s)
+        t = float(fix.stamp_s)
+        if t in self.fix_stamps or t in self.buf.fix_t:
+            return self._reject_fix("gnss_duplicate", f"duplicate stamp {t:.6f}")
+        if self.processed_t is not None and t < self.processed_t:
+            return self._reject_fix("gnss_stale", f"stamp {t:.6f} is {self.processed_t - t:.3f} s behind the filter "
+                                                  f"time (max_fix_lag_s {self.cfg.max_fix_lag_s:g} s)")
+        if self.newest_imu_t is not None and t > self.newest_imu_t + self.cfg.max_fix_ahead_s:
+            return self._reject_fix("gnss_future", f"stamp {t:.6f} is {t - self.newest_imu_t:.3f} s ahead of the IMU")
+        self.fix_stamps.append(t)
+        i = bisect.bisect(self.buf.fix_t, t)
+        self.buf.fix_t.insert(i, t)
+        self.buf.fix.insert(i, fix)
+        if len(self.buf.fix_t) > 1000:  # fixes with no IMU to reach them: keep the newest
+            del self.buf.fix_t[0], self.buf.fix[0]
+            c["inputs_dropped"] += 1
+        return True
+
+    def push_truth(self, truth: TruthSample) -> None:
+        """A reference pose (initialisation in init_mode 'truth', and the Euler errors of the outputs)."""
+        self.counters["truth_received"] += 1
+        C = np.asarray(truth.C_b_n, float)
+        if C.shape != (3, 3) or not np.all(np.isfinite(C)) or not math.isfinite(truth.stamp_s):
+            self.counters["truth_invalid"] += 1
+            return
+        self.buf.truth[float(truth.stamp_s)] = truth
+        while len(self.buf.truth) > 5000:
+            self.buf.truth.popitem(last=False)
+
+    def _touch(self, wall_s: float | None, imu: bool = False) -> None:
+        if wall_s is None:
+            return
+        self.last_input_wall = wall_s
+        if imu:
+            self.last_imu_wall = wall_s
+
+    def _remember(self, t: float) -> None:
+        if len(self.recent_stamps) == self.recent_stamps.maxlen:
+            self._recent_set.discard(self.recent_stamps[0])
+        self.recent_stamps.append(t)
+        self._recent_set.add(t)
+
+    def _reject_imu(self, counter: str, reason: str) -> bool:
+        self.counters[counter] += 1
+        self.counters["imu_rejected"] += 1
+        self.last_reject = f"imu: {reason}"
+        self.log("warn", counter, f"rejected imu sample: {reason} ({counter}={self.counters[counter]})")
+        return False
+
+    def _reject_fix(self, counter: str, reason: str) -> bool:
+        self.counters[counter] += 1
+        self.counters["gnss_rejected"] += 1
+        self.last_reject = f"gnss: {reason}"
+        self.log("warn", counter, f"rejected gnss fix: {reason} ({counter}={self.counters[counter]})")
+        return False
+
+    def _jump_candidate(self, sample: ImuSample, dt: float) -> bool:
+        """Samples off the time line: a run of self-consistent ones is a real time jump -> reset."""
+        c = self.jump_candidates
+        t = float(sample.stamp_s)
+        if c and not (0.0 < t - c[-1].stamp_s <= self.cfg.max_gap_s):
+            c.clear()
+        c.append(sample)
+        if len(c) < self.cfg.time_jump_confirm:
+            return self._reject_imu("imu_out_of_order" if dt < 0 else "imu_future",
+                                    f"stamp {t:.6f} is {dt:+.3f} s from the newest {self.newest_imu_t:.6f}")
+        kind = "backward" if dt < 0 else "forward"
+        run = list(c)
+        resets = self.counters["time_resets"] + 1
+        self.log("warn", "time_reset", f"time jumped {kind} by {dt:+.3f} s (from {self.newest_imu_t:.6f} to "
+                                       f"{t:.6f}, {len(run)} consistent samples): resetting the alignment")
+        self._reset_state(f"time jumped {kind} by {dt:+.3f} s")
+        self.counters["time_resets"] = resets
+        # the earlier candidates were counted as rejected; the run starts the new time line
+        for s in run:
+            self._remember(s.stamp_s)
+            self.buf.imu_t.append(float(s.stamp_s))
+            self.buf.imu.append((float(s.stamp_s), np.asarray(s.omega_ib_b, float), np.asarray(s.f_ib_b, float)))
+        self.newest_imu_t = float(run[-1].stamp_s)
+        return True
+
+    # ------------------------------------------------------------------ processing
+    def process(self, wall_s: float | None = None, final: bool = False) -> list[Output]:
+        """Process buffered inputs up to the fusion horizon (all of them when ``final`` or idle); return outputs.
+
+        ``wall_s``: the caller's wall clock [s] (node: time.monotonic()); drives the watchdog and the idle drain."""
+        t0 = time.perf_counter()
+        if wall_s is not None and not final and self.last_input_wall is not None \
+                and wall_s - self.last_input_wall >= self.cfg.idle_drain_s:
+            final = True
+        until = math.inf if final else (self.newest_imu_t - self.cfg.max_fix_lag_s
+                                        if self.newest_imu_t is not None else -math.inf)
+        out = self._process(until)
+        self._background(math.inf if final and self.cfg.backtrack_budget_s == math.inf else self.cfg.backtrack_budget_s)
+        if wall_s is not None:
+            self._watchdog(wall_s)
+        self.timing["process_s"] += time.perf_counter() - t0
+        self.timing["process_calls"] += 1
+        return out
+
+    def finish(self) -> list[Output]:
+        """Process everything buffered (end of a recording); run pending backtracking passes to the end."""
+        out = self._process(math.inf)
+        if self.bt is not None:
+            self.bt.run_until_done()
+            self._after_handover()
+        return out
+
+    def _process(self, until: float) -> list[Output]:
+        out: list[Output] = []
+        b = self.buf
+        n = bisect.bisect_right(b.imu_t, until)
+        if n == 0:
+            self._apply_due_fixes(out)
+            return out
+        items = b.imu[:n]
+        del b.imu[:n], b.imu_t[:n]
+        for t, w, f in items:
+            try:
+                self._step(t, w, f, out)
+            except Exception as exc:  # noqa: BLE001 - a core failure is a fault; the alignment restarts
+                self._fault(exc)
+        self._apply_due_fixes(out)
+        self.timing["samples"] += n
+        return out
+
+    def _step(self, t: float, w: np.ndarray, f: np.ndarray, out: list[Output]) -> None:
+        prev = self.processed_t
+        self.processed_t = t
+        dt = None if prev is None else t - prev
+        if dt is not None:
+            self._track_period(dt)
+        if self.core is None:
+            self.counters["imu_before_init"] += 1
+            self._try_initialize(t)
+            if self.core is not None:
+                self._apply_fixes_until(t, out)  # a fix at the initialisation stamp (not the one used) is fused
+                self.next_out_t = t + self.cfg.output_period_s
+                out.append(self._output(t))  # the initial estimate
+            return
+        gap = dt is not None and self._median_dt is not None and dt > self.cfg.gap_factor * self._median_dt
+        self._feed(ImuSample(t, w, f))
+        self.counters["imu_processed"] += 1
+        self.hist_w.append(w)
+        self.hist_f.append(f)
+        if gap:
+            self._on_gap(t, dt)
+        self._apply_fixes_until(t, out)
+        if self._zupt_due(t):
+            self._zupt(t)
+        if t >= self.next_out_t:
+            self.next_out_t = t + self.cfg.output_period_s
+            out.append(self._output(t))
+
+    def _track_period(self, dt: float) -> None:
+        """Median IMU interval over the last 101 intervals (recomputed every 20): robust to gaps and jitter."""
+        self.dts.append(dt)
+        self._dt_count += 1
+        if self._median_dt is None or self._dt_count % 20 == 0:
+            self._median_dt = float(np.median(self.dts))
+
+    def _on_gap(self, t: float, dt: float) -> None:
+        """An IMU gap of ``dt`` [s]: count it and inflate the attitude/velocity covariance by the unknown motion.
+
+        The sample after the gap stands for the whole interval; the true rate and specific force over the gap
+        are unknown. Their spread over the last ~2 s (per axis, beyond nothing: the spread includes the sensor
+        noise) times the missing time bounds what the missing samples would have changed (docs/session.md)."""
+        self.counters["imu_gaps"] += 1
+        missing = dt - self._median_dt
+        if len(self.hist_w) >= 10:
+            s_w = float(np.linalg.norm(np.std(np.asarray(self.hist_w), axis=0)))
+            s_f = float(np.linalg.norm(np.std(np.asarray(self.hist_f), axis=0)))
+        else:
+            s_w, s_f = 0.1, 1.0  # no history: a generous default (0.1 rad/s, 1 m/s^2)
+        self.core.inflate_navigation((s_w * missing) ** 2, (s_f * missing) ** 2)
+        self.log("warn", "imu_gaps", f"IMU gap of {dt:.3f} s before {t:.6f} (median interval "
+                                     f"{self._median_dt * 1e3:.2f} ms): covariance inflated by {s_w * missing * 3 / D2R:.3f} "
+                                     f"deg 3-sigma (imu_gaps={self.counters['imu_gaps']})")
+
+    def _feed(self, event) -> None:
+        if self.bt is not None:
+            self.bt.feed(event)
+        elif isinstance(event, ImuSample):
+            self.core.propagate(event)
+        else:
+            return
+
+    def _apply_due_fixes(self, out: list[Output]) -> None:
+        if self.core is not None and self.processed_t is not None:
+            self._apply_fixes_until(self.processed_t, out)
+
+    def _apply_fixes_until(self, t: float, out: list[Output]) -> None:
+        b = self.buf
+        while b.fix_t and b.fix_t[0] <= t:
+            b.fix_t.pop(0)
+            fix = b.fix.pop(0)
+            if fix.stamp_s == self._used_fix_stamp:
+                continue  # gave the initial position: not fused twice
+            if fix.stamp_s < self.init_t:
+                self.counters["gnss_before_init"] += 1
+                continue
+            self._fuse_fix(fix)
+
+    def _fuse_fix(self, fix: GnssFix) -> None:
+        core = self.core
+        if not core.supports_gnss:
+            self.counters["gnss_unused"] += 1
+            return
+        res = self.bt.feed(fix) if self.bt is not None else core.update_gnss(fix)
+        if res is None:
+            return
+        self.last_nis = res.nis
+        if res.accepted:
+            self.counters["gnss_accepted"] += 1
+            self.last_accepted_fix_t = fix.stamp_s
+        else:
+            self.counters["gnss_filter_rejected"] += 1
+            self.counters["gnss_rejected"] += 1
+            self.last_reject = f"gnss: core: {res.reason}"
+            self.log("warn", "gnss_filter_rejected", f"fix rejected by the core: {res.reason}")
+        self.flag.on_update(self.processed_t, res.accepted, res.nis, len(res.innovation) or 3)
+
+    def _zupt_due(self, t: float) -> bool:
+        c = self.core
+        return (c.supports_zero_velocity and not c.supports_gnss and not c.schedules_own_zero_velocity
+                and self.cfg.zupt_rate_hz > 0 and t >= self.next_zupt_t)
+
+    def _zupt(self, t: float) -> None:
+        res = self.core.update_zero_velocity(t, self.cfg.zupt_sigma_m_s)
+        self.next_zupt_t = t + 1.0 / self.cfg.zupt_rate_hz - 1e-9
+        if res.accepted:
+            self.counters["zupt_accepted"] += 1
+        self.flag.on_update(t, res.accepted, res.nis, len(res.innovation) or 3)
+
+    def _background(self, budget_s: float) -> None:
+        if self.bt is None or not self.bt.busy:
+            return
+        try:
+            if budget_s == math.inf:
+                self.bt.run_until_done()
+            else:
+                self.bt.step_background(budget_s)
+            self._after_handover()
+        except Exception as exc:  # noqa: BLE001
+            self._fault(exc)
+
+    def _after_handover(self) -> None:
+        if self.bt is not None and self.bt.live is not self.core:
+            old = self.core
+            self.core = self.bt.live
+            if old is not None:
+                old.close()
+            self.log("info", "backtrack", "backtracking: handed over to the re-aligned core")
+
+    # ------------------------------------------------------------------ initialisation
+    def _try_initialize(self, t: float) -> None:
+        cfg = self.cfg
+        tr = self.buf.truth.get(t) if cfg.init_mode == "truth" else None
+        core = registry.make_core(cfg.core, self.core_params)
+        try:
+            static = not core.supports_gnss
+            pos, used_fix = None, None
+            if static and all(math.isfinite(x) for x in cfg.static_position_deg_m):
+                la, lo, h = cfg.static_position_deg_m
+                pos = (la * D2R, lo * D2R, float(h))
+            elif tr is not None and tr.llh is not None:
+                pos = tuple(float(x) for x in tr.llh)
+            else:
+                j = bisect.bisect_right(self.buf.fix_t, t)
+                if j > 0:
+                    used_fix = self.buf.fix[j - 1]
+                    pos = earth.ecef_to_geodetic(used_fix.p_e)
+            if pos is None:
+                self.status = AlignmentStatus.WAITING_FOR_GNSS
+                self.reason = ("waiting for a GNSS fix (initial position)" if not static else
+                               "waiting for a GNSS fix or static_position_deg_m (site position)")
+                return
+            if cfg.init_mode == "truth":
+                if tr is None:
+                    self.status = AlignmentStatus.WAITING_FOR_DATA
+                    self.reason = "waiting for a ground-truth pose at an IMU stamp (init_mode truth)"
+                    return
+                rpy = earth.rpy_from_C_b_n(np.asarray(tr.C_b_n, float)) + np.asarray(cfg.init_rpy_error_deg) * D2R
+                v0 = self._truth_velocity(tr)
+            else:
+                rpy = np.asarray(cfg.initial_rpy_deg) * D2R
+                v0 = np.asarray(cfg.initial_velocity_enu_m_s, float)
+            C0 = earth.C_b_n_from_rpy(*rpy)
+            sig_rpy, sig_v, sig_p = core.default_initial_sigmas()
+            user = cfg.init_sigma_rpy_deg
+            sig_rpy = [u if math.isfinite(u) else d for u, d in zip(user, sig_rpy)]
+            P_att = np.diag((np.asarray(sig_rpy, float) * D2R) ** 2)
+            core.initialize(t, pos[0], pos[1], pos[2], C0, v0, P_att, sig_v, sig_p)
+        except Exception:
+            core.close()
+            raise
+        # fixes up to the initialisation stamp: the one that gave the position is consumed, older ones dropped
+        self._used_fix_stamp = used_fix.stamp_s if used_fix is not None else None
+        self.core = core
+        if cfg.backtrack_passes > 0:
+            from ..filters.backtrack import BacktrackingAligner
+
+            self.bt = BacktrackingAligner(core, t, cfg.backtrack_window_s, cfg.backtrack_passes,
+                                          covariance=cfg.backtrack_covariance)
+        self.init_t = t
+        self.anchor = pos
+        self.status = AlignmentStatus.CONVERGING
+        self.reason = "initialised"
+        self.next_out_t = t
+        self.next_zupt_t = t
+        self.fault_reason = ""
+        self.log("info", "init", f"initialised {cfg.core} at t={t:.3f} s, lat {pos[0] / D2R:.6f} deg, lon "
+                                 f"{pos[1] / D2R:.6f} deg, h {pos[2]:.1f} m, rpy "
+                                 f"{np.round(rpy / D2R, 2).tolist()} deg, v {np.round(v0, 3).tolist()} m/s")
+
+    def _truth_velocity(self, tr: TruthSample) -> np.ndarray:
+        """Truth velocity: given, or the derivative of the parabola through the last three truth positions."""
+        if tr.v_n is not None:
+            return np.asarray(tr.v_n, float)
+        prev = [s for k, s in self.buf.truth.items() if k < tr.stamp_s and s.p_n is not None][-2:]
+        if tr.p_n is None or not prev:
+            return np.asarray(self.cfg.initial_velocity_enu_m_s, float)
+        if len(prev) == 2 and abs((tr.stamp_s - prev[1].stamp_s) - (prev[1].stamp_s - prev[0].stamp_s)) < 1e-6:
+            return (3.0 * tr.p_n - 4.0 * prev[1].p_n + prev[0].p_n) / (2.0 * (tr.stamp_s - prev[1].stamp_s))
+        return (tr.p_n - prev[-1].p_n) / (tr.stamp_s - prev[-1].stamp_s)
+
+    # ------------------------------------------------------------------ outputs, flag, status
+    def _output(self, t: float) -> Output:
+        est = self.core.estimate()
+        P = est.P_att_n
+        if not (np.all(np.isfinite(P)) and np.all(np.isfinite(est.C_b_n)) and math.isfinite(est.lat_rad)):
+            raise FloatingPointError("non-finite estimate")
+        was = self.flag.aligned
+        now = self.flag.on_estimate(t, P) and not self.watchdog_reason
+        if not now:
+            self.flag.aligned = False
+        if now != was:
+            self.flag_changes.append((t, now, self.flag.reason))
+            self.log("info", "flag", f"aligned flag {'raised' if now else 'lowered'} at t={t:.3f} s: {self.flag.reason}")
+        self.status = AlignmentStatus.ALIGNED if now else AlignmentStatus.CONVERGING
+        self.reason = self.flag.reason if not est.reason else f"{self.flag.reason}; {est.reason}"
+        tr = self._truth_at(t)
+        err = None
+        if tr is not None:
+            err = np.degrees(earth.euler_error_rad(est.C_b_n, tr))
+        o = Output(t, est, now, self.status, self.reason, euler_3sigma_deg(est.C_b_n, P), err, tr)
+        self.last_output = o
+        return o
+
+    def _truth_at(self, t: float) -> np.ndarray | None:
+        tb = self.buf.truth
+        if not tb:
+            return None
+        tr = tb.get(t)
+        # truth is only needed near the filter time: forget what is more than 2 s behind
+        while tb and next(iter(tb)) < t - 2.0:
+            tb.popitem(last=False)
+        return None if tr is None else np.asarray(tr.C_b_n, float)
+
+    def _watchdog(self, wall_s: float) -> None:
+        to = self.cfg.imu_timeout_s
+        if to <= 0 or self.last_imu_wall is None:
+            return
+        silent = wall_s - self.last_imu_wall
+        if silent > to:
+            if not self.watchdog_reason:
+                self.counters["watchdog_trips"] += 1
+                self.log("warn", "watchdog", f"no IMU sample for {silent:.1f} s (imu_timeout_s {to:g} s): "
+                                             "aligned flag lowered")
+            self.watchdog_reason = f"no IMU sample for {silent:.1f} s"
+            if self.flag.aligned:
+                self.flag.aligned = False
+                self.flag.holding_since_s = None
+                self.flag_changes.append((self.processed_t or 0.0, False, self.watchdog_reason))
+        else:
+            self.watchdog_reason = ""
+
+    def _fault(self, exc: Exception) -> None:
+        self.counters["core_faults"] += 1
+        self.last_reject = f"fault: {type(exc).__name__}: {exc}"
+        self.log("error", "fault", f"core fault ({type(exc).__name__}: {exc}); resetting the alignment\n"
+                                   f"{traceback.format_exc(limit=3)}")
+        keep_t = self.processed_t
+        resets = dict(self.counters)
+        newest, recent, rset = self.newest_imu_t, self.recent_stamps, self._recent_set
+        pending = self.buf
+        self._reset_state(f"after a fault: {exc}")
+        self.counters.update(resets)
+        # keep the time line and the buffered inputs: re-initialise from the data that follow
+        self.buf, self.newest_imu_t, self.recent_stamps, self._recent_set = pending, newest, recent, rset
+        self.processed_t = keep_t
+        self.status = AlignmentStatus.FAULT
+        self.fault_reason = f"{type(exc).__name__}: {exc}"
+        self.reason = f"fault ({self.fault_reason}); re-initialising"
+
+    @property
+    def aligned(self) -> bool:
+        return self.flag.aligned and not self.watchdog_reason
+
+    @property
+    def filter_time_s(self) -> float | None:
+        return self.processed_t
+
+    def level(self) -> int:
+        """Diagnostic level: 0 OK (aligned, fresh inputs), 1 WARN, 2 ERROR (fault)."""
+        if self.status == AlignmentStatus.FAULT:
+            return 2
+        if self.watchdog_reason or not self.aligned or self._gnss_age_warning():
+            return 1
+        return 0
+
+    def _gnss_age_warning(self) -> str:
+        if self.core is None or not self.core.supports_gnss or self.processed_t is None:
+            return ""
+        ref = self.last_accepted_fix_t if self.last_accepted_fix_t is not None else self.init_t
+        age = self.processed_t - ref
+        return f"no GNSS fix for {age:.0f} s" if age > self.cfg.gnss_timeout_s else ""
+
+    def message(self) -> str:
+        parts = [f"{self.status.value}: {self.reason}"]
+        if self.watchdog_reason:
+            parts.append(self.watchdog_reason)
+        g = self._gnss_age_warning()
+        if g:
+            parts.append(g)
+        return "; ".join(parts)
+
+    def diagnostics(self) -> dict:
+        """Key/value pairs for /diagnostics and the metrics JSON (strings, numbers, lists)."""
+        d: dict = {"core": self.cfg.core, "state": self.status.value, "reason": self.reason,
+                   "aligned": str(self.aligned).lower(), "aligned_reason": self.flag.reason,
+                   "message": self.message()}
+        o = self.last_output
+        if o is not None:
+            s = self.flag.sigma3_deg
+            d.update(yaw_3sigma_deg=f"{s[2]:.4f}", roll_pitch_3sigma_deg=f"{max(s[0], s[1]):.4f}",
+                     yaw_sigma_deg=f"{s[2] / 3:.4f}", filter_time_s=f"{o.stamp_s:.3f}")
+        if self.flag.raised_at_s is not None:
+            d["aligned_raised_at_s"] = f"{self.flag.raised_at_s:.3f}"
+            d["aligned_first_raised_at_s"] = f"{self.flag.first_raised_at_s:.3f}"
+        if self.init_t is not None:
+            d["initialised_at_s"] = f"{self.init_t:.3f}"
+        lo, hi = self.flag.band
+        d.update(nis_last=f"{self.last_nis:.3f}", nis_window_sum=f"{self.flag.nis_sum:.3f}",
+                 nis_band=f"[{lo:.2f}, {hi:.2f}]", last_reject=self.last_reject)
+        if self.processed_t is not None and self.last_accepted_fix_t is not None:
+            d["gnss_age_s"] = f"{self.processed_t - self.last_accepted_fix_t:.2f}"
+        if self._median_dt is not None:
+            d["imu_period_median_ms"] = f"{self._median_dt * 1e3:.3f}"
+        d["buffered_imu"] = str(len(self.buf.imu_t))
+        d["buffered_fixes"] = str(len(self.buf.fix_t))
+        if self.watchdog_reason:
+            d["watchdog"] = self.watchdog_reason
+        if self.bt is not None:
+            d["backtrack_state"] = self.bt.state
+            d.update({f"backtrack_{k}": v for k, v in self.bt.stats.items()})
+        d.update({k: str(v) for k, v in self.counters.items()})
+        if self.core is not None:
+            try:
+                d.update({f"core.{k}": v for k, v in self.core.diagnostics().items()})
+                d.update({f"core.counter.{k}": v for k, v in self.core.counters.items()})
+            except Exception as exc:  # noqa: BLE001 - diagnostics never take the pipeline down
+                d["core.diagnostics_error"] = f"{type(exc).__name__}: {exc}"
+        return d
+
+
+def _check_imu(t: float, w, f, max_rate: float, max_acc: float) -> str:
+    """Scalar checks of one IMU sample (hot path: plain floats, no numpy reductions)."""
+    if not math.isfinite(t) or t < 0.0:
+        return f"stamp {t!r} is not a finite number >= 0"
+    wx, wy, wz = float(w[0]), float(w[1]), float(w[2])
+    fx, fy, fz = float(f[0]), float(f[1]), float(f[2])
+    if not math.isfinite(wx + wy + wz):
+        return "angular_velocity: non-finite value"
+    if not math.isfinite(fx + fy + fz):
+        return "linear_acceleration: non-finite value"
+    nw = math.sqrt(wx * wx + wy * wy + wz * wz)
+    if nw > max_rate:
+        return f"angular_velocity: magnitude {nw:.3g} > {max_rate:.3g}"
+    nf = math.sqrt(fx * fx + fy * fy + fz * fz)
+    if nf > max_acc:
+        return f"linear_acceleration: magnitude {nf:.3g} > {max_acc:.3g}"
+    return ""
