@@ -335,7 +335,9 @@ def test_async_solve_that_overruns_the_budget_is_discarded_and_counted():
     core.cfg.lmi_time_budget_s = 0.3
     run_offline(core, make_scenario("ship", seed=0, duration_s=12.0), [10.0, 10.0, 60.0], output_period_s=1.0)
     assert core.lmi_submitted == 1 and max(core.update_wall_s) < 0.010  # never waits, budget or not
+    assert core.busy
     assert core.wait_for_pending_solve(5.0)  # it finished after 1.0 s > 0.3 s: a miss, the result discarded
+    assert not core.busy
     d = core.diagnostics()
     assert d["lmi_status"] == LMI.BUDGET_STATUS and d["lmi_used_fallback"] and "discarded" in d["lmi_reason"]
     assert d["lmi_budget_misses"] == 1 and d["lmi_fallbacks"] == 1 and np.allclose(core.k_I, 0.0)

@@ -332,6 +332,11 @@ class PiLiekf(Liekf):
             self.Z_I = np.clip(self.Z_I, -c, c)
         return L @ Z_PI
 
+    @property
+    def busy(self) -> bool:
+        """True while an asynchronous solve is pending (not applied yet, nor declared a budget miss)."""
+        return self._pending is not None
+
     def wait_for_pending_solve(self, timeout_s: float | None = None) -> bool:
         """Wait up to ``timeout_s`` for an asynchronous solve and apply it, or its budget miss (tests, shutdown).
         True if none is left."""
