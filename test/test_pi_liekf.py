@@ -77,8 +77,9 @@ def test_ins_lmi_is_detected_infeasible_and_pi_liekf_falls_back_to_liekf():
     from insalign_ros.sim.scenarios import make_scenario
 
     d = make_scenario("ship", seed=2, duration_s=12.0)
-    pi = make_core("pi_liekf", {"lmi_formulation": "interval", "lmi_structure": "paper", "rho": 0.01,
-                                "lmi_resolve_every_updates": 5})
+    # a research formulation (not a user option): eq. (22) per interval, unstructured J, N + least-squares eq. (23);
+    # a budget long enough for SCS (8 s) so that the LMI itself, not the clock, decides
+    pi = _research_core("interval", "paper", {"rho": 0.01, "lmi_resolve_every_updates": 5, "lmi_time_budget_s": 60.0})
     est_pi, _ = run_offline(pi, d, [10.0, 10.0, 60.0], output_period_s=1.0)
     diag = pi.diagnostics()
     assert diag["lmi_status"] in ("optimal", "optimal_inaccurate", "infeasible")
@@ -89,6 +90,14 @@ def test_ins_lmi_is_detected_infeasible_and_pi_liekf_falls_back_to_liekf():
     est_lk, _ = run_offline(lk, d, [10.0, 10.0, 60.0], output_period_s=1.0)
     # safe gains k_P = I, k_I = 0: exactly the LIEKF
     assert np.allclose(est_pi[-1].C_b_n, est_lk[-1].C_b_n, atol=1e-12)
+
+
+def _research_core(formulation, structure, params):
+    from insalign_ros.filters.config import PiLiekfConfig
+    from insalign_ros.filters.pi_liekf import PiLiekf
+
+    return PiLiekf(PiLiekfConfig.from_dict(params),
+                   gain_solver_factory=LMI.research_solver_factory(formulation, structure, "max_integral"))
 
 
 def _eq18_window_product(window, H, k_P, k_I):
@@ -107,9 +116,9 @@ def test_window_lmi_is_feasible_on_the_ship_and_its_gains_stabilise_the_exact_lo
     from insalign_ros.sim.scenarios import make_scenario
 
     d = make_scenario("ship", seed=3, duration_s=61.5)  # the last fix (t = 61 s) is the last solve
-    pi = make_core("pi_liekf", {"lmi_formulation": "window", "rho": 0.003, "lmi_window_updates": 20,
-                                "lmi_resolve_every_updates": 20, "lmi_async": "false"})
-    assert pi.cfg.lmi_structure == "structured" and pi.cfg.lmi_objective == "max_integral"
+    pi = _research_core("window", "structured", {"rho": 0.003, "lmi_window_updates": 20,
+                                                 "lmi_resolve_every_updates": 20, "lmi_async": "false"})
+    assert pi._gain_solver().structure == "structured" and pi._gain_solver().W == 20
     run_offline(pi, d, [10.0, 10.0, 60.0], output_period_s=1.0)
     assert [round(t) for t, _ in pi.lmi_history] == [21, 41, 61]  # every 20 updates once the window is full
     # the first window holds the 60-deg transient (fading, large linearisation error): not feasible there, and
@@ -210,7 +219,7 @@ def test_certified_gains_on_the_ship_exact_loop_and_rejected_candidates():
     d = make_scenario("ship", seed=4, duration_s=70.5)
     # first candidate k_P = I, k_I = 1/s: unstable over a window (spectral radius ~12): must be rejected
     pi = make_core("pi_liekf", {"lmi_candidates": "1.0:1.0,1.6:0.5", "lmi_async": "false"})
-    assert pi.cfg.lmi_formulation == "certify" and pi.cfg.lmi_window_updates == 30
+    assert pi.cfg.lmi_window_updates == 30
     est, _ = run_offline(pi, d, [10.0, 10.0, 60.0], output_period_s=1.0)
     assert [round(t) for t, _ in pi.lmi_history] == [61]  # history 30 + 2 * 10 intervals, then every 30 updates
     r = pi.lmi
@@ -265,3 +274,129 @@ def test_a_failing_solve_falls_back_to_safe_gains_with_the_reason(mode):
     assert np.allclose(core.k_P, np.eye(3)) and np.allclose(core.k_I, 0.0)
     assert np.all(np.isfinite(est[-1].C_b_n))
     core.close()
+
+
+class _ScriptedSolver:
+    """Call i sleeps delays[i] s (the last delay repeats) and returns k_I = k_I_per_call[i] I: stale vs fresh."""
+
+    def __init__(self, delays_s, k_I_per_call):
+        self.delays_s, self.k_I_per_call, self.calls = list(delays_s), list(k_I_per_call), 0
+
+    def solve(self, *args, **kwargs):
+        i = self.calls
+        self.calls += 1
+        time.sleep(self.delays_s[min(i, len(self.delays_s) - 1)])
+        k = self.k_I_per_call[min(i, len(self.k_I_per_call) - 1)]
+        return LMI.LmiResult("optimal", np.eye(3), k * np.eye(3), False, f"stub call {i}")
+
+
+def _wait_until(cond, timeout_s=5.0):
+    deadline = time.perf_counter() + timeout_s
+    while not cond() and time.perf_counter() < deadline:
+        time.sleep(0.02)
+
+
+def _lmi_threads():
+    import threading
+
+    return [t for t in threading.enumerate() if t.name == "pi_liekf_lmi"]
+
+
+def test_sync_solve_waits_at_most_the_budget_and_a_late_result_never_overwrites_newer_gains():
+    """The first solve overruns (1.5 s, k_I = 0.05) a 0.3-s budget: the update returns after ~0.3 s with the safe
+    gains and the reason; the next solves wait behind it or miss; once the worker is free a fresh solve (0.07)
+    is applied, and the stale 0.05 never is. One worker thread, jobs that could not start are dropped."""
+    from insalign_ros.sim.scenarios import make_scenario
+
+    _wait_until(lambda: not _lmi_threads())  # idle workers of earlier tests' cores end after IDLE_EXIT_S
+    solver = _ScriptedSolver([1.5, 0.0], [0.05, 0.07])
+    core = _timed_core("false", solver)
+    core.cfg.lmi_time_budget_s = 0.3
+    threads = []
+    core._gain_solver = lambda: (threads.append(len(_lmi_threads())), solver)[1]
+    run_offline(core, make_scenario("ship", seed=0, duration_s=60.0), [10.0, 10.0, 60.0], output_period_s=1.0)
+    d = core.diagnostics()
+    ks = [float(r.k_I[0, 0]) for _, r in core.lmi_history]
+    assert core.lmi_history[0][1].budget_miss and "lmi_time_budget_s = 0.3 s" in core.lmi_history[0][1].reason
+    assert 0.05 not in ks and ks[-1] == 0.07 and np.allclose(core.k_I, 0.07 * np.eye(3)), ks
+    assert d["lmi_budget_misses"] >= 1 and d["lmi_fallbacks"] == d["lmi_budget_misses"]
+    assert solver.calls <= core.lmi_submitted and max(threads) <= 1
+    # no update blocked for the 1.5-s solve; the misses waited the budget, not more (slack for a busy machine)
+    assert 0.3 <= max(core.update_wall_s) < 1.0, max(core.update_wall_s)
+    assert d["lmi_solve_time_max_s"] < 1.0
+    core.close()
+
+
+def test_async_solve_that_overruns_the_budget_is_discarded_and_counted():
+    from insalign_ros.sim.scenarios import make_scenario
+
+    solver = _ScriptedSolver([1.0], [0.05])
+    core = _timed_core("true", solver)
+    core.cfg.lmi_time_budget_s = 0.3
+    run_offline(core, make_scenario("ship", seed=0, duration_s=12.0), [10.0, 10.0, 60.0], output_period_s=1.0)
+    assert core.lmi_submitted == 1 and max(core.update_wall_s) < 0.010  # never waits, budget or not
+    assert core.busy
+    assert core.wait_for_pending_solve(5.0)  # it finished after 1.0 s > 0.3 s: a miss, the result discarded
+    assert not core.busy
+    d = core.diagnostics()
+    assert d["lmi_status"] == LMI.BUDGET_STATUS and d["lmi_used_fallback"] and "discarded" in d["lmi_reason"]
+    assert d["lmi_budget_misses"] == 1 and d["lmi_fallbacks"] == 1 and np.allclose(core.k_I, 0.0)
+    core.close()
+
+
+def test_a_slow_lmi_on_a_weakly_excited_ship_is_cut_at_the_budget():
+    """Reproduction of a slow solve: a ship at 4 m/s in low waves, whose first window (t = 61 s) no candidate
+    certifies. CLARABEL fails there (rejected at once); SCS iterates near infeasibility (as the SCS fallback did:
+    99 s for that one solve, the 200-s run 100 s instead of 1.5 s, before the budget). With SCS the solve now stops
+    at the 0.5-s budget."""
+    from insalign_ros.sim.scenarios import make_scenario
+
+    d = make_scenario("ship", seed=0, duration_s=62.0, speed_m_s=4.0, amp_e_m=0.5, amp_n_m=0.5, amp_u_m=0.3)
+    # default CLARABEL: the candidates it fails on are rejected at once (no SCS fallback), within the budget
+    core = make_core("pi_liekf")
+    run_offline(core, d, [10.0, 10.0, 60.0], output_period_s=1.0)
+    diag = core.diagnostics()
+    assert diag["lmi_budget_misses"] == 0 and diag["lmi_fallbacks"] == 1 and "CLARABEL failed" in diag["lmi_reason"]
+    assert core.lmi.extra["solver_errors"] >= 1 and diag["lmi_solve_time_max_s"] < core.cfg.lmi_time_budget_s
+    core.close()
+    core = make_core("pi_liekf", {"lmi_solver": "SCS", "lmi_time_budget_s": 0.5})
+    t0 = time.perf_counter()
+    run_offline(core, d, [10.0, 10.0, 60.0], output_period_s=1.0)
+    wall = time.perf_counter() - t0
+    diag = core.diagnostics()
+    assert [round(t) for t, _ in core.lmi_history] == [61]
+    assert diag["lmi_budget_misses"] == 1 and diag["lmi_fallbacks"] == 1 and diag["lmi_used_fallback"]
+    assert diag["lmi_solve_time_max_s"] < 1.0 and wall < 15.0, (diag["lmi_solve_time_max_s"], wall)
+    assert np.allclose(core.k_P, np.eye(3)) and np.allclose(core.k_I, 0.0)
+    core.close()
+
+
+def test_close_is_idempotent_safe_at_any_time_and_leaves_no_thread():
+    import threading
+
+    from insalign_ros.filters.config import PiLiekfConfig
+    from insalign_ros.filters.pi_liekf import PiLiekf
+    from insalign_ros.sim.scenarios import make_scenario
+
+    d = make_scenario("ship", seed=0, duration_s=7.0)
+    PiLiekf().close()  # before initialize
+    _wait_until(lambda: not _lmi_threads())  # a solve abandoned by an earlier test ends at its own time limit
+    base = threading.active_count()
+    for i in range(50):
+        core = _timed_core("true" if i % 2 else "false", _ScriptedSolver([0.0], [0.05]))
+        run_offline(core, d, [10.0, 10.0, 60.0], output_period_s=1.0)  # a solve after 5 intervals
+        core.close()
+        core.close()
+        assert len(_lmi_threads()) <= 1
+    # mid-solve: close returns at once, the solve's result is discarded; the core is usable again after close
+    core = _timed_core("true", _ScriptedSolver([0.5, 0.0], [0.05, 0.07]))
+    run_offline(core, d, [10.0, 10.0, 60.0], output_period_s=1.0)
+    t0 = time.perf_counter()
+    core.close()
+    assert time.perf_counter() - t0 < 0.1 and core.wait_for_pending_solve(0.0) and core.lmi is None
+    run_offline(core, d, [10.0, 10.0, 60.0], output_period_s=1.0)
+    assert core.wait_for_pending_solve(5.0) and np.allclose(core.k_I, 0.07 * np.eye(3))
+    core.close()
+    PiLiekf(PiLiekfConfig()).close()
+    _wait_until(lambda: threading.active_count() == base)  # the mid-solve worker ends when its 0.5-s solve returns
+    assert threading.active_count() == base and not _lmi_threads()

@@ -148,23 +148,22 @@ class LiekfConfig(InMotionGnssConfig):
 
 @dataclass
 class PiLiekfConfig(InMotionGnssConfig):
-    """PI-LIEKF (Alg. 2) with PI gains from the LMI of eqs. (18)-(23) (docs/inmotion_cores.md, PI-LIEKF)."""
+    """PI-LIEKF (Alg. 2) with PI gains from the LMI of eqs. (18)-(23) (docs/inmotion_cores.md, PI-LIEKF).
+
+    One formulation: eq. (20) as an analysis LMI (J variable) on the exact closed loop of eq. (18) over 3 windows of
+    ``lmi_window_updates`` GNSS intervals shifted by W/3, rate (1 - 2 rho)^W; the first certified candidate of
+    ``lmi_candidates`` is used, else the safe gains. The formulations that never work on the INS (per-interval
+    eq. (22), window synthesis) are not options: benchmarks/lmi_formulations.py runs them."""
 
     #: decay-rate parameter of eq. (20) per GNSS update (PI-LIEKF Table 2: 0.01), compounded to (1 - 2 rho)^W over a
-    #: window. The "window" synthesis needs rho <= ~0.006 on the ship (use 0.003; docs/inmotion_cores.md)
+    #: window
     rho: float = 0.01
-    #: cvxpy solver for the LMI; SCS is tried only when this one raises
+    #: cvxpy solver for the LMI ("CLARABEL" or "SCS"); a candidate it fails on is rejected (no second solver)
     lmi_solver: str = "CLARABEL"
-    #: "certify" (default): eq. (20) as an analysis LMI (J variable) on the exact closed loop of eq. (18) over a
-    #: window of ``lmi_window_updates`` GNSS intervals, one J for 3 windows shifted by W/3, rate (1 - 2 rho)^W; the
-    #: first certified candidate of ``lmi_candidates`` is used. "window": synthesis LMI on the lifted window with
-    #: the integral state held (k_P = I, k_I an LMI variable; feasible but k_I <= ~0.06 1/s, buys nothing).
-    #: "interval": eq. (22) on one frozen interval as the paper writes it (never feasible on the INS)
-    lmi_formulation: str = "certify"
-    #: formulation "certify": candidate gains "k_P:k_I,..." (scalars times I; k_I in 1/s) in order of preference;
-    #: the first one that the eq. (20) LMI certifies on the exact window product is used
+    #: candidate gains "k_P:k_I,..." (scalars times I; k_I in 1/s) in order of preference; the first one that the
+    #: eq. (20) LMI certifies on the exact window product is used
     lmi_candidates: str = "1.6:0.5,1.6:0.3,1.3:0.3,1.0:0.1"
-    #: GNSS intervals W of the lifted window (formulation "window")
+    #: GNSS intervals W of each certification window (history needed: W + 2 W/3 intervals)
     lmi_window_updates: int = 30
     #: re-solve the LMI every this many GNSS updates (1 = every update, as Alg. 2 reads); the gains are cached
     #: in between (A and H are state-independent: the LMI data change only with the IMU input and L_k)
@@ -175,17 +174,15 @@ class PiLiekfConfig(InMotionGnssConfig):
     lmi_schedule: str = "every"
     #: convergence threshold of the "once" schedule [deg] (the ship's 3-sigma yaw settles near 1.4 deg)
     lmi_once_yaw_3sigma_deg: float = 3.0
-    #: "structured": the eq. (23) gain structure built into the LMI (exact, residual 0); "paper": unstructured
-    #: J, N of eq. (22) and the least-squares solution of eq. (23) (its residual is reported and the structured
-    #: closed loop is checked)
-    lmi_structure: str = "structured"
-    #: "min_norm": the smallest gains that certify the rate (paper: any feasible point); "max_integral" (with
-    #: lmi_structure "structured", formulation "window"): the largest integral gain the certificate allows
-    lmi_objective: str = "max_integral"
     #: "auto": synchronous in the offline runner (deterministic), in a worker thread in the ROS node (the node
     #: turns "auto" into "true"); "true": the solve runs in a worker thread and the gains are swapped in at the
     #: first update after it finished (the cached gains are used meanwhile); "false": synchronous
     lmi_async: str = "auto"
+    #: wall-time budget of one LMI solve [s] (a solve takes ~0.1 s on the ship). The solver gets the time left as
+    #: its own limit; a solve that has not returned within the budget gives the safe gains with the reason and is
+    #: counted (diagnostics lmi_budget_misses); its late result is discarded. A synchronous update waits at most
+    #: this long
+    lmi_time_budget_s: float = 2.0
     #: safe fallback gains when the LMI is infeasible: k_P = I, k_I = safe_k_I_per_s I [1/s] (0 = the LIEKF)
     safe_k_I_per_s: float = 0.0
     #: margin of the strict inequalities (LMI <= -eps I, J >= eps I)
@@ -204,9 +201,8 @@ class PiLiekfConfig(InMotionGnssConfig):
         super().validate()
         if not 0.0 <= self.rho < 0.5:
             raise ValueError(f"rho: must be in [0, 0.5) so that 1 - 2 rho > 0, got {self.rho}")
-        choices = {"lmi_solver": ("CLARABEL", "SCS"), "lmi_formulation": ("window", "certify", "interval"),
-                   "lmi_schedule": ("every", "once"), "lmi_structure": ("structured", "paper"),
-                   "lmi_async": ("auto", "true", "false"), "lmi_objective": ("min_norm", "max_integral")}
+        choices = {"lmi_solver": ("CLARABEL", "SCS"), "lmi_schedule": ("every", "once"),
+                   "lmi_async": ("auto", "true", "false")}
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name}: must be one of {list(allowed)}, got {getattr(self, name)!r}")
@@ -222,6 +218,8 @@ class PiLiekfConfig(InMotionGnssConfig):
             raise ValueError(f"lmi_resolve_every_updates: must be >= 1, got {self.lmi_resolve_every_updates}")
         if not 2 <= self.lmi_window_updates <= 600:
             raise ValueError(f"lmi_window_updates: must be in [2, 600], got {self.lmi_window_updates}")
+        if not 0.0 < self.lmi_time_budget_s <= 600.0:
+            raise ValueError(f"lmi_time_budget_s: must be in (0, 600], got {self.lmi_time_budget_s}")
         if not self.lmi_eps > 0:
             raise ValueError(f"lmi_eps: must be > 0, got {self.lmi_eps}")
         if self.integral_clamp_m < 0:

@@ -1,4 +1,4 @@
-"""PI gains of the PI-LIEKF from the LMI of eqs. (18)-(23), solved with cvxpy (CLARABEL, SCS fallback).
+"""PI gains of the PI-LIEKF from the LMI of eqs. (18)-(23), solved with cvxpy (CLARABEL, SCS if it raises).
 
 Augmented error system (eq. (18); A_bar is not written in the paper: derived in docs/inmotion_cores.md).
 With the error after the k-th update ``e_k`` (n = 9) and the integral innovation ``Z_I_k`` (m = 3),
@@ -9,18 +9,23 @@ With the error after the k-th update ``e_k`` (n = 9) and the integral innovation
     K = M K_PI,  M = [[L, 0], [0, T_s I]]  ((n+m) x 2m),  K_PI = [k_P; -k_I]  (2m x m).
 
 A is the error transition over the interval between two GNSS updates (product of the per-sample
-transitions), T_s that interval. The LMI of eq. (22) in (J, N = J K) with J normalised (eps I <= J <= I,
-the LMI is homogeneous) is solved for any K; eq. (23) then needs M^-1, which is not square: K_PI is its
-least-squares solution and the relative residual ||M K_PI - K|| / ||K|| is reported, together with whether
-the *structured* closed loop ``A_bar - M K_PI B_bar`` still satisfies the rate condition of eq. (20) with
-the same J and its spectral radius. When the LMI is infeasible or the structured gains do not stabilise,
-the safe gains ``k_P = I, k_I = safe`` are returned (the PI-LIEKF then reduces to the LIEKF) with the reason.
+transitions), T_s that interval.
 
-That per-interval form (:class:`PiGainSolver`, :class:`StructuredPiGainSolver`) is never feasible on the INS (the
-frozen pair is not detectable). :func:`lift_window` + :class:`WindowPiGainSolver` impose eq. (20) on the
-transition lifted over W intervals (k_I synthesised, integral state held); :class:`WindowGainCertifier` (the
-default of the PI-LIEKF) uses eq. (20) as an analysis LMI on the exact window product for candidate gains.
-docs/inmotion_cores.md has the derivations and the measurements.
+The PI-LIEKF uses one formulation, :class:`WindowGainCertifier`: eq. (20) as an analysis LMI (J the only variable)
+on the exact window product of eq. (18) for candidate gains, the first certified candidate wins, else the safe
+gains ``k_P = I, k_I = safe`` (the PI-LIEKF then reduces to the LIEKF) with the reason. Every solve takes a
+``deadline_s`` (``time.perf_counter()`` clock): each cvxpy call gets the time left as the solver's own time limit
+(CLARABEL ``time_limit``, SCS ``time_limit_secs``), and a solve that runs out returns the safe gains with
+``budget_miss`` set. Only an "optimal" solve certifies; "optimal_inaccurate", "infeasible" or a solver failure
+reject the candidate (no second solver: near infeasibility SCS took seconds and never certified).
+
+Research formulations (not user options; ``benchmarks/lmi_formulations.py`` runs them, docs/inmotion_cores.md
+has the derivations and the measurements): the per-interval eq. (22) as the paper writes it (:class:`PiGainSolver`,
+unstructured J, N with the least-squares eq. (23); :class:`StructuredPiGainSolver`, the eq. (23) structure built in)
+is never feasible on the INS (the frozen pair is not detectable); :func:`lift_window` + :class:`WindowPiGainSolver`
+impose eq. (20) on the transition lifted over W intervals (k_I synthesised, integral state held): feasible, but the
+gains it allows buy nothing. :class:`IntervalGainSolver` adapts the per-interval solvers to the window interface
+(``history_needed``, ``solve(WindowData, deadline_s)``) that :class:`~insalign_ros.filters.pi_liekf.PiLiekf` calls.
 """
 
 from __future__ import annotations
@@ -31,10 +36,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+#: status of a solve that ran out of its time budget
+BUDGET_STATUS = "budget_exceeded"
+#: the cvxpy option that bounds a solver's own run time [s]
+_TIME_LIMIT_OPTION = {"CLARABEL": "time_limit", "SCS": "time_limit_secs"}
+#: time kept back from the solver's limit for cvxpy's unpacking and the eigenvalue checks [s]
+_UNPACK_RESERVE_S = 0.01
+# The status says it (and an inaccurate solve certifies nothing). A filter, not warnings.catch_warnings(), which is not
+# thread-safe and the solves run in a worker thread.
+warnings.filterwarnings("ignore", message="Solution may be inaccurate", category=UserWarning)
+
 
 @dataclass
 class LmiResult:
-    status: str  # cvxpy status of the solve ("optimal", "infeasible", ...)
+    status: str  # cvxpy status of the solve ("optimal", "infeasible", ...) or BUDGET_STATUS
     k_P: np.ndarray  # (m, m)
     k_I: np.ndarray  # (m, m)
     used_fallback: bool
@@ -46,6 +61,7 @@ class LmiResult:
     solver: str = ""
     solve_time_s: float = 0.0
     extra: dict = field(default_factory=dict)
+    budget_miss: bool = False  # the solve ran out of its time budget (the gains are then the safe ones)
 
 
 class _GainSolverBase:
@@ -57,6 +73,214 @@ class _GainSolverBase:
         self.cp, self.n, self.m, self.rho, self.solver, self.eps = cp, n, m, rho, solver, eps
         self.safe_k_P, self.safe_k_I = np.eye(m), safe_k_I_per_s * np.eye(m)
         return cp, n + m
+
+
+def _solve(prob, first: str, deadline_s: float | None = None, scs_fallback: bool = True):
+    """Solve ``prob`` with ``first`` (then SCS if it raises and ``scs_fallback``) within ``deadline_s``:
+    (status, solver used). The status is BUDGET_STATUS when the deadline has passed before or during the solve."""
+    status, used = "not solved", ""
+    for solver in dict.fromkeys([first, "SCS"] if scs_fallback else [first]):
+        opts = {}
+        if deadline_s is not None:
+            left = deadline_s - time.perf_counter() - _UNPACK_RESERVE_S
+            if left <= 0.0:
+                return BUDGET_STATUS, used or solver
+            opts[_TIME_LIMIT_OPTION[solver]] = left
+        try:
+            prob.solve(solver=solver, **opts)
+            status, used = prob.status, solver
+        except Exception as exc:  # solver failure: try the next one
+            status, used = f"error: {type(exc).__name__}", solver
+            continue
+        break  # SCS only when the first solver raised: a status (even "infeasible") is an answer
+    if status != "optimal" and deadline_s is not None and time.perf_counter() >= deadline_s - 2 * _UNPACK_RESERVE_S:
+        status = BUDGET_STATUS  # stopped by its time limit (user_limit / inaccurate / error at the limit)
+    return status, used
+
+
+@dataclass
+class WindowData:
+    """The last W GNSS intervals of the LIEKF (k_P = I), oldest first: what the lifted LMI needs.
+
+    Per interval j: ``A_j`` (9x9 error transition between fixes), ``L_j`` (9x3 Kalman gain), ``Ts_j`` [s];
+    ``H`` (3x9) is constant; ``P0`` (9x9) is the posterior covariance at the start of the window (whitening).
+    """
+
+    A: np.ndarray  # (W, n, n)
+    L: np.ndarray  # (W, n, m)
+    Ts: np.ndarray  # (W,)
+    H: np.ndarray  # (m, n)
+    P0: np.ndarray  # (n, n)
+
+
+def exact_window_closed_loop(w: WindowData, k_P: np.ndarray, k_I: np.ndarray) -> np.ndarray:
+    """Product over the window of the per-update closed loops ``A_bar_j - M_j K_PI B_bar_j`` (eq. (18), exact:
+    the integral state is not held), in the same whitened coordinates as :func:`lift_window`."""
+    n, m = w.H.shape[1], w.H.shape[0]
+    T = np.linalg.cholesky(0.5 * (w.P0 + w.P0.T))
+    Ti = np.linalg.inv(T)
+    q = n + m
+    Pi = np.eye(q)
+    for A, L, Ts in zip(w.A, w.L, w.Ts):
+        HA = w.H @ A
+        Acl = np.zeros((q, q))
+        Acl[:n, :n] = A - L @ k_P @ HA
+        Acl[:n, n:] = -L
+        Acl[n:, :n] = Ts * k_I @ HA
+        Acl[n:, n:] = np.eye(m)
+        Pi = Acl @ Pi
+    S = np.eye(q)
+    S[:n, :n] = T
+    Si = np.eye(q)
+    Si[:n, :n] = Ti
+    return Si @ Pi @ S
+
+
+def parse_candidates(text: str) -> list[tuple[float, float]]:
+    """``"1.6:0.5,1.0:0.1"`` -> [(k_P, k_I [1/s]), ...] (scalar gains, times the identity). Raises ValueError."""
+    out = []
+    for item in text.split(","):
+        kp, ki = item.split(":")
+        kp, ki = float(kp), float(ki)
+        if not (np.isfinite(kp) and np.isfinite(ki) and kp > 0 and ki >= 0):
+            raise ValueError(f"gain candidate {item!r}: need k_P > 0 and k_I >= 0")
+        out.append((kp, ki))
+    if not out:
+        raise ValueError("no gain candidates")
+    return out
+
+
+class WindowGainCertifier(_GainSolverBase):
+    """Eq. (20) as an *analysis* LMI on the exact per-update closed loop (eq. (18), integral state not held).
+
+    For given gains ``K_PI = [k_P; -k_I]`` (eq. (23) structure exact: ``K = M K_PI``) the transition of the
+    augmented error over a window of W intervals is the product ``Pi = prod_j (A_bar_j - M_j K_PI B_bar_j)``,
+    polynomial in the gains, so the gains cannot be LMI variables; J can. The LMI
+
+        Pi_i^T J Pi_i - (1 - 2 rho)^W J < 0  for the S windows ending 0, s, 2 s, ... updates ago,  J > 0
+
+    (one Lyapunov function for all of them: robust to the motion changing between windows; a single window
+    would only test its spectral radius) certifies the paper's rate. The candidates (scalar k_P, k_I, in the
+    user's order of preference) are tried in order; the first certified one is returned, else the safe gains.
+    """
+
+    def __init__(self, n: int = 9, m: int = 3, rho: float = 0.01, window: int = 30, n_windows: int = 3,
+                 shift: int = 10, candidates=((1.0, 0.0),), solver: str = "CLARABEL", eps: float = 1e-6,
+                 safe_k_I_per_s: float = 0.0):
+        cp, q = self._setup(n, m, rho, solver, eps, safe_k_I_per_s)
+        self.W, self.S, self.shift, self.candidates = window, n_windows, shift, list(candidates)
+        self.c = (1.0 - 2.0 * rho) ** window
+        self.Pi = [cp.Parameter((q, q)) for _ in range(n_windows)]
+        self.J = cp.Variable((q, q), symmetric=True)
+        self.exprs = []
+        cons = [self.J >> eps * np.eye(q), self.J << np.eye(q)]
+        for P in self.Pi:
+            # Schur form of Pi^T J Pi < c J (eq. (21)-(22) with K fixed): [[-c J, Pi^T J], [J Pi, -J]] < 0
+            JP = self.J @ P
+            e = cp.bmat([[-self.c * self.J, JP.T], [JP, -self.J]])
+            e = 0.5 * (e + e.T)
+            self.exprs.append(e)
+            cons.append(e << -eps * np.eye(2 * q))
+        self.prob = cp.Problem(cp.Minimize(0), cons)
+
+    @staticmethod
+    def history_for(window: int, n_windows: int = 3, shift: int = 10) -> int:
+        """GNSS intervals of history that S windows of W intervals, shifted by ``shift``, need."""
+        return window + (n_windows - 1) * shift
+
+    @property
+    def history_needed(self) -> int:
+        return self.history_for(self.W, self.S, self.shift)
+
+    def solve(self, w: WindowData, deadline_s: float | None = None) -> LmiResult:
+        """``w`` holds the last ``history_needed`` intervals (oldest first); P0 whitens the error coordinates.
+        ``deadline_s`` (``time.perf_counter()`` clock, None = no limit): when it passes, the safe gains are
+        returned with ``budget_miss`` set and the candidates not tried are named."""
+        m = self.m
+        t0 = time.perf_counter()
+        tried = []
+        status, used = "not solved", ""
+        errors = 0  # candidates the solver failed on (counted for the benchmarks)
+        N = len(w.Ts)
+        for kp, ki in self.candidates:
+            k_P, k_I = kp * np.eye(m), ki * np.eye(m)
+            Pis = []
+            for i in range(self.S):
+                end = N - i * self.shift
+                sub = WindowData(w.A[end - self.W:end], w.L[end - self.W:end], w.Ts[end - self.W:end], w.H, w.P0)
+                Pis.append(exact_window_closed_loop(sub, k_P, k_I))
+            srad = max(float(np.max(np.abs(np.linalg.eigvals(P)))) for P in Pis)
+            if srad >= np.sqrt(self.c):  # necessary condition fails: no J exists, skip the solve
+                tried.append(f"{kp:g}/{ki:g}: spectral radius {srad:.3f} >= (1-2 rho)^(W/2)")
+                continue
+            for par, P in zip(self.Pi, Pis):
+                par.value = P
+            # no SCS after a CLARABEL failure: that happens near infeasibility, where SCS took 1-40 s per candidate
+            # and never certified one on the ship and car sweeps (docs/inmotion_cores.md, 'Bounded solve time')
+            status, used = _solve(self.prob, self.solver, deadline_s, scs_fallback=False)
+            errors += status.startswith("error")
+            if status == BUDGET_STATUS:
+                dt = time.perf_counter() - t0
+                return LmiResult(status, self.safe_k_P, self.safe_k_I, True,
+                                 f"LMI time budget ran out after {dt:.2f} s at candidate {kp:g}/{ki:g}"
+                                 + (f" (rejected before: {'; '.join(tried)})" if tried else "") + ": safe gains",
+                                 solver=used, solve_time_s=dt, budget_miss=True)
+            if status != "optimal" or self.J.value is None:  # optimal_inaccurate is no certificate
+                tried.append(f"{kp:g}/{ki:g}: " + (f"{used} failed" if status.startswith("error") else status))
+                continue
+            lmi_max = max(float(np.linalg.eigvalsh(np.asarray(e.value)).max()) for e in self.exprs)
+            if lmi_max > -0.5 * self.eps:
+                tried.append(f"{kp:g}/{ki:g}: on the boundary")
+                continue
+            J = self.J.value
+            margin = max(float(np.linalg.eigvalsh(P.T @ J @ P - self.c * J).max()) for P in Pis)
+            dt = time.perf_counter() - t0
+            return LmiResult(status, k_P, k_I, False,
+                             f"gains k_P = {kp:g} I, k_I = {ki:g} I certified: eq. (20) rate (1-2 rho)^W with one J "
+                             f"over {self.S} windows (W = {self.W}), worst spectral radius {srad:.3f}"
+                             + (f"; rejected before: {'; '.join(tried)}" if tried else ""),
+                             0.0, lmi_max, margin, srad, used, dt,
+                             extra={"candidate": (kp, ki), "solver_errors": errors})
+        dt = time.perf_counter() - t0
+        return LmiResult(status, self.safe_k_P, self.safe_k_I, True,
+                         f"no gain candidate certified ({'; '.join(tried)}): safe gains", solver=used,
+                         solve_time_s=dt, extra={"solver_errors": errors})
+
+
+# ------------------------------------------------------------------------------ research formulations
+# Not user options: benchmarks/lmi_formulations.py and test/test_pi_liekf.py build them and hand them to the
+# PI-LIEKF (PiLiekf(config, gain_solver_factory=...)); docs/inmotion_cores.md shows why none of them is the default.
+
+
+def _use_safe(res: LmiResult, solver, reason: str) -> None:
+    """Replace the gains of ``res`` by the solver's safe gains (k_P = I, k_I = safe) and say why."""
+    res.k_P, res.k_I, res.used_fallback = solver.safe_k_P, solver.safe_k_I, True
+    res.reason = reason
+
+
+def _fell_back(res: LmiResult, solver, lmi_max: float, srad: float, gains: np.ndarray, infeasible: str,
+               unstable: str) -> bool:
+    """Safe gains (and True) when the LMI is on the boundary or the gains do not stabilise the loop."""
+    if lmi_max > -0.5 * solver.eps:
+        _use_safe(res, solver, infeasible)
+        return True
+    if srad >= 1.0 or not np.all(np.isfinite(gains)):
+        _use_safe(res, solver, unstable)
+        return True
+    return False
+
+
+def _solve_or_safe(solver, var, what: str, t0: float, deadline_s: float | None = None):
+    """Solve ``solver.prob``; return (status, solver used, seconds since t0, None) or, when it has no solution,
+    the same with an LmiResult carrying the safe gains and the reason."""
+    status, used = _solve(solver.prob, solver.solver, deadline_s)
+    dt = time.perf_counter() - t0
+    if status in ("optimal", "optimal_inaccurate") and var.value is not None:
+        return status, used, dt, None
+    safe = LmiResult(status, solver.safe_k_P, solver.safe_k_I, True, "", solver=used, solve_time_s=dt,
+                     budget_miss=status == BUDGET_STATUS)
+    safe.reason = f"{what} not solved ({status}): safe gains k_P = I, k_I = safe"
+    return status, used, dt, safe
 
 
 class StructuredPiGainSolver(_GainSolverBase):
@@ -90,7 +314,7 @@ class StructuredPiGainSolver(_GainSolverBase):
         self.prob = cp.Problem(cp.Minimize(1e-3 * cp.sum_squares(self.Y)), cons)
         self._lmi_expr = lmi
 
-    def solve(self, A, H, L, Ts, P_prior) -> LmiResult:
+    def solve(self, A, H, L, Ts, P_prior, deadline_s: float | None = None) -> LmiResult:
         n, m, q = self.n, self.m, self.n + self.m
         T = np.linalg.cholesky(0.5 * (P_prior + P_prior.T))
         Ti = np.linalg.inv(T)
@@ -106,7 +330,7 @@ class StructuredPiGainSolver(_GainSolverBase):
         M[n:, m:] = Ts * np.eye(m)
         self.Abar.value, self.Bbar.value, self.MBL.value = Abar_w, Bbar_w, M
         t0 = time.perf_counter()
-        status, used, dt, safe = _solve_or_safe(self, self.X, "structured LMI", t0)
+        status, used, dt, safe = _solve_or_safe(self, self.X, "structured LMI", t0, deadline_s)
         if safe is not None:
             return safe
         K_PI = self.Y.value @ np.linalg.inv(self.Xm.value)
@@ -127,51 +351,6 @@ class StructuredPiGainSolver(_GainSolverBase):
         return res
 
 
-def _use_safe(res: LmiResult, solver, reason: str) -> None:
-    """Replace the gains of ``res`` by the solver's safe gains (k_P = I, k_I = safe) and say why."""
-    res.k_P, res.k_I, res.used_fallback = solver.safe_k_P, solver.safe_k_I, True
-    res.reason = reason
-
-
-def _fell_back(res: LmiResult, solver, lmi_max: float, srad: float, gains: np.ndarray, infeasible: str,
-               unstable: str) -> bool:
-    """Safe gains (and True) when the LMI is on the boundary or the gains do not stabilise the loop."""
-    if lmi_max > -0.5 * solver.eps:
-        _use_safe(res, solver, infeasible)
-        return True
-    if srad >= 1.0 or not np.all(np.isfinite(gains)):
-        _use_safe(res, solver, unstable)
-        return True
-    return False
-
-
-def _solve_or_safe(solver, var, what: str, t0: float):
-    """Solve ``solver.prob``; return (status, solver used, seconds since t0, None) or, when it has no solution,
-    the same with an LmiResult carrying the safe gains and the reason."""
-    status, used = _solve(solver.prob, solver.solver)
-    dt = time.perf_counter() - t0
-    if status in ("optimal", "optimal_inaccurate") and var.value is not None:
-        return status, used, dt, None
-    safe = LmiResult(status, solver.safe_k_P, solver.safe_k_I, True, "", solver=used, solve_time_s=dt)
-    safe.reason = f"{what} not solved ({status}): safe gains k_P = I, k_I = safe"
-    return status, used, dt, safe
-
-
-def _solve(prob, first: str):
-    status, used = "not solved", ""
-    for solver in dict.fromkeys([first, "SCS"]):
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                prob.solve(solver=solver)
-            status, used = prob.status, solver
-        except Exception as exc:  # solver failure: try the next one
-            status, used = f"error: {exc}", solver
-            continue
-        break  # SCS only when the first solver raised: a status (even "infeasible") is an answer
-    return status, used
-
-
 class PiGainSolver(_GainSolverBase):
     """Builds the DPP-parametrised cvxpy problem once (n, m fixed); each solve only sets A_bar and B_bar."""
 
@@ -190,7 +369,8 @@ class PiGainSolver(_GainSolverBase):
         self.prob = cp.Problem(cp.Minimize(1e-3 * cp.sum_squares(self.N)), cons)
         self._lmi_expr = lmi
 
-    def solve(self, A: np.ndarray, H: np.ndarray, L: np.ndarray, Ts: float, P_prior=None) -> LmiResult:
+    def solve(self, A: np.ndarray, H: np.ndarray, L: np.ndarray, Ts: float, P_prior=None,
+              deadline_s: float | None = None) -> LmiResult:
         n, m, q = self.n, self.m, self.n + self.m
         Abar = np.zeros((q, q))
         Abar[:n, :n] = A
@@ -200,7 +380,7 @@ class PiGainSolver(_GainSolverBase):
         Bbar[:, :n] = H @ A
         self.Abar.value, self.Bbar.value = Abar, Bbar
         t0 = time.perf_counter()
-        status, used, dt, safe = _solve_or_safe(self, self.J, "LMI", t0)
+        status, used, dt, safe = _solve_or_safe(self, self.J, "LMI", t0, deadline_s)
         if safe is not None:
             return safe
         J, Nv = self.J.value, self.N.value
@@ -228,22 +408,6 @@ class PiGainSolver(_GainSolverBase):
         else:
             res.reason = f"LMI solved, eq. (20) rate certified; eq. (23) residual {resid:.2g}"
         return res
-
-
-# ------------------------------------------------------------------------------ lifted (window) formulation
-@dataclass
-class WindowData:
-    """The last W GNSS intervals of the LIEKF (k_P = I), oldest first: what the lifted LMI needs.
-
-    Per interval j: ``A_j`` (9x9 error transition between fixes), ``L_j`` (9x3 Kalman gain), ``Ts_j`` [s];
-    ``H`` (3x9) is constant; ``P0`` (9x9) is the posterior covariance at the start of the window (whitening).
-    """
-
-    A: np.ndarray  # (W, n, n)
-    L: np.ndarray  # (W, n, m)
-    Ts: np.ndarray  # (W,)
-    H: np.ndarray  # (m, n)
-    P0: np.ndarray  # (n, n)
 
 
 def lift_window(w: WindowData):
@@ -278,29 +442,6 @@ def lift_window(w: WindowData):
     Abar[n:, n:] = np.eye(m)
     Bbar = np.hstack([O @ T, -Lam])
     return Abar, Bbar, T
-
-
-def exact_window_closed_loop(w: WindowData, k_P: np.ndarray, k_I: np.ndarray) -> np.ndarray:
-    """Product over the window of the per-update closed loops ``A_bar_j - M_j K_PI B_bar_j`` (eq. (18), exact:
-    the integral state is not held), in the same whitened coordinates as :func:`lift_window`."""
-    n, m = w.H.shape[1], w.H.shape[0]
-    T = np.linalg.cholesky(0.5 * (w.P0 + w.P0.T))
-    Ti = np.linalg.inv(T)
-    q = n + m
-    Pi = np.eye(q)
-    for A, L, Ts in zip(w.A, w.L, w.Ts):
-        HA = w.H @ A
-        Acl = np.zeros((q, q))
-        Acl[:n, :n] = A - L @ k_P @ HA
-        Acl[:n, n:] = -L
-        Acl[n:, :n] = Ts * k_I @ HA
-        Acl[n:, n:] = np.eye(m)
-        Pi = Acl @ Pi
-    S = np.eye(q)
-    S[:n, :n] = T
-    Si = np.eye(q)
-    Si[:n, :n] = Ti
-    return Si @ Pi @ S
 
 
 class WindowPiGainSolver(_GainSolverBase):
@@ -354,12 +495,16 @@ class WindowPiGainSolver(_GainSolverBase):
             self.prob = cp.Problem(cp.Minimize(cp.sum_squares(N)), cons)
         self._lmi_expr = lmi
 
-    def solve(self, w: WindowData) -> LmiResult:
+    @property
+    def history_needed(self) -> int:
+        return self.W
+
+    def solve(self, w: WindowData, deadline_s: float | None = None) -> LmiResult:
         n, m, q = self.n, self.m, self.n + self.m
         t0 = time.perf_counter()
         Abar, Bbar, _ = lift_window(w)
         self.Abar.value, self.Bbar.value = Abar, Bbar
-        status, used, dt, safe = _solve_or_safe(self, self.J, f"lifted LMI (W = {self.W})", t0)
+        status, used, dt, safe = _solve_or_safe(self, self.J, f"lifted LMI (W = {self.W})", t0, deadline_s)
         if safe is not None:
             return safe
         J = np.asarray(self.J.value)
@@ -391,94 +536,34 @@ class WindowPiGainSolver(_GainSolverBase):
         return res
 
 
-def parse_candidates(text: str) -> list[tuple[float, float]]:
-    """``"1.6:0.5,1.0:0.1"`` -> [(k_P, k_I [1/s]), ...] (scalar gains, times the identity). Raises ValueError."""
-    out = []
-    for item in text.split(","):
-        kp, ki = item.split(":")
-        kp, ki = float(kp), float(ki)
-        if not (np.isfinite(kp) and np.isfinite(ki) and kp > 0 and ki >= 0):
-            raise ValueError(f"gain candidate {item!r}: need k_P > 0 and k_I >= 0")
-        out.append((kp, ki))
-    if not out:
-        raise ValueError("no gain candidates")
-    return out
+class IntervalGainSolver:
+    """The per-interval eq. (22) solvers (:class:`PiGainSolver`, :class:`StructuredPiGainSolver`) behind the window
+    interface: a window of one interval, ``A, L, T_s`` of the latest GNSS interval and its prior covariance."""
+
+    history_needed = 1
+
+    def __init__(self, solver):
+        self.solver = solver
+
+    def solve(self, w: WindowData, deadline_s: float | None = None) -> LmiResult:
+        return self.solver.solve(w.A[-1], w.H, w.L[-1], float(w.Ts[-1]), w.P0, deadline_s=deadline_s)
 
 
-class WindowGainCertifier(_GainSolverBase):
-    """Eq. (20) as an *analysis* LMI on the exact per-update closed loop (eq. (18), integral state not held).
+def research_solver_factory(formulation: str, structure: str = "structured", objective: str = "max_integral"):
+    """``factory(cfg)`` for ``PiLiekf(cfg, gain_solver_factory=...)``: "interval" (eq. (22) on one interval;
+    ``structure`` "paper" = :class:`PiGainSolver`, "structured" = :class:`StructuredPiGainSolver`) or "window"
+    (:class:`WindowPiGainSolver` over ``cfg.lmi_window_updates`` intervals, ``structure`` and ``objective``).
+    rho, solver, eps and the safe gains come from the PI-LIEKF config."""
+    if structure not in ("paper", "structured") or objective not in ("min_norm", "max_integral"):
+        raise ValueError(f"structure {structure!r} / objective {objective!r}")
 
-    For given gains ``K_PI = [k_P; -k_I]`` (eq. (23) structure exact: ``K = M K_PI``) the transition of the
-    augmented error over a window of W intervals is the product ``Pi = prod_j (A_bar_j - M_j K_PI B_bar_j)``,
-    polynomial in the gains, so the gains cannot be LMI variables; J can. The LMI
+    def factory(c):
+        if formulation == "window":
+            return WindowPiGainSolver(9, 3, c.rho, c.lmi_window_updates, c.lmi_solver, c.lmi_eps, c.safe_k_I_per_s,
+                                      structure, objective)
+        cls = StructuredPiGainSolver if structure == "structured" else PiGainSolver
+        return IntervalGainSolver(cls(9, 3, c.rho, c.lmi_solver, c.lmi_eps, c.safe_k_I_per_s))
 
-        Pi_i^T J Pi_i - (1 - 2 rho)^W J < 0  for the S windows ending 0, s, 2 s, ... updates ago,  J > 0
-
-    (one Lyapunov function for all of them: robust to the motion changing between windows; a single window
-    would only test its spectral radius) certifies the paper's rate. The candidates (scalar k_P, k_I, in the
-    user's order of preference) are tried in order; the first certified one is returned, else the safe gains.
-    """
-
-    def __init__(self, n: int = 9, m: int = 3, rho: float = 0.01, window: int = 30, n_windows: int = 3,
-                 shift: int = 10, candidates=((1.0, 0.0),), solver: str = "CLARABEL", eps: float = 1e-6,
-                 safe_k_I_per_s: float = 0.0):
-        cp, q = self._setup(n, m, rho, solver, eps, safe_k_I_per_s)
-        self.W, self.S, self.shift, self.candidates = window, n_windows, shift, list(candidates)
-        self.c = (1.0 - 2.0 * rho) ** window
-        self.Pi = [cp.Parameter((q, q)) for _ in range(n_windows)]
-        self.J = cp.Variable((q, q), symmetric=True)
-        self.exprs = []
-        cons = [self.J >> eps * np.eye(q), self.J << np.eye(q)]
-        for P in self.Pi:
-            # Schur form of Pi^T J Pi < c J (eq. (21)-(22) with K fixed): [[-c J, Pi^T J], [J Pi, -J]] < 0
-            JP = self.J @ P
-            e = cp.bmat([[-self.c * self.J, JP.T], [JP, -self.J]])
-            e = 0.5 * (e + e.T)
-            self.exprs.append(e)
-            cons.append(e << -eps * np.eye(2 * q))
-        self.prob = cp.Problem(cp.Minimize(0), cons)
-
-    @property
-    def history_needed(self) -> int:
-        return self.W + (self.S - 1) * self.shift
-
-    def solve(self, w: WindowData) -> LmiResult:
-        """``w`` holds the last ``history_needed`` intervals (oldest first); P0 whitens the error coordinates."""
-        m = self.m
-        t0 = time.perf_counter()
-        tried = []
-        status, used = "not solved", ""
-        N = len(w.Ts)
-        for kp, ki in self.candidates:
-            k_P, k_I = kp * np.eye(m), ki * np.eye(m)
-            Pis = []
-            for i in range(self.S):
-                end = N - i * self.shift
-                sub = WindowData(w.A[end - self.W:end], w.L[end - self.W:end], w.Ts[end - self.W:end], w.H, w.P0)
-                Pis.append(exact_window_closed_loop(sub, k_P, k_I))
-            srad = max(float(np.max(np.abs(np.linalg.eigvals(P)))) for P in Pis)
-            if srad >= np.sqrt(self.c):  # necessary condition fails: no J exists, skip the solve
-                tried.append(f"{kp:g}/{ki:g}: spectral radius {srad:.3f} >= (1-2 rho)^(W/2)")
-                continue
-            for par, P in zip(self.Pi, Pis):
-                par.value = P
-            status, used = _solve(self.prob, self.solver)
-            if status not in ("optimal", "optimal_inaccurate") or self.J.value is None:
-                tried.append(f"{kp:g}/{ki:g}: {status}")
-                continue
-            lmi_max = max(float(np.linalg.eigvalsh(np.asarray(e.value)).max()) for e in self.exprs)
-            if lmi_max > -0.5 * self.eps:
-                tried.append(f"{kp:g}/{ki:g}: on the boundary")
-                continue
-            J = self.J.value
-            margin = max(float(np.linalg.eigvalsh(P.T @ J @ P - self.c * J).max()) for P in Pis)
-            dt = time.perf_counter() - t0
-            return LmiResult(status, k_P, k_I, False,
-                             f"gains k_P = {kp:g} I, k_I = {ki:g} I certified: eq. (20) rate (1-2 rho)^W with one J "
-                             f"over {self.S} windows (W = {self.W}), worst spectral radius {srad:.3f}"
-                             + (f"; rejected before: {'; '.join(tried)}" if tried else ""),
-                             0.0, lmi_max, margin, srad, used, dt, extra={"candidate": (kp, ki)})
-        dt = time.perf_counter() - t0
-        return LmiResult(status, self.safe_k_P, self.safe_k_I, True,
-                         f"no gain candidate certified ({'; '.join(tried)}): safe gains", solver=used,
-                         solve_time_s=dt)
+    if formulation not in ("interval", "window"):
+        raise ValueError(f"formulation {formulation!r}: 'interval' or 'window'")
+    return factory
