@@ -89,6 +89,7 @@ class AlignmentCore(ABC):
     #: ``None``: the core keeps no such covariance
     att_index: tuple[int, ...] | None = None
     vel_index: tuple[int, ...] | None = None
+    pos_index: tuple[int, ...] | None = None
     #: per-core counters (imu, rejected, ...) merged into the session's diagnostics; cores that count assign
     #: their own dict in __init__
     counters: Mapping[str, int] = MappingProxyType({})
@@ -141,9 +142,10 @@ class AlignmentCore(ABC):
     def flush(self) -> None:
         """Apply buffered IMU samples now (batched cores buffer; the default keeps none)."""
 
-    def inflate_navigation(self, var_att_rad2: float, var_v_m2_s2: float) -> None:
+    def inflate_navigation(self, var_att_rad2: float, var_v_m2_s2: float, var_p_m2: float = 0.0) -> None:
         """Add ``var_att_rad2`` [rad^2] to each attitude-error variance and ``var_v_m2_s2`` [m^2/s^2] to each
-        velocity-error variance (isotropic, so the frame of the error states does not matter).
+        velocity-error variance and ``var_p_m2`` [m^2] to each position-error variance (isotropic, so the frame of
+        the error states does not matter).
 
         The session calls it across an IMU gap: the motion during the gap is unknown, and what the missing
         samples would have told the filter is lost (docs/session.md, "Gaps")."""
@@ -152,9 +154,10 @@ class AlignmentCore(ABC):
         self.flush()
         a = list(self.att_index)
         self.P[a, a] += var_att_rad2
-        if self.vel_index is not None:
-            v = list(self.vel_index)
-            self.P[v, v] += var_v_m2_s2
+        for idx, var in ((self.vel_index, var_v_m2_s2), (self.pos_index, var_p_m2)):
+            if idx is not None:
+                i = list(idx)
+                self.P[i, i] += var
 
     def default_initial_sigmas(self) -> tuple[tuple[float, float, float], float, float]:
         """Initial 1-sigmas the core was tuned for: ((roll, pitch, yaw) [deg], velocity [m/s], position [m]).

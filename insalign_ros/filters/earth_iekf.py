@@ -125,6 +125,7 @@ class EarthIekf(AlignmentCore):
     supports_backtracking = True
     att_index = (0, 1, 2)
     vel_index = (3, 4, 5)
+    pos_index = (6, 7, 8)
 
     def default_initial_sigmas(self):
         c = self.cfg

@@ -55,7 +55,7 @@ class YawHypothesisBank(AlignmentCore):
         self.supports_gnss = proto.supports_gnss
         self.supports_zero_velocity = proto.supports_zero_velocity
         self.supports_backtracking = False
-        self.att_index, self.vel_index = proto.att_index, proto.vel_index
+        self.att_index, self.vel_index, self.pos_index = proto.att_index, proto.vel_index, proto.pos_index
         self._proto_sigmas = proto.default_initial_sigmas()
         proto.close()
         self.hyps: list[AlignmentCore] = []
@@ -135,9 +135,9 @@ class YawHypothesisBank(AlignmentCore):
         for h in self.hyps:
             h.close()
 
-    def inflate_navigation(self, var_att_rad2: float, var_v_m2_s2: float) -> None:
+    def inflate_navigation(self, var_att_rad2: float, var_v_m2_s2: float, var_p_m2: float = 0.0) -> None:
         for h in self.hyps:
-            h.inflate_navigation(var_att_rad2, var_v_m2_s2)
+            h.inflate_navigation(var_att_rad2, var_v_m2_s2, var_p_m2)
 
     # ------------------------------------------------------------------ events
     def propagate(self, imu) -> None:

@@ -222,6 +222,7 @@ class BatchedEciCore(AlignmentCore):
     supports_gnss = True
     att_index = (0, 1, 2)
     vel_index = (3, 4, 5)
+    pos_index = (6, 7, 8)
     _n_states = 9
     state_names: tuple[str, ...] = ()
 

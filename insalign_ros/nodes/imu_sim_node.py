@@ -324,11 +324,11 @@ class ImuSimNode(Node):
         self.sent_fix += 1
 
     def summary(self) -> dict:
-        return {"source": self.source, "scenario": getattr(self.data, "name", "rest"), "imu_sent": self.sent,
+        return {"source": self.source, "scenario": self.data.name if self.data is not None else "rest", "imu_sent": self.sent,
                 "fix_sent": self.sent_fix, "truth_sent": self.sent_truth,
                 "imu_flagged_skipped": self.skipped_flagged, "rate_factor": self.rate_factor,
                 "first_stamp_ns": self.t_start_ns, "gave_up": self.gave_up,
-                "paused_s": round(getattr(self, "paused_s", 0.0), 3)}
+                "paused_s": round(self.paused_s, 3)}
 
     # ------------------------------------------------------------------ rest source (timer)
     def _tick(self) -> None:

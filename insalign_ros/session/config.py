@@ -85,13 +85,14 @@ class SessionConfig:
             raise ValueError(f"core: unknown core {self.core!r}; choose one of {sorted(registry.core_names())}")
         if self.init_mode not in ("guess", "truth"):
             raise ValueError(f"init_mode: must be 'guess' or 'truth', got {self.init_mode!r}")
+        values = self.to_dict()
         for name in ("initial_rpy_deg", "initial_velocity_enu_m_s", "init_rpy_error_deg"):
-            v = list(getattr(self, name))
+            v = list(values[name])
             if len(v) != 3 or not all(_is_num(x) and math.isfinite(x) for x in v):
                 raise ValueError(f"{name}: need 3 finite numbers, got {v}")
             setattr(self, name, [float(x) for x in v])
         for name in ("init_sigma_rpy_deg", "static_position_deg_m"):
-            v = list(getattr(self, name))
+            v = list(values[name])
             if len(v) != 3 or not all(_is_num(x) for x in v):
                 raise ValueError(f"{name}: need 3 numbers (NaN = unset), got {v}")
             setattr(self, name, [float(x) for x in v])
@@ -100,11 +101,11 @@ class SessionConfig:
         positive = ("max_rate_rad_s", "max_acc_m_s2", "max_gap_s", "gap_factor", "max_fix_ahead_s",
                     "zupt_sigma_m_s", "gnss_timeout_s", "backtrack_window_s", "backtrack_budget_s", "idle_drain_s")
         for name in positive:
-            v = getattr(self, name)
+            v = values[name]
             if not (_is_num(v) and v > 0) or (math.isinf(v) and name != "backtrack_budget_s"):
                 raise ValueError(f"{name}: must be a finite number > 0, got {v!r}")
         for name in ("max_fix_lag_s", "output_period_s", "zupt_rate_hz", "imu_timeout_s"):
-            v = getattr(self, name)
+            v = values[name]
             if not (_is_num(v) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"{name}: must be a finite number >= 0, got {v!r}")
         # values that would silently disable the pipeline are refused with the reason

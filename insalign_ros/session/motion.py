@@ -86,8 +86,8 @@ class MotionConfig(ConfigDict):
 
     def samples(self) -> dict:
         """Window lengths in samples."""
-        return {k: int(round(getattr(self, f"{k}_s" if k == "window" else f"{k}_window_s") * self.rate_hz))
-                for k in ("window", "dv", "ref")}
+        lengths = {"window": self.window_s, "dv": self.dv_window_s, "ref": self.ref_window_s}
+        return {k: int(round(v * self.rate_hz)) for k, v in lengths.items()}
 
     def thresholds(self) -> dict:
         """The bounds, derived from the IMU noise (see the module docstring)."""

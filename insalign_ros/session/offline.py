@@ -65,20 +65,10 @@ def load_source(source, duration_s: float | None = None, seed: int = 0, **reader
 
 
 def truncate(data: ScenarioData, duration_s: float) -> ScenarioData:
-    """The first ``duration_s`` seconds of ``data`` (IMU, fixes and whatever truth arrays exist)."""
-    from dataclasses import replace
-
+    """The first ``duration_s`` seconds of ``data`` (IMU, fixes, truth and validity)."""
     if not duration_s > 0:
         raise ValueError(f"duration: must be > 0, got {duration_s}")
-    n = int(np.searchsorted(data.t_s, data.t_s[0] + duration_s, side="right"))
-    m = int(np.searchsorted(data.gnss_t_s, data.t_s[n - 1], side="right"))
-    cut = lambda a: None if a is None else a[:n]  # noqa: E731
-    kw = dict(t_s=data.t_s[:n], omega_ib_b=data.omega_ib_b[:n], f_ib_b=data.f_ib_b[:n], gnss_t_s=data.gnss_t_s[:m],
-              gnss_p_e=data.gnss_p_e[:m], gnss_R_e=data.gnss_R_e[:m], C_b_n=cut(data.C_b_n),
-              lat_rad=cut(data.lat_rad), lon_rad=cut(data.lon_rad), h_m=cut(data.h_m), v_n=cut(data.v_n))
-    for name in ("omega_ib_b_true", "f_ib_b_true"):
-        kw[name] = cut(getattr(data, name))
-    return replace(data, **kw)
+    return data.until(float(data.t_s[0]) + duration_s)
 
 
 def truth_samples(data: ScenarioData):
@@ -100,18 +90,25 @@ def truth_samples(data: ScenarioData):
 
 def events_in_arrival_order(data: ScenarioData, fix_delay_s: float = 0.0):
     """(kind, item) in the order a live system would receive them: IMU in stamp order, a fix once the IMU has
-    reached ``stamp + fix_delay_s``, truth with its IMU sample."""
+    reached ``stamp + fix_delay_s``, truth with its IMU sample. Samples and fixes the source flags invalid are
+    left out (the session sees a gap)."""
     truth = truth_samples(data)
     j = 0
     g_t = data.gnss_t_s
+    imu_ok, gnss_ok = data.imu_valid_mask, data.gnss_valid_mask
     for k in range(data.n):
         t = float(data.t_s[k])
         if truth:
             yield "truth", truth[k]
-        yield "imu", ImuSample(t, data.omega_ib_b[k], data.f_ib_b[k])
+        if imu_ok[k]:  # a sample the source flags invalid (e.g. a KITTI fill row) is not data: a gap
+            yield "imu", ImuSample(t, data.omega_ib_b[k], data.f_ib_b[k])
         while j < g_t.shape[0] and g_t[j] + fix_delay_s <= t:
-            yield "fix", GnssFix(float(g_t[j]), data.gnss_p_e[j], data.gnss_R_e[j])
+            if gnss_ok[j]:
+                yield "fix", GnssFix(float(g_t[j]), data.gnss_p_e[j], data.gnss_R_e[j])
             j += 1
+    for j in range(j, g_t.shape[0]):  # delayed fixes still on their way when the IMU stream ended
+        if gnss_ok[j]:
+            yield "fix", GnssFix(float(g_t[j]), data.gnss_p_e[j], data.gnss_R_e[j])
 
 
 def run_session(session: AlignmentSession, data: ScenarioData, fix_delay_s: float = 0.0, chunk: int = 1000,

@@ -394,7 +394,8 @@ class AlignmentSession:
             a = k / (n_mid + 1)
             self._feed(ImuSample(t_a + k * step, (1 - a) * w_a + a * w_b, (1 - a) * f_a + a * f_b))
         var_att, var_v, how = self._bridge_error_var(n_mid + 1, step)
-        self.core.inflate_navigation(var_att, var_v)
+        # the velocity error builds up over the gap: position error ~ its mean times the gap length
+        self.core.inflate_navigation(var_att, var_v, var_v * (0.5 * (t_b - t_a)) ** 2)
         self.log("warn", "imu_gaps", f"IMU gap of {t_b - t_a:.3f} s before {t_b:.6f} (median interval {h * 1e3:.2f} ms): "
                                      f"bridged with {n_mid} interpolated samples, attitude 3-sigma +"
                                      f"{3 * math.sqrt(var_att) / D2R:.3f} deg ({how}; imu_gaps={self.counters['imu_gaps']})")
