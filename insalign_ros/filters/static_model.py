@@ -26,6 +26,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from ..core import earth, lie
+from ..core import mechanization_numba as nb
 from ..core.mechanization_n import LocalLevelMechanization
 from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, ImuSample, UpdateResult
 from .config import ConfigDict
@@ -178,7 +179,10 @@ def usable_step(core, imu: ImuSample) -> float | None:
         return None
     t = float(imu.stamp_s)
     dt = t - core.t_s
-    if not (0.0 < dt <= 1.0) or not (np.all(np.isfinite(imu.f_ib_b)) and np.all(np.isfinite(imu.omega_ib_b))):
+    w, f = imu.omega_ib_b, imu.f_ib_b
+    # one scalar test (hot path): a sum is non-finite iff a term is (or it overflows: garbage too)
+    if not (0.0 < dt <= 1.0) or len(w) != 3 or len(f) != 3 or not math.isfinite(
+            float(w[0]) + float(w[1]) + float(w[2]) + float(f[0]) + float(f[1]) + float(f[2])):
         core.t_s = max(core.t_s, t) if math.isfinite(t) else core.t_s
         return None
     return dt
@@ -222,6 +226,9 @@ class StaticZuptCore(AlignmentCore):
         self._init_bias_cov()
         self._f_sum_n = np.zeros(3)
         self._dt_acc = 0.0
+        self._buf_w: list = []
+        self._buf_f: list = []
+        self._buf_dt: list[float] = []
         self._f_lp_ned = None
         self._N_prev = None
         self.t0_s = float(stamp_s)
@@ -245,10 +252,30 @@ class StaticZuptCore(AlignmentCore):
         dt = usable_step(self, imu)
         if dt is None:
             return
+        self.t_s = float(imu.stamp_s)
+        if nb.ENABLED:  # buffered: the compiled loop runs on the next flush (docs/speed.md)
+            self._buf_w.append(imu.omega_ib_b)
+            self._buf_f.append(imu.f_ib_b)
+            self._buf_dt.append(dt)
+            return
         f_n = self.mech.step(imu.omega_ib_b, imu.f_ib_b, dt)
         self._f_sum_n += f_n * dt
         self._dt_acc += dt
-        self.t_s = float(imu.stamp_s)
+
+    def flush(self) -> None:
+        """Run the buffered IMU samples through the mechanization (one compiled call for the whole interval)."""
+        if not self._init or not self._buf_dt:
+            return
+        W = np.asarray(self._buf_w, dtype=float)
+        F = np.asarray(self._buf_f, dtype=float)
+        DT = np.asarray(self._buf_dt, dtype=float)
+        self._buf_w, self._buf_f, self._buf_dt = [], [], []
+        m = self.mech
+        C = np.ascontiguousarray(m.C_b_n)
+        v = np.array(m.v_n, dtype=float)
+        self._dt_acc += nb.local_level_steps(C, v, W, F, DT, m.gyro_correction_b, m.acc_correction_b, m.omega_ie_n,
+                                             m.g_n, m.R_N_m, m.R_E_m, m.tan_lat, self._f_sum_n)
+        m.C_b_n, m.v_n = C, v
 
     def _process_noise(self, dt: float) -> np.ndarray:
         q = np.zeros(5)
@@ -269,6 +296,7 @@ class StaticZuptCore(AlignmentCore):
             return UpdateResult(False, reason="not initialized")
         if not (math.isfinite(sigma_v_m_s) and sigma_v_m_s > 0):
             return UpdateResult(False, reason=f"sigma_v_m_s must be > 0, got {sigma_v_m_s}")
+        self.flush()
         dt = self._dt_acc
         if dt <= 0:
             return UpdateResult(False, reason="no IMU data since the last update")
@@ -431,6 +459,7 @@ class StaticZuptCore(AlignmentCore):
                                      float("nan"), np.eye(3) * np.pi**2, np.eye(5 + self.n_bias),
                                      self.state_names, status=AlignmentStatus.WAITING_FOR_DATA,
                                      reason="not initialized")
+        self.flush()
         P_att = T_NED_ENU @ self.P[2:5, 2:5] @ T_NED_ENU
         if self.n_bias == 0:
             g = float(np.linalg.norm(self.mech.g_n))
