@@ -262,6 +262,24 @@ class StaticZuptCore(AlignmentCore):
         self._f_sum_n += f_n * dt
         self._dt_acc += dt
 
+    def propagate_arrays(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
+        """Forward, compiled path: whole arrays appended to the interval buffer when every row is usable (finite,
+        0 < dt <= 1 s); otherwise sample by sample (which skips and handles the bad rows)."""
+        t = np.asarray(t_s, float)
+        w = np.asarray(omega_ib_b, float)
+        f = np.asarray(f_ib_b, float)
+        n = t.shape[0]
+        ok = (nb.ENABLED and self._init and not backward and n > 0 and t.ndim == 1 and w.shape == (n, 3)
+              and f.shape == (n, 3) and np.isfinite(w).all() and np.isfinite(f).all())
+        dt = np.diff(t, prepend=self.t_s) if ok else None
+        if not ok or not (np.all(dt > 0.0) and np.all(dt <= 1.0)):
+            super().propagate_arrays(t_s, omega_ib_b, f_ib_b, backward)
+            return
+        self._buf_w += list(w)
+        self._buf_f += list(f)
+        self._buf_dt += dt.tolist()
+        self.t_s = float(t[-1])
+
     def flush(self) -> None:
         """Run the buffered IMU samples through the mechanization (one compiled call for the whole interval)."""
         if not self._init or not self._buf_dt:
