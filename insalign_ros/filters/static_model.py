@@ -82,11 +82,64 @@ class StaticModelInputs:
                          -earth.OMEGA_IE_RAD_S * math.sin(self.lat_rad)])
 
 
+@nb._jit
+def _f_model_nb(x, f_np, lat, r_m, m, out):
+    """:func:`f_model` compiled (the same expressions, written out); writes out (5,)."""
+    dvN, dvE, pN, pE, pD = x[0], x[1], x[2], x[3], x[4]
+    c, s = math.cos(pD), math.sin(pD)
+    E = ((c, -s, pE * c + pN * s), (s, c, pE * s - pN * c), (-pE, pN, 1.0))
+    w0, w2 = _OMEGA_IE * math.cos(lat), -_OMEGA_IE * math.sin(lat)
+    Ef0 = E[0][0] * f_np[0] + E[0][1] * f_np[1] + E[0][2] * f_np[2]
+    Ef1 = E[1][0] * f_np[0] + E[1][1] * f_np[1] + E[1][2] * f_np[2]
+    acc0 = f_np[0] - Ef0 - 2.0 * (-w2 * dvE)
+    acc1 = f_np[1] - Ef1 - 2.0 * (w2 * dvN)
+    a0 = w0 + dvE / r_m - m[2]
+    a1 = 0.0 - dvN / r_m - m[3]
+    a2 = w2 - dvE * math.tan(lat) / r_m - m[4]
+    z0 = E[0][0] * a0 + E[0][1] * a1 + E[0][2] * a2 - w0
+    z1 = E[1][0] * a0 + E[1][1] * a1 + E[1][2] * a2
+    z2 = E[2][0] * a0 + E[2][1] * a1 + E[2][2] * a2 - w2
+    out[0] = acc0 + m[0]
+    out[1] = acc1 + m[1]
+    out[2] = c * z0 + s * z1
+    out[3] = -s * z0 + c * z1
+    out[4] = z2
+
+
+@nb._jit
+def _jacobian_nb(x, f_np, lat, r_m, m, F):
+    """Central differences of :func:`_f_model_nb` in x (the steps of :func:`jacobian`); writes F (5, 5)."""
+    xp = np.empty(5)
+    xm = np.empty(5)
+    fp = np.empty(5)
+    fm = np.empty(5)
+    for j in range(5):
+        h = 1e-6 if j < 2 else 1e-7
+        for i in range(5):
+            xp[i] = x[i]
+            xm[i] = x[i]
+        xp[j] += h
+        xm[j] -= h
+        _f_model_nb(xp, f_np, lat, r_m, m, fp)
+        _f_model_nb(xm, f_np, lat, r_m, m, fm)
+        for i in range(5):
+            F[i, j] = (fp[i] - fm[i]) / (2 * h)
+
+
+_OMEGA_IE = earth.OMEGA_IE_RAD_S
+_M0 = np.zeros(5)
+
+
 def f_model(x: np.ndarray, u: StaticModelInputs, m_prime: np.ndarray | None = None) -> np.ndarray:
     """Continuous nonlinear model f(x, m') of eq. (34) (derivation in the module docstring).
 
     m' = [DfN, DfE, DwN, DwE, DwD]: residual accelerometer [m/s^2] and gyro [rad/s] errors in n' (NED).
     """
+    if nb.ENABLED:
+        out = np.empty(5)
+        _f_model_nb(np.asarray(x, float), np.asarray(u.f_np_ned, float), float(u.lat_rad), float(u.r_m),
+                    _M0 if m_prime is None else np.asarray(m_prime, float), out)
+        return out
     m = np.zeros(5) if m_prime is None else m_prime
     dvN, dvE, pN, pE, pD = x
     E = misalignment_matrix(x[2:5])
@@ -103,6 +156,9 @@ def f_model(x: np.ndarray, u: StaticModelInputs, m_prime: np.ndarray | None = No
 def jacobian(x: np.ndarray, u: StaticModelInputs) -> np.ndarray:
     """F_t = df/dx (eq. (35)) of :func:`f_model`, by central differences (exact to ~1e-9 relative)."""
     F = np.zeros((5, 5))
+    if nb.ENABLED:
+        _jacobian_nb(np.asarray(x, float), np.asarray(u.f_np_ned, float), float(u.lat_rad), float(u.r_m), _M0, F)
+        return F
     for j in range(5):
         h = 1e-6 if j < 2 else 1e-7
         e = np.zeros(5)
