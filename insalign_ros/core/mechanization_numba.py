@@ -22,7 +22,7 @@ import os
 
 import numpy as np
 
-from . import earth
+from . import earth, mechanization_n
 from .lie import _A_SERIES, _B_SERIES, _C1_SERIES, _C2_SERIES, _SERIES_BELOW_RAD
 
 try:  # numba is a pinned dependency; without it the numpy reference paths run
@@ -66,15 +66,13 @@ def _coeffs(t2):
     return s / t, (1.0 - c) / t2, (t - s) / (t2 * t), (0.5 * t2 + c - 1.0) / (t2 * t2)
 
 
+_rodrigues_ab = _jit(mechanization_n.rodrigues_ab)
+
+
 @_jit
 def _rodrigues(x, y, z, out):
-    """out = exp([x, y, z]_x) (the closed form of mechanization_n._rodrigues: series only below 1e-6 rad)."""
-    t2 = x * x + y * y + z * z
-    if t2 < 1e-12:
-        a, b = 1.0 - t2 / 6.0, 0.5 - t2 / 24.0
-    else:
-        t = math.sqrt(t2)
-        a, b = math.sin(t) / t, (1.0 - math.cos(t)) / t2
+    """out = exp([x, y, z]_x) (the coefficients of mechanization_n._rodrigues)."""
+    a, b = _rodrigues_ab(x * x + y * y + z * z)
     _so3_from(x, y, z, a, b, 1.0, out)
 
 

@@ -221,6 +221,21 @@ def _check_imu(imu: ImuSample) -> str:
     return ""
 
 
+def usable_imu_arrays(t_s, omega_ib_b, f_ib_b, t_last_s: float):
+    """(t (N,), omega (N, 3), f (N, 3), dt (N,)) as float arrays when every row is usable: finite, stamps after
+    ``t_last_s`` and increasing by at most 1 s; else None (the caller takes the per-sample path, which rejects and
+    counts the bad rows). The array fast paths of the cores share this check."""
+    t = np.asarray(t_s, float)
+    w = np.asarray(omega_ib_b, float)
+    f = np.asarray(f_ib_b, float)
+    n = t.shape[0] if t.ndim == 1 else 0
+    if n == 0 or w.shape != (n, 3) or f.shape != (n, 3) or not (
+            np.isfinite(t).all() and np.isfinite(w).all() and np.isfinite(f).all()):
+        return None
+    dt = np.diff(t, prepend=t_last_s)
+    return (t, w, f, dt) if bool(np.all(dt > 0.0) and np.all(dt <= 1.0)) else None
+
+
 # ----------------------------------------------------------------------------------- the shared core
 class BatchedEciCore(AlignmentCore):
     """ECI strapdown + error-state covariance with batched propagation; subclasses define the error model.
@@ -312,20 +327,13 @@ class BatchedEciCore(AlignmentCore):
         """Forward: whole arrays without a Python step per sample, in the same batches as sample-by-sample
         ``propagate`` (so the same numbers); any unusable row (non-finite, stamps not increasing, a gap > 1 s) sends
         the call through the per-sample path, which rejects and counts it."""
-        t = np.asarray(t_s, float)
-        w = np.asarray(omega_ib_b, float)
-        f = np.asarray(f_ib_b, float)
-        n = t.shape[0]
-        if n == 0:
-            return
-        ok = (self._init and not backward and t.ndim == 1 and w.shape == (n, 3) and f.shape == (n, 3)
-              and np.isfinite(t).all() and np.isfinite(w).all() and np.isfinite(f).all())
-        if ok:
-            dt = np.diff(t, prepend=self._buf_t[-1] if self._buf_t else self.t_s)
-            ok = bool(np.all(dt > 0.0) and np.all(dt <= 1.0))
-        if not ok:
+        arr = usable_imu_arrays(t_s, omega_ib_b, f_ib_b, self._buf_t[-1] if self._buf_t else self.t_s) \
+            if self._init and not backward else None
+        if arr is None:
             super().propagate_arrays(t_s, omega_ib_b, f_ib_b, backward)
             return
+        t, w, f, _ = arr
+        n = t.shape[0]
         self.counters["imu"] += n
         mb = self.cfg.max_batch_samples
         i = min(n, mb - len(self._buf_t))  # complete the pending batch first, as propagate() would

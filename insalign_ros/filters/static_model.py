@@ -321,16 +321,14 @@ class StaticZuptCore(AlignmentCore):
     def propagate_arrays(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
         """Forward, compiled path: whole arrays appended to the interval buffer when every row is usable (finite,
         0 < dt <= 1 s); otherwise sample by sample (which skips and handles the bad rows)."""
-        t = np.asarray(t_s, float)
-        w = np.asarray(omega_ib_b, float)
-        f = np.asarray(f_ib_b, float)
-        n = t.shape[0]
-        ok = (nb.ENABLED and self._init and not backward and n > 0 and t.ndim == 1 and w.shape == (n, 3)
-              and f.shape == (n, 3) and np.isfinite(w).all() and np.isfinite(f).all())
-        dt = np.diff(t, prepend=self.t_s) if ok else None
-        if not ok or not (np.all(dt > 0.0) and np.all(dt <= 1.0)):
+        from .liekf import usable_imu_arrays
+
+        arr = usable_imu_arrays(t_s, omega_ib_b, f_ib_b, self.t_s) if nb.ENABLED and self._init and not backward \
+            else None
+        if arr is None:
             super().propagate_arrays(t_s, omega_ib_b, f_ib_b, backward)
             return
+        t, w, f, dt = arr
         self._buf_w += list(w)
         self._buf_f += list(f)
         self._buf_dt += dt.tolist()
