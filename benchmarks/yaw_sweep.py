@@ -8,6 +8,10 @@ averaged attitude NEES after 30 s with its 95 % chi-square band, throughput side
 and figures like the paper's Figs. 3-6.
 
     nice .venv/bin/python benchmarks/yaw_sweep.py --scenario ship --seeds 20 --md-out /tmp/ship.md
+
+Every run goes through ``ia.align`` (the session users run) as a Dask task (benchmarks/sweep.py): a LocalCluster of
+``--workers`` processes by default, ``--scheduler tcp://host:8786`` for a cluster, ``--serial`` to debug;
+``--stage-timing`` adds the per-stage time summed over all runs.
 """
 
 from __future__ import annotations
