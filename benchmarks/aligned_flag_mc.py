@@ -1,14 +1,15 @@
 """Monte-Carlo check of the aligned flag (eval/aligned.py) on the ship scenario, no ROS.
 
 Each run: ship scenario (seed k), core initialised from the truth plus a random Euler error (roll, pitch
-U(-5, 5) deg, yaw U(-60, 60) deg), the same per-event loop as the node (filters/runner.EventRunner) and the
-flag evaluated at the node's default output rate (10 Hz data time) with the node's default criteria.
+U(-5, 5) deg, yaw U(-60, 60) deg), the session the node runs (``ia.align``), the session's flag at the node's
+default output rate (10 Hz data time) with the node's default criteria. Runs are Dask tasks (benchmarks/sweep.py:
+``--workers N``, ``--scheduler tcp://host:8786``, ``--serial``).
 
 Reported: runs in which the flag was ever up while the true |yaw error| exceeded the yaw threshold (false aligned),
 the number of such 10 Hz epochs, and the delay from the time the true |yaw error| falls below the threshold for
 good to the first rise of the flag (median, max).
 
-    .venv/bin/python benchmarks/aligned_flag_mc.py [--runs 20] [--core liekf] [--duration-s 300]
+    .venv/bin/python benchmarks/aligned_flag_mc.py [--runs 20] [--core liekf] [--duration-s 300] [--workers 2]
 """
 
 from __future__ import annotations
@@ -22,41 +23,26 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from insalign_ros.core import earth  # noqa: E402
-from insalign_ros.core.types import GnssFix, ImuSample  # noqa: E402
-from insalign_ros.eval.aligned import AlignedCriteria, AlignedFlag  # noqa: E402
-from insalign_ros.filters.registry import make_core  # noqa: E402
-from insalign_ros.filters.runner import EventRunner, initial_guess  # noqa: E402
-from insalign_ros.sim.scenarios import make_scenario  # noqa: E402
+from insalign_ros.eval.aligned import AlignedCriteria  # noqa: E402
 
 
 def one_run(seed: int, core_name: str, duration_s: float, criteria: AlignedCriteria, rate_s: float = 0.1,
             yaw_range_deg: float = 60.0, yaw_hypotheses: int = 1) -> dict:
-    data = make_scenario("ship", seed=seed, duration_s=duration_s)
+    """One seeded run through the session path users take (``ia.align``): truth init plus the random error, the
+    session's aligned flag at ``rate_s`` of data time (a Dask task: the scenario is cached per worker)."""
+    import insalign_ros as ia
+    import sweep
+
+    data = sweep.scenario("ship", seed, duration_s)
     rng = np.random.default_rng(10_000 + seed)
     err0 = np.array([rng.uniform(-5, 5), rng.uniform(-5, 5), rng.uniform(-yaw_range_deg, yaw_range_deg)])
-    core = make_core(core_name, {"yaw_hypotheses": yaw_hypotheses} if yaw_hypotheses > 1 else {})
-    g = initial_guess(data.t_s[0], data.lat_rad[0], data.lon_rad[0], data.h_m[0], data.C_b_n[0], data.v_n[0],
-                      err0, core.cfg)
-    g.apply(core)
-    runner = EventRunner(core, float(data.t_s[0]))
-    flag = AlignedFlag(criteria)
-    next_t = data.t_s[0]
-    rate = data.imu_spec.rate_hz
-    ts, yaw_err, up, s3 = [], [], [], []
-    for ev in data.events(start=0):
-        res = runner.feed(ev)
-        if isinstance(ev, GnssFix) and res is not None:
-            flag.on_update(core.t_s, res.accepted, res.nis, len(res.innovation) or 3)
-        elif isinstance(ev, ImuSample) and ev.stamp_s >= next_t and ev.stamp_s > data.t_s[0]:
-            next_t = ev.stamp_s + rate_s
-            est = core.estimate()
-            k = int(round(ev.stamp_s * rate))
-            ts.append(ev.stamp_s)
-            yaw_err.append(math.degrees(earth.euler_error_rad(est.C_b_n, data.C_b_n[k])[2]))
-            up.append(flag.on_estimate(ev.stamp_s, est.P_att_n))
-            s3.append(flag.sigma3_deg[2])
+    r = ia.align(data, core=core_name, core_params={"yaw_hypotheses": yaw_hypotheses} if yaw_hypotheses > 1 else {},
+                 init_mode="truth", init_rpy_error_deg=err0.tolist(), output_period_s=rate_s,
+                 criteria=criteria.to_dict())
+    keep = r.t_s > data.t_s[0]  # the initial estimate is not judged
+    ts, yaw_err, up, s3 = r.t_s[keep], r.rpy_err_deg[keep, 2], r.aligned[keep], r.sigma3_deg[keep, 2]
     ts, yaw_err, up = np.array(ts), np.abs(np.array(yaw_err)), np.array(up)
     thr = criteria.yaw_3sigma_deg
     false_epochs = int(np.sum(up & (yaw_err > thr)))
@@ -77,11 +63,15 @@ def main(argv=None) -> int:
     ap.add_argument("--yaw-3sigma-deg", type=float, default=AlignedCriteria.yaw_3sigma_deg)
     ap.add_argument("--yaw-range-deg", type=float, default=60.0, help="initial yaw error ~ U(-R, R) [deg]")
     ap.add_argument("--yaw-hypotheses", type=int, default=1, help="bank of K yaw hypotheses (1 = one filter)")
+    import sweep
+
+    sweep.add_arguments(ap)
     args = ap.parse_args(argv)
     crit = AlignedCriteria(yaw_3sigma_deg=args.yaw_3sigma_deg)
     t0 = time.monotonic()
-    rows = [one_run(s, args.core, args.duration_s, crit, yaw_range_deg=args.yaw_range_deg,
-                    yaw_hypotheses=args.yaw_hypotheses) for s in range(args.runs)]
+    tasks = [(s, args.core, args.duration_s, crit, 0.1, args.yaw_range_deg, args.yaw_hypotheses)
+             for s in range(args.runs)]
+    rows = sweep.run_tasks(one_run, tasks, args, desc="aligned-flag MC")
     print(f"aligned flag, {args.runs} ship runs x {args.duration_s:g} s, core {args.core}, yaw error "
           f"U(-{args.yaw_range_deg:g}, {args.yaw_range_deg:g}) deg, {args.yaw_hypotheses} yaw hypotheses, "
           f"criteria {crit.to_dict()}")

@@ -22,24 +22,22 @@ Long runs can be split (each command < 10 min on 2 cores) and merged:
 from __future__ import annotations
 
 import argparse
-import functools
 import json
 import math
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from insalign_ros.filters.ekf10 import Ekf10, Ekf10Config  # noqa: E402
 from insalign_ros.filters.pkf import Pkf, PkfConfig  # noqa: E402
 from insalign_ros.filters.static_model import (  # noqa: E402
-    arw_azimuth_limit_rad, config_for_imu, physical_floor, run_static)
-from insalign_ros.sim.scenarios import make_scenario  # noqa: E402
+    arw_azimuth_limit_rad, config_for_imu, physical_floor)
 
 AS = 180 / math.pi * 3600  # rad -> arcsec
 AM = 180 / math.pi * 60  # rad -> arcmin
@@ -63,14 +61,32 @@ def convergence_time(t, err, tol_floor):
     return float(t[bad[-1] + 1])
 
 
-@functools.lru_cache(maxsize=2)
-def _scenario(scen, seed, dur):
-    return make_scenario(scen, seed=seed, duration_s=dur)
+def static_run(core, sc, az0_rad, sigma_R_m_s, params, zupt_hz=10.0, init_sigma_yaw_deg=100.0,
+               init_sigma_level_deg=2.0):
+    """``run_static`` (filters/static_model.py) through the session path users take, ``ia.align``: truth attitude
+    turned by az0 about Up, a zero-velocity update every round(rate/zupt_hz) IMU samples (the session's ZUPT rate is
+    set to rate/that, so the cadence is the same; the session's first update falls on the first sample after the
+    initialisation instead of the 12th), outputs at 1 Hz. Returns (t_s, err_rad (K, 3) [E, N, U], sigma3_rad (K, 3))."""
+    import insalign_ros as ia
+    from insalign_ros.core import earth
+
+    rate = 1.0 / float(sc.t_s[1] - sc.t_s[0])
+    every = max(1, int(round(rate / zupt_hz)))
+    r = ia.align(sc, core=core, core_params=params, init_mode="truth", init_rpy_error_deg=[0.0, 0.0, math.degrees(az0_rad)],
+                 init_sigma_rpy_deg=[init_sigma_level_deg, init_sigma_level_deg, init_sigma_yaw_deg],
+                 zupt_rate_hz=rate / every, zupt_sigma_m_s=sigma_R_m_s, output_period_s=1.0)
+    outs = r.outputs[1:]  # the initial estimate is not a result
+    k = np.searchsorted(sc.t_s, [o.stamp_s for o in outs])
+    err = np.array([earth.heading_error_enu_rad(o.estimate.C_b_n, sc.C_b_n[i]) for o, i in zip(outs, k)])
+    sig3 = np.array([3.0 * np.sqrt(np.maximum(np.diag(o.estimate.P_att_n), 0.0)) for o in outs])
+    return np.array([o.stamp_s for o in outs]), err, sig3
 
 
-def run_case(args):
-    scen, seed, dur, az0, sig_r, core, pkf_params = args
-    sc = _scenario(scen, seed, dur)
+def run_case(scen, seed, dur, az0, sig_r, core, pkf_params):
+    """One (scenario, seed, az0, sigma_R, core) run as a Dask task (the scenario is cached per worker)."""
+    import sweep
+
+    sc = sweep.scenario(scen, seed, dur)
     lat = float(sc.lat_rad[0])
     fl = physical_floor(sc.C_b_n[0], sc.bias_gyro_b, sc.bias_acc_b, lat)
     arw300 = arw_azimuth_limit_rad(sc.imu_spec.arw_deg_sqrt_h, lat, min(300.0, dur))
@@ -80,7 +96,8 @@ def run_case(args):
     t0 = time.time()
     extra = dict(pkf_params) if core == "pkf" else {}
     extra.setdefault("vibration_vrw_m_s_sqrt_s", VIBRATION_VRW_M_S_SQRT_S[scen])
-    t, err, sig3 = run_static(cls(config_for_imu(cc, sc.imu_spec, **extra)), sc, math.radians(az0), sig_r)
+    params = config_for_imu(cc, sc.imu_spec, **extra).to_dict()
+    t, err, sig3 = static_run(core, sc, math.radians(az0), sig_r, params)
     wall = time.time() - t0
     half = len(t) // 2
     out = {"scen": scen, "seed": seed, "dur": dur, "az0": az0, "sig_r": sig_r, "core": core, "wall_s": wall,
@@ -259,12 +276,14 @@ def main(argv=None):
     ap.add_argument("--duration-navgrade", type=float, default=300.0)
     ap.add_argument("--az0", type=float, nargs="+", default=[30.0, 90.0, 170.0])
     ap.add_argument("--sigma-r", type=float, nargs="+", default=[1e-3, 1e-2, 1e-1])
-    ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--no-write", action="store_true")
     ap.add_argument("--pkf-params", default="{}", help="JSON dict of PkfConfig overrides (e.g. the Q_m weights)")
     ap.add_argument("--scenarios", nargs="+", default=["static", "static_navgrade"])
     ap.add_argument("--json-out", help="save every run (with its azimuth error history) to this JSON file")
     ap.add_argument("--from-json", nargs="+", help="no runs: merge these --json-out files and write the tables")
+    import sweep
+
+    sweep.add_arguments(ap)
     a = ap.parse_args(argv)
     cmd_args = " ".join(argv if argv is not None else sys.argv[1:])
     t0 = time.time()
@@ -280,20 +299,18 @@ def main(argv=None):
     else:
         pkf_params = json.loads(a.pkf_params)
         durs = {"static": a.duration_static, "static_navgrade": a.duration_navgrade}
-        # grouped by (scenario, seed) so that a worker generates each scenario once (chunksize)
-        group = len(a.az0) * len(a.sigma_r) * len(CORES)
         cases = [(scen, seed, durs[scen], az0, sr, core, pkf_params)
                  for scen in a.scenarios for seed in range(a.seed0, a.seed0 + a.seeds)
                  for az0 in a.az0 for sr in a.sigma_r for core in CORES]
-        with ProcessPoolExecutor(a.workers) as ex:
-            res = list(ex.map(run_case, cases, chunksize=group))
+        res = sweep.run_tasks(run_case, cases, a, desc="static sigma_R sweep")
         cmd = "nice .venv/bin/python benchmarks/static_sigma_r.py " + cmd_args
         wall = time.time() - t0
         n_cases = len(cases)
         if a.json_out:
             Path(a.json_out).write_text(json.dumps({"cmd": cmd, "wall_s": wall, "runs": res}))
     text = tables(res, cmd)
-    text += (f"\nWall time {wall:.0f} s for {n_cases} runs ({a.workers} workers, shared 2-core machine); mean run "
+    mode = "serial" if a.serial else a.scheduler or f"LocalCluster, {a.workers} workers"
+    text += (f"\nWall time {wall:.0f} s for {n_cases} runs ({mode}, shared 2-core machine); mean run "
              f"{np.mean([r['wall_s'] for r in res]):.1f} s.\n")
     print(text)
     if not a.no_write:

@@ -8,6 +8,10 @@ averaged attitude NEES after 30 s with its 95 % chi-square band, throughput side
 and figures like the paper's Figs. 3-6.
 
     nice .venv/bin/python benchmarks/yaw_sweep.py --scenario ship --seeds 20 --md-out /tmp/ship.md
+
+Every run goes through ``ia.align`` (the session users run) as a Dask task (benchmarks/sweep.py): a LocalCluster of
+``--workers`` processes by default, ``--scheduler tcp://host:8786`` for a cluster, ``--serial`` to debug;
+``--stage-timing`` adds the per-stage time summed over all runs.
 """
 
 from __future__ import annotations
@@ -23,11 +27,10 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from insalign_ros.core import earth  # noqa: E402
 from insalign_ros.eval import metrics as MT  # noqa: E402
-from insalign_ros.filters.registry import make_core  # noqa: E402
-from insalign_ros.filters.runner import run_offline  # noqa: E402
 from insalign_ros.sim.error_model import ImuErrorSI  # noqa: E402
 from insalign_ros.sim.scenarios import make_scenario  # noqa: E402
 
@@ -48,40 +51,59 @@ def imu_matched_params(spec) -> dict:
 
 
 def run_one(core_label, data, yaw, params=None, period=1.0):
-    core_name, bank = parse_core(core_label)
-    p = {**(bank or {}), **(params or {})}
+    """One run through the session path users take (``ia.align``): truth init plus (10, 10, yaw) deg; returns the
+    AlignResult and its summary (eval/metrics.summary, wall time, samples, LMI and bank diagnostics)."""
+    import insalign_ros as ia
     from insalign_ros.filters.registry import make_config
 
+    core_name, bank = parse_core(core_label)
+    p = {**(bank or {}), **(params or {})}
     fields = make_config(core_name).to_dict()
-    core = make_core(core_name, {k: v for k, v in p.items() if k in fields})
     t0 = time.perf_counter()
-    ests, runner = run_offline(core, data, [10.0, 10.0, yaw], output_period_s=period)
-    wall = time.perf_counter() - t0
-    r = MT.evaluate(core_label, ests, data.t_s, data.C_b_n, float(data.t_s[0]))
-    s = MT.summary(r)
+    r = ia.align(data, core=core_name, core_params={k: v for k, v in p.items() if k in fields}, init_mode="truth",
+                 init_rpy_error_deg=[10.0, 10.0, yaw], output_period_s=period)
+    s = dict(r.metrics)
+    s["wall_s"] = time.perf_counter() - t0
+    s["samples"] = int(r.counters.get("imu_processed", data.n))
+    dg = r.diagnostics
     if bank:
-        s["hypotheses_collapsed_at_s"] = core.diagnostics().get("yaw_hypotheses_collapsed_at_s")
-    s["wall_s"] = wall
-    s["samples"] = runner.counters["imu"]
-    if hasattr(core, "diagnostics"):
-        hist = getattr(core, "lmi_history", [])
-        s["lmi_solves"] = len(hist)
-        s["lmi_fallbacks"] = sum(1 for _, h in hist if h.used_fallback)
-        s["lmi_solve_time_s"] = float(sum(h.solve_time_s for _, h in hist))
-        s["lmi_last_reason"] = hist[-1][1].reason if hist else ""
+        s["hypotheses_collapsed_at_s"] = dg.get("core.yaw_hypotheses_collapsed_at_s")
+    if "core.lmi_formulation" in dg:  # PI-LIEKF: the last solve's outcome (the session closes the core)
+        s["lmi_solve_time_s"] = float(dg.get("core.lmi_solve_time_s") or 0.0)
+        s["lmi_used_fallback"] = bool(dg.get("core.lmi_used_fallback", False))
+        s["lmi_last_reason"] = str(dg.get("core.lmi_reason", ""))
     return r, s
 
 
+def sweep_task(scenario, seed, duration, core_label, yaw, default_noise, stage_timing=False):
+    """One (seed, core, yaw) run as a Dask task: summary, (t, yaw error) and (t, NEES) series, stage times."""
+    import sweep
+
+    data = sweep.scenario(scenario, seed, duration)
+    params = None if default_noise else imu_matched_params(data.imu_spec)
+    if stage_timing:
+        with sweep.StageTimer() as st:
+            t0 = time.perf_counter()
+            r, s = run_one(core_label, data, yaw, params)
+            st.total_s = time.perf_counter() - t0
+        stages = st.stages()
+    else:
+        r, s = run_one(core_label, data, yaw, params)
+        stages = None
+    return s, (r.t_s - r.init_t_s, r.rpy_err_deg), (r.t_s - r.init_t_s, r.nees), stages
+
+
 def throughput(scenario, cores=("liekf", "iekf"), duration=120.0, reps=3):
-    """Samples/s per core, measured interleaved on the same data (the machine is shared and noisy)."""
+    """Samples/s per core through ``ia.align``, interleaved on the same data (the machine is shared and noisy)."""
+    import insalign_ros as ia
+
     d = make_scenario(scenario, seed=0, duration_s=duration)
     rates = {c: [] for c in cores}
     for _ in range(reps):
         for c in cores:
-            core = make_core(c)
             t0 = time.perf_counter()
-            ests, runner = run_offline(core, d, [10.0, 10.0, 60.0], output_period_s=1.0)
-            rates[c].append(runner.counters["imu"] / (time.perf_counter() - t0))
+            ia.align(d, core=c, init_mode="truth", init_rpy_error_deg=[10.0, 10.0, 60.0], output_period_s=1.0)
+            rates[c].append(d.n / (time.perf_counter() - t0))
     return {c: (float(np.median(v)), float(np.max(v))) for c, v in rates.items()}
 
 
@@ -103,34 +125,41 @@ def main(argv=None):
     ap.add_argument("--throughput-only", action="store_true")
     ap.add_argument("--default-noise", action="store_true",
                     help="use the cores' default noise (PI-LIEKF Table 2) instead of the scenario IMU's spec")
+    ap.add_argument("--no-throughput", action="store_true", help="skip the single-core throughput measurement")
+    import sweep
+
+    sweep.add_arguments(ap)
     args = ap.parse_args(argv)
     cores = args.cores.split(",")
     yaws = [float(y) for y in args.yaws.split(",")]
     cmd = "nice .venv/bin/python benchmarks/yaw_sweep.py " + " ".join(argv if argv is not None else sys.argv[1:])
 
-    tp = throughput(args.scenario)
+    tp = {} if args.no_throughput else throughput(args.scenario)
     tp_lines = [f"| {c} | {m:,.0f} | {mx:,.0f} |" for c, (m, mx) in tp.items()]
     print("throughput (samples/s, median / best of 3, interleaved):", tp, flush=True)
     if args.throughput_only:
         return
 
-    from tqdm import tqdm
+    import sweep
 
     results = {}  # (core, yaw) -> list of summaries
     series = {}  # (core, yaw) -> list of (t, err) for figures
     nees_series = {}
-    total = len(cores) * len(yaws) * args.seeds
-    bar = tqdm(total=total, desc=f"{args.scenario} sweep", file=sys.stderr, mininterval=5)
-    for seed in range(args.seeds):
-        data = make_scenario(args.scenario, seed=seed, duration_s=args.duration)
-        for yaw in yaws:
-            for c in cores:
-                r, s = run_one(c, data, yaw, None if args.default_noise else imu_matched_params(data.imu_spec))
-                results.setdefault((c, yaw), []).append(s)
-                series.setdefault((c, yaw), []).append((r.t_s, r.rpy_err_deg))
-                nees_series.setdefault((c, yaw), []).append((r.t_s, r.nees))
-                bar.update(1)
-    bar.close()
+    tasks = [(args.scenario, seed, args.duration, c, yaw, args.default_noise, args.stage_timing)
+             for seed in range(args.seeds) for yaw in yaws for c in cores]
+    t_sweep = time.perf_counter()
+    outs = sweep.run_tasks(sweep_task, tasks, args, desc=f"{args.scenario} sweep")
+    t_sweep = time.perf_counter() - t_sweep
+    for (_, _, _, c, yaw, _, _), (s, ser, nees, _) in zip(tasks, outs):
+        results.setdefault((c, yaw), []).append(s)
+        series.setdefault((c, yaw), []).append(ser)
+        nees_series.setdefault((c, yaw), []).append(nees)
+    mode = "serial" if args.serial else (args.scheduler or f"LocalCluster, {args.workers} workers")
+    print(f"sweep wall time: {t_sweep:.1f} s for {len(tasks)} runs ({mode})", flush=True)
+    if args.stage_timing:
+        st = sweep.merge_stages(o[3] for o in outs)
+        print("stages (sum over runs): " + sweep.format_stages(st, sum(s["samples"] for s, *_ in outs)), flush=True)
+    data = make_scenario(args.scenario, seed=args.seeds - 1, duration_s=args.duration)
     spec = data.imu_spec
     e = ImuErrorSI(spec)
     g = 9.8
@@ -216,18 +245,21 @@ def main(argv=None):
           f"[{lo:.2f}, {hi:.2f}].", nees_cell)
     if "pi_liekf" in cores:
         allpi = [s for y in yaws for s in results[("pi_liekf", y)]]
-        nsol = sum(s.get("lmi_solves", 0) for s in allpi)
-        nfb = sum(s.get("lmi_fallbacks", 0) for s in allpi)
-        tsol = sum(s.get("lmi_solve_time_s", 0.0) for s in allpi)
-        L.append(f"PI-LIEKF LMI: {nsol} solves, {nfb} fell back to the safe gains; mean solve time "
-                 f"{1000 * tsol / max(nsol, 1):.0f} ms. Last reason (seed {args.seeds - 1}, yaw {yaws[-1]:+.0f}): "
-                 f"{allpi[-1].get('lmi_last_reason', '')}\n")
-    L.append("**Throughput** (samples/s, single-threaded, the cores run interleaved on the same 120 s of data, "
-             "median and best of 3, including the runner and an estimate every 1 s):\n")
-    L.append("| core | median | best |")
-    L.append("|---|---|---|")
-    L.extend(tp_lines)
-    L.append("")
+        withlmi = [s for s in allpi if "lmi_solve_time_s" in s]
+        nfb = sum(s.get("lmi_used_fallback", False) for s in withlmi)
+        tsol = [s["lmi_solve_time_s"] for s in withlmi]
+        L.append(f"PI-LIEKF LMI (the last solve of each run, as the session reports it): {len(withlmi)} runs solved, "
+                 f"{nfb} ended on the safe gains; solve time mean {1000 * np.mean(tsol) if tsol else float('nan'):.0f} "
+                 f"ms, max {1000 * max(tsol) if tsol else float('nan'):.0f} ms. Last reason (seed {args.seeds - 1}, "
+                 f"yaw {yaws[-1]:+.0f}): {allpi[-1].get('lmi_last_reason', '')}\n")
+    if tp_lines:
+        L.append("**Throughput** (samples/s, single-threaded, `ia.align`, the cores interleaved on the same 120 s of "
+                 "data, median and best of 3, an output every 1 s; benchmarks/speed.py has the full comparison):\n")
+        L.append("| core | median | best |")
+        L.append("|---|---|---|")
+        L.extend(tp_lines)
+        L.append("")
+    L.append(f"Sweep: {len(tasks)} runs in {t_sweep:.0f} s wall ({mode}).\n")
     md = "\n".join(L)
     print(md)
     if args.md_out:

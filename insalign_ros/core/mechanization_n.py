@@ -19,15 +19,18 @@ import numpy as np
 from . import earth
 
 
+def rodrigues_ab(t2: float) -> tuple[float, float]:
+    """(sin t / t, (1 - cos t) / t^2) of a rotation angle t with t^2 = t2 (second-order series below 1e-6 rad)."""
+    if t2 < 1e-12:
+        return 1.0 - t2 / 6.0, 0.5 - t2 / 24.0
+    t = math.sqrt(t2)
+    return math.sin(t) / t, (1.0 - math.cos(t)) / t2
+
+
 def _rodrigues(phi: np.ndarray) -> np.ndarray:
     """exp(phi_x) for a small rotation vector phi [rad] (inline for speed at the IMU rate)."""
     x, y, z = phi
-    t2 = x * x + y * y + z * z
-    if t2 < 1e-12:
-        a, b = 1.0 - t2 / 6.0, 0.5 - t2 / 24.0
-    else:
-        t = math.sqrt(t2)
-        a, b = math.sin(t) / t, (1.0 - math.cos(t)) / t2
+    a, b = rodrigues_ab(x * x + y * y + z * z)
     K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
     return np.eye(3) + a * K + b * (K @ K)
 

@@ -32,6 +32,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..core import earth, lie
+from ..core import mechanization_numba as nb
 from ..core.lie import _A_SERIES, _B_SERIES, _C1_SERIES, _C2_SERIES, _coeff_batch
 from ..core.mechanization import NavStateEci, geodetic_from_state_eci, state_eci_from_geodetic
 from ..sim.error_model import deg_sqrt_h_to_rad_sqrt_s, m_s_sqrt_h_to_m_s_sqrt_s
@@ -115,6 +116,16 @@ def propagate_eci_batch(C_b_i, v_i, p_i, dt_s, dC, dv_b, dp_b, gravity_passes: i
         p_prev += p_i
         g = earth.gravitation_e_batch(p_prev + 0.5 * dt * v_prev)
     return C_prev, C_all[-1], v_i + v_inc[-1], p_i + p_inc[-1]
+
+
+def orthonormalize(C: np.ndarray) -> np.ndarray:
+    """The nearest rotation to a nearly orthonormal C (|C^T C - I| ~ 1e-15 after a batch of exact steps).
+
+    Reference path: scipy's projection; compiled path: one Newton step of the polar decomposition,
+    ``C (3 I - C^T C) / 2`` (quadratic convergence: exact to rounding from 1e-15), 30x cheaper."""
+    if not nb.ENABLED:
+        return Rotation.from_matrix(C).as_matrix()
+    return C @ (1.5 * _I3 - 0.5 * (C.T @ C))
 
 
 def liekf_transition_batch(dC: np.ndarray, dv_b: np.ndarray, dp_b: np.ndarray, dt_s: np.ndarray) -> np.ndarray:
@@ -210,6 +221,21 @@ def _check_imu(imu: ImuSample) -> str:
     return ""
 
 
+def usable_imu_arrays(t_s, omega_ib_b, f_ib_b, t_last_s: float):
+    """(t (N,), omega (N, 3), f (N, 3), dt (N,)) as float arrays when every row is usable: finite, stamps after
+    ``t_last_s`` and increasing by at most 1 s; else None (the caller takes the per-sample path, which rejects and
+    counts the bad rows). The array fast paths of the cores share this check."""
+    t = np.asarray(t_s, float)
+    w = np.asarray(omega_ib_b, float)
+    f = np.asarray(f_ib_b, float)
+    n = t.shape[0] if t.ndim == 1 else 0
+    if n == 0 or w.shape != (n, 3) or f.shape != (n, 3) or not (
+            np.isfinite(t).all() and np.isfinite(w).all() and np.isfinite(f).all()):
+        return None
+    dt = np.diff(t, prepend=t_last_s)
+    return (t, w, f, dt) if bool(np.all(dt > 0.0) and np.all(dt <= 1.0)) else None
+
+
 # ----------------------------------------------------------------------------------- the shared core
 class BatchedEciCore(AlignmentCore):
     """ECI strapdown + error-state covariance with batched propagation; subclasses define the error model.
@@ -294,17 +320,62 @@ class BatchedEciCore(AlignmentCore):
         """Propagate the buffered samples (state and covariance)."""
         if not self._buf_t:
             return
-        t = np.asarray(self._buf_t)
-        w = np.asarray(self._buf_w) - self.b_g
-        f = np.asarray(self._buf_f) - self.b_a
+        t, w, f = np.asarray(self._buf_t), np.asarray(self._buf_w), np.asarray(self._buf_f)
         self._buf_t, self._buf_w, self._buf_f = [], [], []
+        self._propagate_block(t, w, f)
+
+    def propagate_arrays(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
+        """Forward: whole arrays without a Python step per sample, in the same batches as sample-by-sample
+        ``propagate`` (so the same numbers); any unusable row (non-finite, stamps not increasing, a gap > 1 s) sends
+        the call through the per-sample path, which rejects and counts it."""
+        arr = usable_imu_arrays(t_s, omega_ib_b, f_ib_b, self._buf_t[-1] if self._buf_t else self.t_s) \
+            if self._init and not backward else None
+        if arr is None:
+            super().propagate_arrays(t_s, omega_ib_b, f_ib_b, backward)
+            return
+        t, w, f, _ = arr
+        n = t.shape[0]
+        self.counters["imu"] += n
+        mb = self.cfg.max_batch_samples
+        i = min(n, mb - len(self._buf_t))  # complete the pending batch first, as propagate() would
+        self._buf_t += t[:i].tolist()
+        self._buf_w += list(w[:i])
+        self._buf_f += list(f[:i])
+        if len(self._buf_t) >= mb:
+            self.flush()
+        while n - i >= mb:
+            self._propagate_block(t[i:i + mb], w[i:i + mb], f[i:i + mb])
+            i += mb
+        if i < n:
+            self._buf_t += t[i:].tolist()
+            self._buf_w += list(w[i:])
+            self._buf_f += list(f[i:])
+
+    def _propagate_block(self, t: np.ndarray, w: np.ndarray, f: np.ndarray) -> None:
+        """Propagate state and covariance over samples (t (N,) [s], raw omega_ib_b, f_ib_b (N, 3))."""
+        w = w - self.b_g
+        f = f - self.b_a
         dt = np.diff(t, prepend=self.t_s)
-        dC, dv_b, dp_b = step_increments_batch(w, f, dt)
-        C_prev, C, v, p = propagate_eci_batch(self.C, self.v, self.p, dt, dC, dv_b, dp_b)
-        Phi, Qd = self._transitions(dC, dv_b, dp_b, dt, C_prev, f)
-        self.P, Phi_tot = covariance_batch(self.P, Phi, Qd)
+        if nb.ENABLED:  # compiled sequential loops (docs/speed.md); the numpy batch below is the reference path
+            n = dt.shape[0]
+            C, v, p = self.C.copy(), self.v.copy(), self.p.copy()
+            dC, C_prev = np.empty((n, 3, 3)), np.empty((n, 3, 3))
+            dv_b, dp_b = np.empty((n, 3)), np.empty((n, 3))
+            nb.eci_steps(C, v, p, w, f, dt, nb._ZONAL_N, nb._ZONAL_J, dC, dv_b, dp_b, C_prev)
+            Phi, Qd = self._transitions(dC, dv_b, dp_b, dt, C_prev, f)
+            q = np.diagonal(Qd, axis1=1, axis2=2)
+            if np.count_nonzero(Qd) == np.count_nonzero(q):  # diagonal Q_k (every core here)
+                P, Phi_tot = nb.covariance_steps(self.P, Phi, q.copy())
+                self.P = 0.5 * (P + P.T)
+            else:
+                self.P, Phi_tot = covariance_batch(self.P, Phi, Qd)
+        else:
+            dC, dv_b, dp_b = step_increments_batch(w, f, dt)
+            C_prev, C, v, p = propagate_eci_batch(self.C, self.v, self.p, dt, dC, dv_b, dp_b)
+            Phi, Qd = self._transitions(dC, dv_b, dp_b, dt, C_prev, f)
+            self.P, Phi_tot = covariance_batch(self.P, Phi, Qd)
         self._Phi_since_update = Phi_tot @ self._Phi_since_update
-        self.C = Rotation.from_matrix(C).as_matrix()  # re-orthonormalise once per batch
+        self.C = orthonormalize(C)  # once per batch
         self.v, self.p = v, p
         self.t_s = float(t[-1])
 

@@ -26,6 +26,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from ..core import earth, lie
+from ..core import mechanization_numba as nb
 from ..core.mechanization_n import LocalLevelMechanization
 from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, ImuSample, UpdateResult
 from .config import ConfigDict
@@ -81,11 +82,64 @@ class StaticModelInputs:
                          -earth.OMEGA_IE_RAD_S * math.sin(self.lat_rad)])
 
 
+@nb._jit
+def _f_model_nb(x, f_np, lat, r_m, m, out):
+    """:func:`f_model` compiled (the same expressions, written out); writes out (5,)."""
+    dvN, dvE, pN, pE, pD = x[0], x[1], x[2], x[3], x[4]
+    c, s = math.cos(pD), math.sin(pD)
+    E = ((c, -s, pE * c + pN * s), (s, c, pE * s - pN * c), (-pE, pN, 1.0))
+    w0, w2 = _OMEGA_IE * math.cos(lat), -_OMEGA_IE * math.sin(lat)
+    Ef0 = E[0][0] * f_np[0] + E[0][1] * f_np[1] + E[0][2] * f_np[2]
+    Ef1 = E[1][0] * f_np[0] + E[1][1] * f_np[1] + E[1][2] * f_np[2]
+    acc0 = f_np[0] - Ef0 - 2.0 * (-w2 * dvE)
+    acc1 = f_np[1] - Ef1 - 2.0 * (w2 * dvN)
+    a0 = w0 + dvE / r_m - m[2]
+    a1 = 0.0 - dvN / r_m - m[3]
+    a2 = w2 - dvE * math.tan(lat) / r_m - m[4]
+    z0 = E[0][0] * a0 + E[0][1] * a1 + E[0][2] * a2 - w0
+    z1 = E[1][0] * a0 + E[1][1] * a1 + E[1][2] * a2
+    z2 = E[2][0] * a0 + E[2][1] * a1 + E[2][2] * a2 - w2
+    out[0] = acc0 + m[0]
+    out[1] = acc1 + m[1]
+    out[2] = c * z0 + s * z1
+    out[3] = -s * z0 + c * z1
+    out[4] = z2
+
+
+@nb._jit
+def _jacobian_nb(x, f_np, lat, r_m, m, F):
+    """Central differences of :func:`_f_model_nb` in x (the steps of :func:`jacobian`); writes F (5, 5)."""
+    xp = np.empty(5)
+    xm = np.empty(5)
+    fp = np.empty(5)
+    fm = np.empty(5)
+    for j in range(5):
+        h = 1e-6 if j < 2 else 1e-7
+        for i in range(5):
+            xp[i] = x[i]
+            xm[i] = x[i]
+        xp[j] += h
+        xm[j] -= h
+        _f_model_nb(xp, f_np, lat, r_m, m, fp)
+        _f_model_nb(xm, f_np, lat, r_m, m, fm)
+        for i in range(5):
+            F[i, j] = (fp[i] - fm[i]) / (2 * h)
+
+
+_OMEGA_IE = earth.OMEGA_IE_RAD_S
+_M0 = np.zeros(5)
+
+
 def f_model(x: np.ndarray, u: StaticModelInputs, m_prime: np.ndarray | None = None) -> np.ndarray:
     """Continuous nonlinear model f(x, m') of eq. (34) (derivation in the module docstring).
 
     m' = [DfN, DfE, DwN, DwE, DwD]: residual accelerometer [m/s^2] and gyro [rad/s] errors in n' (NED).
     """
+    if nb.ENABLED:
+        out = np.empty(5)
+        _f_model_nb(np.asarray(x, float), np.asarray(u.f_np_ned, float), float(u.lat_rad), float(u.r_m),
+                    _M0 if m_prime is None else np.asarray(m_prime, float), out)
+        return out
     m = np.zeros(5) if m_prime is None else m_prime
     dvN, dvE, pN, pE, pD = x
     E = misalignment_matrix(x[2:5])
@@ -102,6 +156,9 @@ def f_model(x: np.ndarray, u: StaticModelInputs, m_prime: np.ndarray | None = No
 def jacobian(x: np.ndarray, u: StaticModelInputs) -> np.ndarray:
     """F_t = df/dx (eq. (35)) of :func:`f_model`, by central differences (exact to ~1e-9 relative)."""
     F = np.zeros((5, 5))
+    if nb.ENABLED:
+        _jacobian_nb(np.asarray(x, float), np.asarray(u.f_np_ned, float), float(u.lat_rad), float(u.r_m), _M0, F)
+        return F
     for j in range(5):
         h = 1e-6 if j < 2 else 1e-7
         e = np.zeros(5)
@@ -178,7 +235,10 @@ def usable_step(core, imu: ImuSample) -> float | None:
         return None
     t = float(imu.stamp_s)
     dt = t - core.t_s
-    if not (0.0 < dt <= 1.0) or not (np.all(np.isfinite(imu.f_ib_b)) and np.all(np.isfinite(imu.omega_ib_b))):
+    w, f = imu.omega_ib_b, imu.f_ib_b
+    # one scalar test (hot path): a sum is non-finite iff a term is (or it overflows: garbage too)
+    if not (0.0 < dt <= 1.0) or len(w) != 3 or len(f) != 3 or not math.isfinite(
+            float(w[0]) + float(w[1]) + float(w[2]) + float(f[0]) + float(f[1]) + float(f[2])):
         core.t_s = max(core.t_s, t) if math.isfinite(t) else core.t_s
         return None
     return dt
@@ -222,6 +282,9 @@ class StaticZuptCore(AlignmentCore):
         self._init_bias_cov()
         self._f_sum_n = np.zeros(3)
         self._dt_acc = 0.0
+        self._buf_w: list = []
+        self._buf_f: list = []
+        self._buf_dt: list[float] = []
         self._f_lp_ned = None
         self._N_prev = None
         self.t0_s = float(stamp_s)
@@ -245,10 +308,46 @@ class StaticZuptCore(AlignmentCore):
         dt = usable_step(self, imu)
         if dt is None:
             return
+        self.t_s = float(imu.stamp_s)
+        if nb.ENABLED:  # buffered: the compiled loop runs on the next flush (docs/speed.md)
+            self._buf_w.append(imu.omega_ib_b)
+            self._buf_f.append(imu.f_ib_b)
+            self._buf_dt.append(dt)
+            return
         f_n = self.mech.step(imu.omega_ib_b, imu.f_ib_b, dt)
         self._f_sum_n += f_n * dt
         self._dt_acc += dt
-        self.t_s = float(imu.stamp_s)
+
+    def propagate_arrays(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
+        """Forward, compiled path: whole arrays appended to the interval buffer when every row is usable (finite,
+        0 < dt <= 1 s); otherwise sample by sample (which skips and handles the bad rows)."""
+        from .liekf import usable_imu_arrays
+
+        arr = usable_imu_arrays(t_s, omega_ib_b, f_ib_b, self.t_s) if nb.ENABLED and self._init and not backward \
+            else None
+        if arr is None:
+            super().propagate_arrays(t_s, omega_ib_b, f_ib_b, backward)
+            return
+        t, w, f, dt = arr
+        self._buf_w += list(w)
+        self._buf_f += list(f)
+        self._buf_dt += dt.tolist()
+        self.t_s = float(t[-1])
+
+    def flush(self) -> None:
+        """Run the buffered IMU samples through the mechanization (one compiled call for the whole interval)."""
+        if not self._init or not self._buf_dt:
+            return
+        W = np.asarray(self._buf_w, dtype=float)
+        F = np.asarray(self._buf_f, dtype=float)
+        DT = np.asarray(self._buf_dt, dtype=float)
+        self._buf_w, self._buf_f, self._buf_dt = [], [], []
+        m = self.mech
+        C = np.ascontiguousarray(m.C_b_n)
+        v = np.array(m.v_n, dtype=float)
+        self._dt_acc += nb.local_level_steps(C, v, W, F, DT, m.gyro_correction_b, m.acc_correction_b, m.omega_ie_n,
+                                             m.g_n, m.R_N_m, m.R_E_m, m.tan_lat, self._f_sum_n)
+        m.C_b_n, m.v_n = C, v
 
     def _process_noise(self, dt: float) -> np.ndarray:
         q = np.zeros(5)
@@ -269,6 +368,7 @@ class StaticZuptCore(AlignmentCore):
             return UpdateResult(False, reason="not initialized")
         if not (math.isfinite(sigma_v_m_s) and sigma_v_m_s > 0):
             return UpdateResult(False, reason=f"sigma_v_m_s must be > 0, got {sigma_v_m_s}")
+        self.flush()
         dt = self._dt_acc
         if dt <= 0:
             return UpdateResult(False, reason="no IMU data since the last update")
@@ -431,6 +531,7 @@ class StaticZuptCore(AlignmentCore):
                                      float("nan"), np.eye(3) * np.pi**2, np.eye(5 + self.n_bias),
                                      self.state_names, status=AlignmentStatus.WAITING_FOR_DATA,
                                      reason="not initialized")
+        self.flush()
         P_att = T_NED_ENU @ self.P[2:5, 2:5] @ T_NED_ENU
         if self.n_bias == 0:
             g = float(np.linalg.norm(self.mech.g_n))

@@ -1,0 +1,257 @@
+"""Compiled (numba) per-sample loops of the strapdown mechanizations and the error-state covariance.
+
+The same formulas as the numpy code they replace, sample by sample, in one compiled call per batch of buffered IMU
+samples (docs/speed.md has the measurements and the decision):
+
+* :func:`local_level_steps` = ``LocalLevelMechanization.step`` (core/mechanization_n.py) over a batch, with the
+  interval sums of the static cores (specific force in ENU times dt, dt);
+* :func:`eci_steps` = ``propagate_eci`` (core/mechanization.py) over a batch: body increments, attitude,
+  velocity and position with the gravitation at each step's predicted mid-point (the batched numpy path solves the
+  same mid-point gravity by a fixed point, residual < 1e-10 m);
+* :func:`covariance_steps` = ``P <- Phi_k P Phi_k^T + diag(q_k)`` sample by sample, and the product of the Phi_k.
+
+``ENABLED`` selects these kernels; ``False`` (or ``INSALIGN_NO_NUMBA=1`` in the environment, or numba missing)
+selects the reference numpy paths. test/test_speed_paths.py checks that both give the same attitude (< 1e-9 rad)
+through the session on every core. Kernels are compiled on first use and cached on disk (``cache=True``).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+
+from . import earth, mechanization_n
+from .lie import _A_SERIES, _B_SERIES, _C1_SERIES, _C2_SERIES, _SERIES_BELOW_RAD
+
+try:  # numba is a pinned dependency; without it the numpy reference paths run
+    from numba import njit
+
+    HAVE_NUMBA = True
+except ImportError:  # pragma: no cover - exercised only where numba is not installed
+    HAVE_NUMBA = False
+
+#: use the compiled kernels (the cores read this at every flush; tests switch it off for the reference path)
+ENABLED: bool = HAVE_NUMBA and os.environ.get("INSALIGN_NO_NUMBA", "") not in ("1", "true", "yes")
+
+_GM = earth.GM_M3_S2
+_A = earth.A_M
+_ZONAL_N = np.array([float(n) for n, _ in earth._ZONAL])
+_ZONAL_J = np.array([float(j) for _, j in earth._ZONAL])
+#: Taylor coefficients of the four SO(3) functions (core/lie.py), one row each (read as constants by numba)
+_SERIES = np.array([_A_SERIES, _B_SERIES, _C1_SERIES, _C2_SERIES])
+
+
+def _jit(fn):
+    return njit(cache=True, fastmath=False, nogil=True)(fn) if HAVE_NUMBA else fn
+
+
+@_jit
+def _coeffs(t2):
+    """(sin t/t, (1-cos t)/t^2, (t-sin t)/t^3, (t^2/2+cos t-1)/t^4): Taylor below 0.1 rad as core/lie.py."""
+    t = math.sqrt(t2)
+    if t < _SERIES_BELOW_RAD:
+        a = 0.0
+        b = 0.0
+        c1 = 0.0
+        c2 = 0.0
+        for k in range(_SERIES.shape[1] - 1, -1, -1):  # Horner, as lie._taylor
+            a = a * t2 + _SERIES[0, k]
+            b = b * t2 + _SERIES[1, k]
+            c1 = c1 * t2 + _SERIES[2, k]
+            c2 = c2 * t2 + _SERIES[3, k]
+        return a, b, c1, c2
+    s, c = math.sin(t), math.cos(t)
+    return s / t, (1.0 - c) / t2, (t - s) / (t2 * t), (0.5 * t2 + c - 1.0) / (t2 * t2)
+
+
+_rodrigues_ab = _jit(mechanization_n.rodrigues_ab)
+
+
+@_jit
+def _rodrigues(x, y, z, out):
+    """out = exp([x, y, z]_x) (the coefficients of mechanization_n._rodrigues)."""
+    a, b = _rodrigues_ab(x * x + y * y + z * z)
+    _so3_from(x, y, z, a, b, 1.0, out)
+
+
+@_jit
+def _so3_from(x, y, z, a, b, d, out):
+    """out = d I + a K + b K^2 with K = [x, y, z]_x (K^2 = v v^T - |v|^2 I)."""
+    t2 = x * x + y * y + z * z
+    out[0, 0] = d + b * (x * x - t2)
+    out[1, 1] = d + b * (y * y - t2)
+    out[2, 2] = d + b * (z * z - t2)
+    out[0, 1] = -a * z + b * x * y
+    out[1, 0] = a * z + b * x * y
+    out[0, 2] = a * y + b * x * z
+    out[2, 0] = -a * y + b * x * z
+    out[1, 2] = -a * x + b * y * z
+    out[2, 1] = a * x + b * y * z
+
+
+@_jit
+def _mm3(A, B, out):
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = A[i, 0] * B[0, j] + A[i, 1] * B[1, j] + A[i, 2] * B[2, j]
+
+
+@_jit
+def local_level_steps(C, v, W, F, DT, gyro_corr, acc_corr, omega_ie_n, g_n, R_N, R_E, tan_lat, f_sum):
+    """``LocalLevelMechanization.step`` for each row of W, F (N, 3) [rad/s, m/s^2] and DT (N,) [s].
+
+    Updates C (C_b_n) and v (v_n) in place, adds sum(C_mid f dt) to f_sum (3,) in place; returns sum(dt)."""
+    dC = np.empty((3, 3))
+    Ra = np.empty((3, 3))
+    Rb = np.empty((3, 3))
+    T = np.empty((3, 3))
+    Cmid = np.empty((3, 3))
+    dt_acc = 0.0
+    for k in range(W.shape[0]):
+        dt = DT[k]
+        wx, wy, wz = W[k, 0] - gyro_corr[0], W[k, 1] - gyro_corr[1], W[k, 2] - gyro_corr[2]
+        fx, fy, fz = F[k, 0] - acc_corr[0], F[k, 1] - acc_corr[1], F[k, 2] - acc_corr[2]
+        wen0, wen1, wen2 = -v[1] / R_N, v[0] / R_E, v[0] * tan_lat / R_E
+        win0, win1, win2 = omega_ie_n[0] + wen0, omega_ie_n[1] + wen1, omega_ie_n[2] + wen2
+        _rodrigues(wx * dt, wy * dt, wz * dt, dC)
+        # C_mid = exp(-dt/2 w_in) C exp(dt/2 w)
+        _rodrigues(-0.5 * dt * win0, -0.5 * dt * win1, -0.5 * dt * win2, Ra)
+        _rodrigues(0.5 * dt * wx, 0.5 * dt * wy, 0.5 * dt * wz, Rb)
+        _mm3(Ra, C, T)
+        _mm3(T, Rb, Cmid)
+        # C = exp(-dt w_in) C dC
+        _rodrigues(-dt * win0, -dt * win1, -dt * win2, Ra)
+        _mm3(Ra, C, T)
+        _mm3(T, dC, C)
+        fn0 = Cmid[0, 0] * fx + Cmid[0, 1] * fy + Cmid[0, 2] * fz
+        fn1 = Cmid[1, 0] * fx + Cmid[1, 1] * fy + Cmid[1, 2] * fz
+        fn2 = Cmid[2, 0] * fx + Cmid[2, 1] * fy + Cmid[2, 2] * fz
+        a0, a1, a2 = 2.0 * omega_ie_n[0] + wen0, 2.0 * omega_ie_n[1] + wen1, 2.0 * omega_ie_n[2] + wen2
+        c0 = a1 * v[2] - a2 * v[1]
+        c1 = a2 * v[0] - a0 * v[2]
+        c2 = a0 * v[1] - a1 * v[0]
+        v[0] = v[0] + (fn0 + g_n[0] - c0) * dt
+        v[1] = v[1] + (fn1 + g_n[1] - c1) * dt
+        v[2] = v[2] + (fn2 + g_n[2] - c2) * dt
+        f_sum[0] += fn0 * dt
+        f_sum[1] += fn1 * dt
+        f_sum[2] += fn2 * dt
+        dt_acc += dt
+    return dt_acc
+
+
+@_jit
+def _gravitation(x, y, z, zn, zj, out):
+    """earth.gravitation_e (WGS84 J2, J4, J6) at (x, y, z) [m] -> out (3,) [m/s^2]."""
+    r2 = x * x + y * y + z * z
+    r = math.sqrt(r2)
+    u = z / r
+    P = np.empty(7)
+    dP = np.empty(7)
+    P[0], P[1], dP[0], dP[1] = 1.0, u, 0.0, 1.0
+    for k in range(2, 7):
+        P[k] = ((2 * k - 1) * u * P[k - 1] - (k - 1) * P[k - 2]) / k
+        dP[k] = k * P[k - 1] + u * dP[k - 1]
+    gx = 0.0
+    gy = 0.0
+    gz = 0.0
+    for i in range(zn.shape[0]):
+        n = int(zn[i])
+        c = -_GM * zj[i] * (_A / r) ** n / r
+        radial = -(n + 1) * P[n] / r2 - dP[n] * z / (r2 * r)
+        gx += c * radial * x
+        gy += c * radial * y
+        gz += c * (radial * z + dP[n] / r)
+    k0 = -_GM / (r2 * r)
+    out[0] = k0 * x + gx
+    out[1] = k0 * y + gy
+    out[2] = k0 * z + gz
+
+
+@_jit
+def eci_steps(C, v, p, W, F, DT, zn, zj, dC_out, dv_out, dp_out, Cprev_out):
+    """``propagate_eci`` for each row of W, F (N, 3) and DT (N,): updates C (C_b_i), v (v_i), p (p_i) in place and
+    writes the body increments exp(phi), J_l(phi) f dt, Gamma_2(phi) f dt^2 and the attitude at each step's start."""
+    J = np.empty((3, 3))
+    G2 = np.empty((3, 3))
+    T = np.empty((3, 3))
+    g = np.empty(3)
+    # position and velocity are accumulated relative to the batch start (as the batched numpy path does): adding
+    # each step to a 6.4e6 m ECI position rounds at its 1e-9 m ulp every step
+    dpa = np.zeros(3)
+    dva = np.zeros(3)
+    vk = np.empty(3)
+    for k in range(W.shape[0]):
+        dt = DT[k]
+        x, y, z = W[k, 0] * dt, W[k, 1] * dt, W[k, 2] * dt
+        a, b, c1, c2 = _coeffs(x * x + y * y + z * z)
+        dC = dC_out[k]
+        _so3_from(x, y, z, a, b, 1.0, dC)
+        _so3_from(x, y, z, b, c1, 1.0, J)
+        _so3_from(x, y, z, c1, c2, 0.5, G2)
+        fx, fy, fz = F[k, 0], F[k, 1], F[k, 2]
+        for i in range(3):
+            dv_out[k, i] = (J[i, 0] * fx + J[i, 1] * fy + J[i, 2] * fz) * dt
+            dp_out[k, i] = (G2[i, 0] * fx + G2[i, 1] * fy + G2[i, 2] * fz) * (dt * dt)
+        Cprev_out[k] = C
+        for i in range(3):
+            vk[i] = v[i] + dva[i]
+        _gravitation((p[0] + dpa[0]) + 0.5 * dt * vk[0], (p[1] + dpa[1]) + 0.5 * dt * vk[1],
+                     (p[2] + dpa[2]) + 0.5 * dt * vk[2], zn, zj, g)
+        for i in range(3):
+            dvi = C[i, 0] * dv_out[k, 0] + C[i, 1] * dv_out[k, 1] + C[i, 2] * dv_out[k, 2]
+            dpi = C[i, 0] * dp_out[k, 0] + C[i, 1] * dp_out[k, 1] + C[i, 2] * dp_out[k, 2]
+            dpa[i] += vk[i] * dt + dpi + 0.5 * g[i] * dt * dt
+            dva[i] += dvi + g[i] * dt
+        _mm3(C, dC, T)
+        C[:, :] = T
+    for i in range(3):
+        p[i] = p[i] + dpa[i]
+        v[i] = v[i] + dva[i]
+
+
+@_jit
+def covariance_steps(P, Phi, q):
+    """P <- Phi_k P Phi_k^T + diag(q_k) for k = 0..N-1 (Phi (N, d, d), q (N, d)); returns (P, Phi_N ... Phi_1).
+
+    The transitions here are block-sparse with one pattern per core: the products run over the union of the
+    non-zero entries of the batch only (exact: the skipped terms are zeros)."""
+    n, d = Phi.shape[0], Phi.shape[1]
+    nzc = np.zeros((d, d), np.int64)  # nzc[i, :cnt[i]] = columns m with some Phi_k[i, m] != 0
+    cnt = np.zeros(d, np.int64)
+    for i in range(d):
+        for m in range(d):
+            for k in range(n):
+                if Phi[k, i, m] != 0.0:
+                    nzc[i, cnt[i]] = m
+                    cnt[i] += 1
+                    break
+    T = np.empty((d, d))
+    Pn = P.copy()
+    tot = np.eye(d)
+    tot2 = np.empty((d, d))
+    for k in range(n):
+        A = Phi[k]
+        for i in range(d):  # T = A P, tot2 = A tot
+            for j in range(d):
+                s = 0.0
+                s2 = 0.0
+                for r in range(cnt[i]):
+                    m = nzc[i, r]
+                    s += A[i, m] * Pn[m, j]
+                    s2 += A[i, m] * tot[m, j]
+                T[i, j] = s
+                tot2[i, j] = s2
+        for i in range(d):  # P = T A^T + Q (symmetric: the upper triangle, mirrored)
+            for j in range(i, d):
+                s = 0.0
+                for r in range(cnt[j]):
+                    m = nzc[j, r]
+                    s += T[i, m] * A[j, m]
+                Pn[i, j] = s
+                Pn[j, i] = s
+            Pn[i, i] += q[k, i]
+        tot[:, :] = tot2
+    return Pn, tot
