@@ -389,8 +389,10 @@ def test_close_is_idempotent_safe_at_any_time_and_leaves_no_thread():
         core.close()
         assert len(_lmi_threads()) <= 1
     # mid-solve: close returns at once, the solve's result is discarded; the core is usable again after close
-    core = _timed_core("true", _ScriptedSolver([0.5, 0.0], [0.05, 0.07]))
+    solver = _ScriptedSolver([0.5, 0.0], [0.05, 0.07])
+    core = _timed_core("true", solver)
     run_offline(core, d, [10.0, 10.0, 60.0], output_period_s=1.0)
+    _wait_until(lambda: solver.calls >= 1)  # the worker has started the 0.5-s solve (not merely queued it)
     t0 = time.perf_counter()
     core.close()
     assert time.perf_counter() - t0 < 0.1 and core.wait_for_pending_solve(0.0) and core.lmi is None
