@@ -71,7 +71,8 @@ NODE_PARAMS = {
     "pose_rate_hz": (10.0, "~/pose, ~/euler_error and aligned-flag evaluation rate [Hz data time] (0: every Imu)", False),
     "use_imu_covariance": (False, "take gyro ARW / accel VRW from the Imu message covariances", False),
     "gnss_sigma_m": (1.0, "GNSS 1-sigma per axis [m] when NavSatFix gives no covariance", False),
-    "imu_frame_id": ("imu_link", "required Imu frame_id ('' accepts any)", False),
+    "imu_frame_id": ("", "required Imu frame_id ('' accepts any: drivers use imu, imu_link, gnss_link, ...; the "
+                         "frames seen are logged)", False),
     "gnss_frame_id": ("", "required NavSatFix frame_id ('' accepts any)", False),
     "enu_frame_id": ("enu", "frame_id of ~/pose", False),
     "diagnostics_period_s": (1.0, "/diagnostics period [s wall]", True),
@@ -161,6 +162,8 @@ class AlignmentNode(Node):
         self._cov_ok: dict = {}
         self._prev_imu_stamp: float | None = None
         self._noise_done = False
+        self.epoch_s: int | None = None
+        self.frames_seen: set = set()
         self.create_timer(1.0 / p["process_rate_hz"], self._process)
         self.create_timer(p["diagnostics_period_s"], self._publish_diagnostics)
         self.get_logger().info(f"alignment_node: core {self.core_name}, waiting for imu/data and gps/fix")
@@ -257,10 +260,12 @@ class AlignmentNode(Node):
         p = self.params
         frame = p["imu_frame_id"]
         h = msg.header
+        if h.frame_id not in self.frames_seen:
+            self._note_frame("Imu", h.frame_id)
         if frame and h.frame_id != frame:
             self.session.reject_input("imu", "imu_frame", f"frame_id {h.frame_id!r} is not {frame!r}", wall)
         else:
-            sample, reason = cv.imu_sample_fast(msg, self._cov_ok)
+            sample, reason = cv.imu_sample_fast(msg, self._cov_ok, self._epoch(msg))
             if sample is None:
                 self.session.reject_input("imu", "imu_invalid", reason, wall)
             else:
@@ -268,8 +273,7 @@ class AlignmentNode(Node):
                     self._noise_from(msg, sample.stamp_s)
                 self.session.push_imu(sample, wall)
         self.timing_s.append(time.perf_counter() - t0)
-        st = h.stamp
-        self.stamp_age_s.append(time.time() - (st.sec + 1e-9 * st.nanosec))
+        self.stamp_age_s.append(time.time() - (h.stamp.sec + 1e-9 * h.stamp.nanosec))
 
     def _noise_from(self, msg: Imu, t: float) -> None:
         """use_imu_covariance: the noise densities from the Imu covariances and the interval of two messages."""
@@ -284,7 +288,8 @@ class AlignmentNode(Node):
 
     def _on_fix(self, msg: NavSatFix) -> None:
         wall = time.monotonic()
-        fix, reason = cv.fix_from_msg(msg, self.params["gnss_sigma_m"], self.params["gnss_frame_id"])
+        fix, reason = cv.fix_from_msg(msg, self.params["gnss_sigma_m"], self.params["gnss_frame_id"],
+                                      self._epoch(msg))
         if fix is None:
             counter = ("gnss_no_fix" if reason.startswith("no fix") else
                        "gnss_frame" if reason.startswith("frame_id") else "gnss_invalid")
@@ -293,12 +298,29 @@ class AlignmentNode(Node):
         self.session.push_fix(fix, wall)
 
     def _on_truth(self, msg: PoseStamped) -> None:
-        val, reason = cv.truth_from_msg(msg)
+        val, reason = cv.truth_from_msg(msg, self._epoch(msg))
         if val is None:
             self.session.counters["truth_invalid"] += 1
             self._warn_throttled("truth_invalid", f"rejected ground truth: {reason}")
             return
         self.session.push_truth(TruthSample(val[0], val[1], val[2]))
+
+    def _note_frame(self, kind: str, frame_id: str) -> None:
+        """Log each frame_id once (a second one on the same topic is worth a warning: two publishers?)."""
+        self.frames_seen.add(frame_id)
+        text = f"{kind} frame_id {frame_id!r} seen (imu_frame_id {self.params['imu_frame_id']!r}: " + (
+            "any accepted)" if not self.params["imu_frame_id"] else "only that one accepted)")
+        if len(self.frames_seen) > 1:
+            self.get_logger().warning(text + f"; frames seen so far: {sorted(self.frames_seen)}")
+        else:
+            self.get_logger().info(text)
+
+    def _epoch(self, msg) -> int:
+        """The whole second of the first stamp seen: the session works in seconds after it (float resolution)."""
+        if self.epoch_s is None:
+            self.epoch_s = int(msg.header.stamp.sec)
+            self.session.stamp_offset_s = float(self.epoch_s)
+        return self.epoch_s
 
     # ------------------------------------------------------------------ processing and outputs
     def _process(self) -> None:
@@ -311,9 +333,9 @@ class AlignmentNode(Node):
         frame = self.params["enu_frame_id"]
         for o in outs:
             est = o.estimate
-            self.pub_pose.publish(cv.pose_msg(est, self.session.anchor, frame, ""))
+            self.pub_pose.publish(cv.pose_msg(est, self.session.anchor, frame, "", self.epoch_s))
             m3 = Vector3Stamped()
-            cv.set_stamp(m3, o.stamp_s)
+            cv.set_stamp(m3, o.stamp_s, self.epoch_s)
             m3.header.frame_id = frame
             m3.vector.x, m3.vector.y, m3.vector.z = (float(x) for x in o.euler_3sigma_deg)
             if o.euler_error_deg is not None:

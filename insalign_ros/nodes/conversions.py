@@ -20,14 +20,16 @@ from ..core.types import GnssFix, ImuSample
 from ..io import validation
 
 
-def stamp_s(msg) -> float:
-    """header.stamp -> seconds (float)."""
+def stamp_s(msg, epoch_s: int = 0) -> float:
+    """header.stamp -> seconds (float) after ``epoch_s`` [whole s]. With an epoch near the data, the float keeps
+    sub-nanosecond resolution (an absolute 1.8e9-s stamp as a float resolves only ~0.24 us)."""
     st = msg.header.stamp
-    return st.sec + 1e-9 * st.nanosec
+    return (st.sec - epoch_s) + 1e-9 * st.nanosec
 
 
-def set_stamp(msg, t_s: float) -> None:
-    ns = int(round(t_s * 1e9))
+def set_stamp(msg, t_s: float, epoch_s: int = 0) -> None:
+    """Inverse of :func:`stamp_s`: ``t_s`` seconds after ``epoch_s``, to the nearest nanosecond."""
+    ns = epoch_s * 1_000_000_000 + int(round(t_s * 1e9))
     msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 1_000_000_000)
 
 
@@ -78,14 +80,14 @@ def imu_from_msg(msg: Imu, max_rate_rad_s: float, max_acc_m_s2: float,
     return ImuSample(t, omega, f), ""
 
 
-def imu_sample_fast(msg: Imu, cov_ok: dict) -> tuple[ImuSample | None, str]:
+def imu_sample_fast(msg: Imu, cov_ok: dict, epoch_s: int = 0) -> tuple[ImuSample | None, str]:
     """sensor_msgs/Imu -> ImuSample for the node's callback: the message-level checks only (orientation finite,
     covariances usable, stamp > 0); the session checks the values. A covariance seen before is not checked again
     (``cov_ok``: covariance tuple -> reason, bounded): drivers send the same covariance in every message."""
     h = msg.header.stamp
-    t = h.sec + 1e-9 * h.nanosec
-    if not t > 0.0:
-        return None, f"stamp {t:.6f} s is not positive"
+    if not (h.sec > 0 or h.nanosec > 0):
+        return None, "stamp is zero (unset)"
+    t = (h.sec - epoch_s) + 1e-9 * h.nanosec
     q = msg.orientation
     if not math.isfinite(q.x + q.y + q.z + q.w):
         return None, "orientation: non-finite value"
@@ -124,7 +126,8 @@ def imu_noise_from_msg(msg: Imu, dt_s: float) -> dict:
     return out
 
 
-def fix_from_msg(msg: NavSatFix, default_sigma_m: float, frame_id: str = "") -> tuple[GnssFix | None, str]:
+def fix_from_msg(msg: NavSatFix, default_sigma_m: float, frame_id: str = "",
+                 epoch_s: int = 0) -> tuple[GnssFix | None, str]:
     """sensor_msgs/NavSatFix -> GnssFix (ECEF p_e [m], R_e [m^2]) or (None, reason).
 
     Covariance: ``position_covariance`` (ENU, m^2) when its type is not UNKNOWN, else ``default_sigma_m`` per axis.
@@ -132,14 +135,14 @@ def fix_from_msg(msg: NavSatFix, default_sigma_m: float, frame_id: str = "") -> 
     if frame_id and msg.header.frame_id != frame_id:
         return None, f"frame_id {msg.header.frame_id!r} is not {frame_id!r}"
     lat, lon, h = msg.latitude, msg.longitude, msg.altitude
-    t = stamp_s(msg)
+    t = stamp_s(msg, epoch_s)
     known = msg.position_covariance_type != NavSatFix.COVARIANCE_TYPE_UNKNOWN
     cov = np.asarray(msg.position_covariance, float).reshape(3, 3)
     reason = validation.check_fix(lat, lon, h, cov if known else None, int(msg.status.status))
     if reason:
         return None, reason
-    if not t > 0.0:
-        return None, f"stamp {t:.6f} s is not positive"
+    if not (msg.header.stamp.sec > 0 or msg.header.stamp.nanosec > 0):
+        return None, "stamp is zero (unset)"
     if known:
         R_n = cov
         try:
@@ -153,7 +156,7 @@ def fix_from_msg(msg: NavSatFix, default_sigma_m: float, frame_id: str = "") -> 
     return GnssFix(t, earth.geodetic_to_ecef(lat_r, lon_r, h), C @ R_n @ C.T), ""
 
 
-def truth_from_msg(msg: PoseStamped) -> tuple[tuple[float, np.ndarray, np.ndarray] | None, str]:
+def truth_from_msg(msg: PoseStamped, epoch_s: int = 0) -> tuple[tuple[float, np.ndarray, np.ndarray] | None, str]:
     """Ground-truth PoseStamped (frame ``enu``: orientation body FLU -> ENU) -> (stamp_s, C_b_n, p_n) or reason."""
     q, p = msg.pose.orientation, msg.pose.position
     if not _finite(q.x, q.y, q.z, q.w, p.x, p.y, p.z):
@@ -161,7 +164,7 @@ def truth_from_msg(msg: PoseStamped) -> tuple[tuple[float, np.ndarray, np.ndarra
     nq = math.sqrt(q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w)
     if abs(nq - 1.0) > 1e-3:
         return None, f"ground-truth quaternion norm {nq:.4f} is not 1"
-    return (stamp_s(msg), Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix(), np.array([p.x, p.y, p.z])), ""
+    return (stamp_s(msg, epoch_s), Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix(), np.array([p.x, p.y, p.z])), ""
 
 
 def quat_xyzw(C: np.ndarray) -> np.ndarray:
@@ -199,10 +202,10 @@ def position_cov_n(est, C_b_n: np.ndarray) -> np.ndarray:
     return np.eye(3) * 1e6  # a core without position states: "unknown", large
 
 
-def pose_msg(est, anchor, frame_id: str, child_frame_id: str) -> PoseWithCovarianceStamped:
+def pose_msg(est, anchor, frame_id: str, child_frame_id: str, epoch_s: int = 0) -> PoseWithCovarianceStamped:
     """A core estimate -> PoseWithCovarianceStamped in the local ENU frame anchored at ``anchor`` (lat, lon, h)."""
     msg = PoseWithCovarianceStamped()
-    set_stamp(msg, est.stamp_s)
+    set_stamp(msg, est.stamp_s, epoch_s)
     msg.header.frame_id = frame_id
     p_e = earth.geodetic_to_ecef(est.lat_rad, est.lon_rad, est.h_m)
     p_n = earth.ecef_to_enu(p_e, *anchor)

@@ -68,8 +68,8 @@ def rest_imu(lat_deg: float, lon_deg: float, h_m: float, rpy_deg) -> tuple[np.nd
     return C_e_b @ earth.OMEGA_IE_E, -C_e_b @ earth.gravity_e(p_e)
 
 
-def _set_stamp(msg, t_s: float) -> None:
-    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(round(t_s * 1e9)), 1_000_000_000)
+def _set_stamp_ns(msg, ns: int) -> None:
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(ns), 1_000_000_000)
 
 
 def load_data(source: str, scenario: str, seed: int, duration_s: float, rate_hz: float, gps_rate_hz: float,
@@ -120,6 +120,8 @@ class ImuSimNode(Node):
         qos_kind, depth = str(p("qos", "reliable").value), int(p("qos_depth", 200).value)
         self.pace_topic = str(p("pace_topic", "").value)
         self.max_lead_s = float(p("max_lead_s", 2.0).value)
+        #: publish each fix when the IMU stream has reached its stamp plus this [s data time] (receiver latency)
+        self.fix_delay_s = float(p("fix_delay_s", 0.0).value)
         self.pace_timeout_s = float(p("pace_timeout_s", 5.0).value)
         from rcl_interfaces.msg import ParameterDescriptor
 
@@ -150,6 +152,7 @@ class ImuSimNode(Node):
         self.pub = self.create_publisher(Imu, "imu/data", qos)
         self.sent = 0
         self.t_start_ns: int | None = None
+        self.paused_s = 0.0  # wall time spent waiting for the consumer (backpressure)
         self._wait_start = time.monotonic()
         self.done = False
         self.gave_up = False  # no subscriber matched within wait_timeout_s
@@ -254,6 +257,9 @@ class ImuSimNode(Node):
             self._publish_sample(self.k)
             self.k += 1
         if self.k >= limit:
+            while self.j < len(d.gnss_t_s) and d.gnss_t_s[self.j] <= d.t_s[limit - 1]:  # delayed fixes still due
+                self._publish_fix(self.j)
+                self.j += 1
             self.done = True
             return None
         if d.t_s[self.k] > lead and d.t_s[self.k] - d.t_s[0] <= elapsed_data:  # due, but the consumer lags: pause
@@ -266,16 +272,21 @@ class ImuSimNode(Node):
             return wall_s + 0.005  # the stream loop spins (pace messages arrive) until then
         return self.wall0 + (d.t_s[self.k] - d.t_s[0]) / self.rate_factor
 
+    def _stamp_ns(self, t_s: float) -> int:
+        """Header stamp [ns] of data time ``t_s``: integer arithmetic from the first stamp, so stamps keep the data's
+        nanosecond spacing (a float of an absolute stamp resolves only ~0.24 us)."""
+        return self.t_start_ns + int(round((t_s - float(self.data.t_s[0])) * 1e9))
+
     def _publish_sample(self, k: int) -> None:
         d = self.data
         t = float(d.t_s[k])
-        stamp = self.stamp0_s + t
+        stamp = self._stamp_ns(t)
         if self.pub_truth is not None and t >= self.next_truth_t - 1e-9:
             if self.truth_rate_hz > 0:
                 self.next_truth_t = max(self.next_truth_t + 1.0 / self.truth_rate_hz, t) if self.next_truth_t > -math.inf \
                     else t + 1.0 / self.truth_rate_hz
             m = PoseStamped()
-            _set_stamp(m, stamp)
+            _set_stamp_ns(m, stamp)
             m.header.frame_id = "enu"
             p_n = self.truth_p_n[k]
             m.pose.position.x, m.pose.position.y, m.pose.position.z = (float(x) for x in p_n)
@@ -286,7 +297,7 @@ class ImuSimNode(Node):
             self.sent_truth += 1
         if self.imu_valid[k]:
             msg = Imu()
-            _set_stamp(msg, stamp)
+            _set_stamp_ns(msg, stamp)
             msg.header.frame_id = self.frame_id
             msg.orientation_covariance[0] = -1.0
             w, f = d.omega_ib_b[k], d.f_ib_b[k]
@@ -301,7 +312,7 @@ class ImuSimNode(Node):
             self.sent += 1
         else:  # flagged by the source (e.g. a KITTI fill row): a gap, as the session treats it
             self.skipped_flagged += 1
-        while self.j < len(d.gnss_t_s) and d.gnss_t_s[self.j] <= t:
+        while self.j < len(d.gnss_t_s) and d.gnss_t_s[self.j] + self.fix_delay_s <= t:
             self._publish_fix(self.j)
             self.j += 1
         if t >= self.next_clock_t:
@@ -313,7 +324,7 @@ class ImuSimNode(Node):
     def _publish_fix(self, j: int) -> None:
         lat, lon, h = self.fix_geo[j]
         m = NavSatFix()
-        _set_stamp(m, self.stamp0_s + float(self.data.gnss_t_s[j]))
+        _set_stamp_ns(m, self._stamp_ns(float(self.data.gnss_t_s[j])))
         m.header.frame_id = self.gps_frame_id
         m.status.status = NavSatStatus.STATUS_FIX if self.gnss_valid[j] else NavSatStatus.STATUS_NO_FIX
         m.status.service = NavSatStatus.SERVICE_GPS

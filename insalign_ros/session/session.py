@@ -106,6 +106,8 @@ class AlignmentSession:
         self.bt = None  # filters/backtrack.BacktrackingAligner when backtrack_passes > 0
         self.last_reject = ""
         self.timing = {"process_s": 0.0, "process_calls": 0, "samples": 0}
+        #: added to stamps in log lines and diagnostics (the node's epoch: users see their header stamps)
+        self.stamp_offset_s = 0.0
         self._reset_state("start")
 
     # ------------------------------------------------------------------ configuration
@@ -560,7 +562,7 @@ class AlignmentSession:
         self.next_out_t = t
         self.next_zupt_t = t
         self.fault_reason = ""
-        self.log("info", "init", f"initialised {cfg.core} at t={t:.3f} s, lat {pos[0] / D2R:.6f} deg, lon "
+        self.log("info", "init", f"initialised {cfg.core} at t={t + self.stamp_offset_s:.3f} s, lat {pos[0] / D2R:.6f} deg, lon "
                                  f"{pos[1] / D2R:.6f} deg, h {pos[2]:.1f} m, rpy "
                                  f"{np.round(rpy / D2R, 2).tolist()} deg, v {np.round(v0, 3).tolist()} m/s")
 
@@ -595,7 +597,7 @@ class AlignmentSession:
             self.flag.aligned = False
         if now != was:
             self.flag_changes.append((t, now, self.flag.reason))
-            self.log("info", "flag", f"aligned flag {'raised' if now else 'lowered'} at t={t:.3f} s: {self.flag.reason}")
+            self.log("info", "flag", f"aligned flag {'raised' if now else 'lowered'} at t={t + self.stamp_offset_s:.3f} s: {self.flag.reason}")
         self.status = AlignmentStatus.ALIGNED if now else AlignmentStatus.CONVERGING
         self.reason = self.flag.reason if not est.reason else f"{self.flag.reason}; {est.reason}"
         tr = self._truth_at(t)
@@ -705,14 +707,14 @@ class AlignmentSession:
         if o is not None:
             s = self.flag.sigma3_deg
             d.update(yaw_3sigma_deg=f"{s[2]:.4f}", roll_pitch_3sigma_deg=f"{max(s[0], s[1]):.4f}",
-                     yaw_sigma_deg=f"{s[2] / 3:.4f}", filter_time_s=f"{o.stamp_s:.3f}")
+                     yaw_sigma_deg=f"{s[2] / 3:.4f}", filter_time_s=f"{o.stamp_s + self.stamp_offset_s:.3f}")
         if self.flag.raised_at_s is not None:
-            d["aligned_raised_at_s"] = f"{self.flag.raised_at_s:.3f}"
-            d["aligned_first_raised_at_s"] = f"{self.flag.first_raised_at_s:.3f}"
+            d["aligned_raised_at_s"] = f"{self.flag.raised_at_s + self.stamp_offset_s:.3f}"
+            d["aligned_first_raised_at_s"] = f"{self.flag.first_raised_at_s + self.stamp_offset_s:.3f}"
         if o is not None:
             d["aligned_at_last_output"] = str(o.aligned).lower()  # the flag at the newest data (before any watchdog)
         if self.init_t is not None:
-            d["initialised_at_s"] = f"{self.init_t:.3f}"
+            d["initialised_at_s"] = f"{self.init_t + self.stamp_offset_s:.3f}"
         lo, hi = self.flag.band
         d.update(nis_last=f"{self.last_nis:.3f}", nis_window_sum=f"{self.flag.nis_sum:.3f}",
                  nis_band=f"[{lo:.2f}, {hi:.2f}]", last_reject=self.last_reject)
