@@ -1,14 +1,15 @@
-"""alignment_node latency and throughput over real Fast DDS (two processes, isolated domain).
+"""alignment_node cost and behaviour under load over real Fast DDS (two processes, isolated domain).
 
-Per core:
-1. throughput: imu_sim_node ship at 125 Hz, rate factor 10 (1,250 Imu messages/s, plus 10 Hz truth and 1 Hz
-   NavSatFix), ``--duration-s`` of data; counts sent vs received (drops), the node's per-Imu callback time
-   (median, p99, max: conversion + validation + EventRunner.feed + publishing when due) and its CPU share
-   (sum of callback times / publishing wall time);
-2. DDS end-to-end latency: the same node, an IMU at 1,250 Hz in real time (rate factor 1, stamps = wall clock at
-   publication), receive time minus header stamp (median, p99): publisher scheduling + DDS + the subscriber's queue.
+1. **cost**: per core, imu_sim_node ship at 125 Hz in real time (rate factor 1) for ``--cost-duration-s``; the node
+   process's CPU time (user + system, /proc) over the streaming wall time = its share of one core, outputs at 10 Hz;
+   for one core also with rclpy's SingleThreadedExecutor (``INSALIGN_EXECUTOR=single``) to compare.
+2. **load**: the same at 1,250 Imu messages/s (rate factor 10, sensor-data QoS as a driver would use), optionally
+   with ``--burners`` CPU burners running: sent vs received (drops), gaps counted by the session, the per-Imu
+   callback time (median, p99; the callback only converts and pushes), the session's processing rate (samples per
+   second of processing time), and the published estimates outside their own published 3-sigma (any axis, after
+   ``--settle-s``) next to the same count for ``insalign_ros.align`` on the same data (the load's own effect).
 
-    .venv/bin/python benchmarks/node_latency.py [--cores liekf iekf] [--duration-s 120] [--qos sensor_data]
+    .venv/bin/python benchmarks/node_latency.py [--cores liekf iekf ekf pi_liekf] [--burners 2]
 """
 
 from __future__ import annotations
@@ -16,14 +17,19 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from insalign_ros.cli.bringup import isolated_ros_env, start_node, stop_nodes, wait_for_exit  # noqa: E402
+
+TICK = os.sysconf("SC_CLK_TCK")
 
 
 def _summary(text):
@@ -33,75 +39,108 @@ def _summary(text):
     return {}
 
 
-def run_case(core: str, rate_hz: float, rate_factor: float, duration_s: float, qos: str, log_dir: Path) -> dict:
+def _cpu_s(pid: int) -> float:
+    """User + system CPU time [s] of a process and its waited-for children (/proc/<pid>/stat)."""
+    f = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return sum(int(x) for x in f[11:15]) / TICK
+
+
+def run_case(core, rate_hz, rate_factor, duration_s, qos, log_dir, executor="events", settle_s=60.0):
     env = isolated_ros_env()
+    env["INSALIGN_EXECUTOR"] = executor
     for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
         os.environ[k] = env[k]
     from insalign_ros.nodes.monitor import AlignmentMonitor
 
-    mon = AlignmentMonitor()
+    mon = AlignmentMonitor(keep_poses=10)
     nodes = []
     try:
         align = start_node("insalign_ros.nodes.alignment_node", env, log_dir=log_dir, name=f"align_{core}",
-                           params={"core": core, "init_from_ground_truth": True,
+                           params={"core": core, "init_from_ground_truth": True, "imu_timeout_s": 0.0,
                                    "init_rpy_error_deg": "[3.0, -3.0, 30.0]", "imu_qos": qos})
         nodes.append(align)
+        mon.wait_for(lambda m: m.diag_count > 0, 30.0)
         sim = start_node("insalign_ros.nodes.imu_sim_node", env, log_dir=log_dir, name=f"sim_{core}",
-                         params={"source": "scenario", "scenario": "ship", "rate_hz": rate_hz,
+                         params={"source": "scenario", "scenario": "ship", "rate_hz": rate_hz, "seed": 3,
                                  "rate_factor": rate_factor, "duration_s": duration_s, "wait_for_subscribers": 1,
                                  "wait_timeout_s": 30.0, "qos_depth": 1000})
         nodes.append(sim)
-        t0 = time.monotonic()
+        c0, t0 = _cpu_s(align.popen.pid), time.monotonic()
         rc = wait_for_exit(sim, duration_s / rate_factor + 60.0)
-        wall = time.monotonic() - t0
+        c1, t1 = _cpu_s(align.popen.pid), time.monotonic()
         s = _summary(sim.output())
         sent = s.get("imu_sent", 0)
         mon.wait_for(lambda m: m.counter("imu_received") >= sent, 15.0)
+        mon.wait_for(lambda m: int(m.diag.get("buffered_imu", "1")) == 0, 10.0)
         n0 = mon.diag_count
         mon.wait_for(lambda m: m.diag_count >= n0 + 2, 5.0)
         with mon.lock:
             d = dict(mon.diag)
-        pub_wall = duration_s / rate_factor
-        return {"core": core, "rate_hz": rate_hz, "rate_factor": rate_factor, "msgs_per_s": rate_hz * rate_factor,
-                "qos": qos, "sim_rc": rc, "sent": sent, "received": int(d.get("imu_received", 0)),
-                "rejected": int(d.get("imu_rejected", 0)), "gaps": int(d.get("imu_gaps", 0)),
+            errs = {round(t, 6): e for t, e in mon.errors}
+            sig = {round(t, 6): v for t, v in mon.sigmas3}
+        first = s.get("first_stamp_ns", 0) * 1e-9
+        late = [t for t in errs if t in sig and t - first >= settle_s]
+        outside = sum(bool(np.any(np.abs(errs[t]) > sig[t])) for t in late)
+        proc_s = float(d.get("session_process_total_s", "nan"))
+        return {"core": core, "executor": executor, "msgs_per_s": rate_hz * rate_factor, "qos": qos, "sim_rc": rc,
+                "sent": sent, "received": int(d.get("imu_received", 0)), "gaps": int(d.get("imu_gaps", 0)),
                 "cb_median_us": float(d.get("imu_callback_median_us", "nan")),
                 "cb_p99_us": float(d.get("imu_callback_p99_us", "nan")),
-                "cb_max_us": float(d.get("imu_callback_max_us", "nan")),
-                "cpu_share": float(d.get("imu_callback_total_s", "nan")) / pub_wall,
-                "age_median_ms": float(d.get("imu_stamp_age_median_ms", "nan")),
-                "age_p99_ms": float(d.get("imu_stamp_age_p99_ms", "nan")),
-                "aligned": d.get("aligned"), "wall_s": wall}
+                "cpu_share": (c1 - c0) / (t1 - t0), "wall_s": t1 - t0,
+                "session_samples_per_s": int(d.get("session_samples", 0)) / proc_s if proc_s > 0 else float("nan"),
+                "outputs_checked": len(late), "outside_3sigma": outside,
+                "aligned_at_end": d.get("aligned_at_last_output")}
     finally:
         stop_nodes(nodes)
         mon.close()
 
 
+def offline_outside(core, rate_hz, duration_s, settle_s):
+    """The same count for insalign_ros.align on the same data (what the filter does without any load)."""
+    import insalign_ros as ia
+    from insalign_ros.sim.scenarios import make_scenario
+
+    r = ia.align(make_scenario("ship", seed=3, duration_s=duration_s, rate_hz=rate_hz), core=core,
+                 init_mode="truth", init_rpy_error_deg=[3.0, -3.0, 30.0], output_period_s=0.1)
+    m = r.t_s - r.t_s[0] >= settle_s
+    return int(np.sum(np.any(np.abs(r.rpy_err_deg[m]) > r.sigma3_deg[m], axis=1))), int(np.sum(m))
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--cores", nargs="+", default=["liekf", "iekf"])
-    ap.add_argument("--duration-s", type=float, default=120.0, help="data time of the throughput run [s]")
-    ap.add_argument("--latency-duration-s", type=float, default=10.0, help="data (= wall) time of the latency run")
-    ap.add_argument("--qos", default="sensor_data", choices=["sensor_data", "reliable"])
+    ap.add_argument("--cores", nargs="+", default=["liekf", "iekf", "ekf", "pi_liekf"])
+    ap.add_argument("--cost-duration-s", type=float, default=30.0, help="real-time run per core [s]")
+    ap.add_argument("--load-duration-s", type=float, default=180.0, help="data time of the 1,250 msg/s run [s]")
+    ap.add_argument("--settle-s", type=float, default=60.0, help="3-sigma check from this data time on [s]")
+    ap.add_argument("--burners", type=int, default=0, help="CPU burners (python busy loops) during the load runs")
+    ap.add_argument("--skip-cost", action="store_true")
     args = ap.parse_args(argv)
     log_dir = Path(tempfile.mkdtemp(prefix="node-latency-"))
-    rows = []
-    for core in args.cores:
-        thr = run_case(core, 125.0, 10.0, args.duration_s, args.qos, log_dir)
-        lat = run_case(core, 1250.0, 1.0, args.latency_duration_s, args.qos, log_dir)
-        rows.append((thr, lat))
-        print(json.dumps({"throughput": thr, "latency": lat}), flush=True)
-    print(f"\nalignment_node, imu_qos={args.qos}, ship, 2-core machine (node logs in {log_dir})\n")
-    print("| core | Imu msgs/s | sent | received | dropped | callback median / p99 / max [us] | CPU share | "
-          "DDS end-to-end latency median / p99 [ms] (1,250 Hz real time) | keeps up |")
-    print("|---|---|---|---|---|---|---|---|---|")
-    for thr, lat in rows:
-        dropped = thr["sent"] - thr["received"]
-        ok = dropped == 0 and thr["cpu_share"] < 1.0
-        print(f"| {thr['core']} | {thr['msgs_per_s']:.0f} | {thr['sent']} | {thr['received']} | {dropped} | "
-              f"{thr['cb_median_us']:.0f} / {thr['cb_p99_us']:.0f} / {thr['cb_max_us']:.0f} | "
-              f"{thr['cpu_share']:.2f} | {lat['age_median_ms']:.2f} / {lat['age_p99_ms']:.2f} "
-              f"(received {lat['received']}/{lat['sent']}) | {'yes' if ok else 'NO'} |")
+    print(f"node logs in {log_dir}", flush=True)
+    if not args.skip_cost:
+        print("\n| core | executor | Imu msgs/s (real time) | CPU share of one core | callback median / p99 [us] |")
+        print("|---|---|---|---|---|")
+        cases = [(c, "events") for c in args.cores] + [(args.cores[0], "single")]
+        for core, ex in cases:
+            r = run_case(core, 125.0, 1.0, args.cost_duration_s, "sensor_data", log_dir, ex)
+            print(f"| {core} | {ex} | {r['msgs_per_s']:.0f} | {100 * r['cpu_share']:.1f} % | "
+                  f"{r['cb_median_us']:.0f} / {r['cb_p99_us']:.0f} |", flush=True)
+    burners = [subprocess.Popen([sys.executable, "-c", "while 1: pass"]) for _ in range(args.burners)]
+    try:
+        print(f"\n1,250 Imu msg/s, sensor-data QoS, {args.burners} CPU burners, {args.load_duration_s:.0f} s of data")
+        print("| core | sent | received | dropped | gaps | callback median / p99 [us] | session samples/s | "
+              "outputs outside 3-sigma (node / offline) | aligned at end |")
+        print("|---|---|---|---|---|---|---|---|---|")
+        for core in args.cores:
+            r = run_case(core, 125.0, 10.0, args.load_duration_s, "sensor_data", log_dir, settle_s=args.settle_s)
+            off, n_off = offline_outside(core, 125.0, args.load_duration_s, args.settle_s)
+            print(f"| {core} | {r['sent']} | {r['received']} | {r['sent'] - r['received']} | {r['gaps']} | "
+                  f"{r['cb_median_us']:.0f} / {r['cb_p99_us']:.0f} | {r['session_samples_per_s']:.0f} | "
+                  f"{r['outside_3sigma']}/{r['outputs_checked']} / {off}/{n_off} | {r['aligned_at_end']} |",
+                  flush=True)
+    finally:
+        for b in burners:
+            b.kill()
     return 0
 
 

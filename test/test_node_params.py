@@ -115,3 +115,44 @@ def test_bad_start_up_parameter_is_an_error_with_the_reason(node_factory):
         node_factory(["-p", "aligned.hold_s:=-3.0"])
     with pytest.raises(ValueError, match="backward propagation"):  # a bank cannot be backtracked
         node_factory(["-p", "core:=liekf", "-p", "backtrack_passes:=1", "-p", "yaw_hypotheses:=8"])
+
+
+@pytest.mark.timeout(60)
+def test_descriptors_via_the_parameter_service_and_int_for_double(node_factory):
+    """What `ros2 param describe` shows: a description and a range through the real parameter service; an integer
+    given for a double parameter (-p gnss_sigma_m:=2) is accepted as 2.0."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.parameter_client import AsyncParameterClient
+
+    node = node_factory(["-p", "gnss_sigma_m:=2", "-p", "core:=iekf"])
+    assert node.params["gnss_sigma_m"] == 2.0 and isinstance(node.params["gnss_sigma_m"], float)
+    ctx = node.context
+    client_node = Node("param_client", context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    ex.add_node(client_node)
+    try:
+        cli = AsyncParameterClient(client_node, "alignment_node")
+        assert cli.wait_for_services(timeout_sec=10.0)
+        fut = cli.describe_parameters(["max_fix_lag_s", "core", "imu_qos_depth"])
+        ex.spin_until_future_complete(fut, timeout_sec=10.0)
+        lag, core, depth = fut.result().descriptors
+        assert "fused at their stamp" in lag.description and lag.floating_point_range[0].to_value == 10.0
+        assert core.read_only and "read-only" in core.description
+        assert depth.integer_range[0].from_value == 1
+    finally:
+        client_node.destroy_node()
+
+
+@pytest.mark.timeout(60)
+def test_wrong_type_at_start_up_is_one_line_and_exit_2(tmp_path):
+    from insalign_ros.cli.bringup import isolated_ros_env, start_node, wait_for_exit
+
+    env = isolated_ros_env()
+    node = start_node("insalign_ros.nodes.alignment_node", env, log_dir=tmp_path,
+                      params={"gnss_sigma_m": "abc"})
+    assert wait_for_exit(node, 30.0) == 2
+    out = node.output()
+    assert "bad parameter" in out and "gnss_sigma_m" in out and "Traceback" not in out, out

@@ -122,6 +122,8 @@ class ImuSimNode(Node):
         self.max_lead_s = float(p("max_lead_s", 2.0).value)
         #: publish each fix when the IMU stream has reached its stamp plus this [s data time] (receiver latency)
         self.fix_delay_s = float(p("fix_delay_s", 0.0).value)
+        #: at the end, wait this long at most for reliable readers to acknowledge everything [s wall]
+        self.drain_timeout_s = float(p("drain_timeout_s", 60.0).value)
         self.pace_timeout_s = float(p("pace_timeout_s", 5.0).value)
         from rcl_interfaces.msg import ParameterDescriptor
 
@@ -398,12 +400,15 @@ def main(args=None) -> int:
                 rclpy.spin_once(node, timeout_sec=0.1)
         else:
             _run_stream(node)
-        if node.data is not None:  # reliable readers: wait until they acknowledged everything (10 s at most)
-            from rclpy.duration import Duration
+        if node.data is not None:  # reliable readers: wait until they acknowledged everything (a lagging reader
+            from rclpy.duration import Duration  # gets its tail: drain_timeout_s, 60 s by default)
 
+            end = time.monotonic() + node.drain_timeout_s
             for pub in (node.pub, node.pub_fix, node.pub_truth):
-                if pub is not None and not pub.wait_for_all_acked(Duration(seconds=10.0)):
-                    node.get_logger().warning(f"{pub.topic_name}: not all messages acknowledged within 10 s")
+                left = max(0.1, end - time.monotonic())
+                if pub is not None and not pub.wait_for_all_acked(Duration(seconds=left)):
+                    node.get_logger().warning(f"{pub.topic_name}: not all messages acknowledged within "
+                                              f"{node.drain_timeout_s:g} s")
         # let the reliable writer deliver what is queued before the process goes away
         end = time.monotonic() + 2.0
         while rclpy.ok() and time.monotonic() < end:

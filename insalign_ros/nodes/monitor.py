@@ -36,6 +36,7 @@ class AlignmentMonitor:
         self.euler_error = None  # (stamp, [r, p, y] deg)
         self.euler_3sigma = None
         self.errors: list[tuple[float, np.ndarray]] = []
+        self.sigmas3: list[tuple[float, np.ndarray]] = []  # (stamp, published 3-sigma [deg])
         self.poses: list[PoseWithCovarianceStamped] = []
         self.pose_count = 0
         self.keep_poses = keep_poses
@@ -79,6 +80,7 @@ class AlignmentMonitor:
     def _on_err3(self, msg: Vector3Stamped) -> None:
         with self.lock:
             self.euler_3sigma = (_t(msg), np.array([msg.vector.x, msg.vector.y, msg.vector.z]))
+            self.sigmas3.append(self.euler_3sigma)
 
     def _on_pose(self, msg: PoseWithCovarianceStamped) -> None:
         with self.lock:
