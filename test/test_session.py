@@ -254,3 +254,21 @@ def test_host_stamp_jitter_is_not_a_gap(ship60):
                           C_b_n=jit.C_b_n[keep], lat_rad=jit.lat_rad[keep], lon_rad=jit.lon_rad[keep],
                           h_m=jit.h_m[keep], v_n=jit.v_n[keep]), **kw)
     assert r2.counters["imu_gaps"] == 1
+
+
+def test_insalign_align_on_a_bag_without_truth_needs_no_guess(tmp_path):
+    """A recording without truth and without a guess: initialised from the sensors; topic names and the sigma of
+    UNKNOWN-covariance fixes are options; a wrong topic is one line and exit 2."""
+    import json
+
+    from insalign_ros.cli.align import main
+    from insalign_ros.io.bag import write_bag
+
+    bag = tmp_path / "car_bag"
+    write_bag(make_scenario("car", seed=3, duration_s=60.0, heading_deg=-120.0), bag, write_truth=False)
+    assert main([str(bag), "--core", "iekf", "--out-dir", str(tmp_path / "o"), "--no-progress", "--no-plot",
+                 "--imu-topic", "/imu/data", "--unknown-fix-sigma", "2"]) == 0
+    m = json.loads((tmp_path / "o" / "car_bag_iekf_metrics.json").read_text())
+    assert m["init_mode"] == "sensors" and m["counters"]["gnss_accepted"] >= 55
+    assert m["diagnostics"]["core.yaw_hypotheses_alive"] >= 1
+    assert main([str(bag), "--imu-topic", "/nope", "--out-dir", str(tmp_path / "o"), "--no-progress"]) == 2

@@ -5,7 +5,8 @@
     insalign-align --scenario static --core pkf --param zupt_rate_hz=10
 
 A thin CLI over ``insalign_ros.align`` (the same AlignmentSession as alignment_node). Initialisation: with
-``--initial-rpy`` from that guess; otherwise, when the data have truth, from the truth plus ``--rpy-error``.
+``--initial-rpy`` from that guess; when the data have truth, from the truth plus ``--rpy-error``; otherwise (or with
+``--session-param init_mode=sensors``) from the sensors alone (no guess: fixes, accelerometers, a yaw bank).
 Static cores get zero-velocity updates from the session (``--session-param zupt_rate_hz=10``). Writes
 <out>/<name>_<core>.csv (time, Euler estimate, error, 3-sigma, NEES, flag), a metrics JSON and a PNG like the
 PI-LIEKF paper's Fig. 3. Every user error is one line on stderr and exit status 2.
@@ -53,6 +54,11 @@ def main(argv=None) -> int:
                     help="session parameter (insalign_ros.session.config.SessionConfig)")
     ap.add_argument("--fix-delay", type=float, default=0.0, metavar="S",
                     help="deliver each fix S seconds of data time after its stamp (receiver latency)")
+    ap.add_argument("--imu-topic", default=None, help="Imu topic of the bag (default: the contract's /imu/data)")
+    ap.add_argument("--gps-topic", default=None, help="NavSatFix topic (default /gps/fix)")
+    ap.add_argument("--truth-topic", default=None, help="reference pose topic, any rate (default /ground_truth/pose)")
+    ap.add_argument("--unknown-fix-sigma", type=float, default=None, metavar="M",
+                    help="1-sigma per axis [m] for fixes with UNKNOWN covariance (default 1 m, as the node's gnss_sigma_m)")
     ap.add_argument("--out-dir", default=".")
     ap.add_argument("--output-period", type=float, default=0.5)
     ap.add_argument("--no-progress", action="store_true")
@@ -84,16 +90,22 @@ def _run(args) -> int:
     sp = _kv(args.session_param, "--session-param")
     SessionConfig.from_dict({"core": args.core, **sp})  # user errors before any work
     make_config(args.core, core_params)
-    data = load_source(args.bag or args.scenario, args.duration, args.seed)
+    reader = {k: v for k, v in (("imu_topic", args.imu_topic), ("gps_topic", args.gps_topic),
+                                ("truth_topic", args.truth_topic), ("unknown_fix_sigma_m", args.unknown_fix_sigma))
+              if v is not None}
+    if reader and not args.bag:
+        raise ValueError("--imu-topic/--gps-topic/--truth-topic/--unknown-fix-sigma apply to a bag")
+    data = load_source(args.bag or args.scenario, args.duration, args.seed, **reader)
     name = Path(args.bag).stem if args.bag else f"{args.scenario}_s{args.seed}"
     if args.initial_rpy is not None:
         sp.update(init_mode="guess", initial_rpy_deg=list(args.initial_rpy))
         rpy_error = None
-    elif data.has_truth:
+    elif data.has_truth and (args.rpy_error is not None or "init_mode" not in sp):
         rpy_error = list(args.rpy_error) if args.rpy_error is not None else [10.0, 10.0, 60.0]
         sp.update(init_mode="truth", init_rpy_error_deg=rpy_error)
-    else:
-        raise ValueError("the data have no truth: give --initial-rpy R P Y [deg]")
+    else:  # no truth (or --session-param init_mode=sensors): no guess needed, the session initialises from the sensors
+        rpy_error = None
+        sp.setdefault("init_mode", "sensors")
     if args.backtrack > 0:
         sp.update(backtrack_passes=args.backtrack, backtrack_window_s=args.backtrack_window,
                   backtrack_budget_s=math.inf)
@@ -122,7 +134,7 @@ def _run(args) -> int:
                 diagnostics={k: v for k, v in r.diagnostics.items() if k.startswith("core.")})
     if rpy_error is not None:
         summ["rpy_error_deg"] = rpy_error
-    else:
+    elif args.initial_rpy is not None:
         summ["initial_rpy_deg"] = list(args.initial_rpy)
     Path(f"{stem}_metrics.json").write_text(json.dumps(summ, indent=2, default=_json_default))
     if not args.no_plot and data.has_truth:
@@ -130,8 +142,9 @@ def _run(args) -> int:
         from ..eval.plots import plot_euler_errors
 
         res = MT.evaluate(args.core, r.estimates, data.t_s, data.C_b_n, r.init_t_s)
-        title = f"{name}: {args.core}, " + (f"initial error {rpy_error} deg" if rpy_error is not None
-                                            else f"initial guess {list(args.initial_rpy)} deg")
+        start = (f"initial error {rpy_error} deg" if rpy_error is not None else
+                 f"initial guess {list(args.initial_rpy)} deg" if args.initial_rpy is not None else "from sensors")
+        title = f"{name}: {args.core}, {start}"
         plot_euler_errors([res], f"{stem}.png", title=title)
     keys = ("rmse_rpy_deg", "final_err_rpy_deg", "time_yaw_below_deg_s", "mean_nees_after_s",
             "aligned_first_raised_at_s")
