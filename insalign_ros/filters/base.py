@@ -121,6 +121,11 @@ class AlignmentCore(ABC):
         """Fuse a GNSS position fix (at the core's current time; the caller propagates first)."""
         return UpdateResult(False, reason=f"{self.name} does not use GNSS")
 
+    def predict_gnss(self, fix: GnssFix) -> UpdateResult:
+        """The innovation (``innovation``, ``S``, ``nis``) a fix would have now, with nothing changed (the session's
+        outlier gate). Cores without it return a result with an empty ``S`` (no gate)."""
+        return UpdateResult(False, reason=f"{self.name} has no GNSS prediction")
+
     def update_zero_velocity(self, stamp_s: float, sigma_v_m_s: float) -> UpdateResult:
         """Fuse the zero-velocity condition (vehicle at rest relative to Earth) with std sigma_v [m/s]."""
         return UpdateResult(False, reason=f"{self.name} does not use zero-velocity updates")

@@ -152,6 +152,13 @@ class YawHypothesisBank(AlignmentCore):
         for h in self.hyps:
             h.flush()
 
+    def predict_gnss(self, fix) -> UpdateResult:
+        """The prediction of the most probable hypothesis, once one is left; none while several live (their
+        disagreement is what the weights resolve)."""
+        if len(self.hyps) != 1:
+            return UpdateResult(False, reason="several yaw hypotheses alive")
+        return self.hyps[0].predict_gnss(fix)
+
     def update_gnss(self, fix) -> UpdateResult:
         return self._update([h.update_gnss(fix) for h in self.hyps])
 

@@ -422,14 +422,8 @@ class BatchedEciCore(AlignmentCore):
         return C_b_n @ self.P[0:3, 0:3] @ C_b_n.T
 
     # ---------------------------------------------------------------- update
-    def update_gnss(self, fix: GnssFix) -> UpdateResult:
-        if not self._init:
-            return UpdateResult(False, reason="not initialised")
-        reason = _check_fix(fix)
-        if reason:
-            self.counters["gnss_rejected"] += 1
-            self.last_reject_reason = f"GNSS: {reason}"
-            return UpdateResult(False, reason=reason)
+    def _gnss_terms(self, fix: GnssFix):
+        """(z, H, N) of a fix at the core's current time (after flushing the buffered samples)."""
         self.flush()
         Cei = earth.C_e_i(self.t_s, self.t0_s)
         p_i = Cei @ np.asarray(fix.p_e, float)
@@ -439,7 +433,29 @@ class BatchedEciCore(AlignmentCore):
             lo = float(np.linalg.eigvalsh(0.5 * (R_i + R_i.T)).min())
             if lo < floor2:
                 R_i = R_i + (floor2 - lo) * np.eye(3)
-        z, H, N = self._gnss_model(p_i, R_i)
+        return self._gnss_model(p_i, R_i)
+
+    def predict_gnss(self, fix: GnssFix) -> UpdateResult:
+        """The innovation, its covariance and NIS a fix would have now; changes nothing (an outlier gate)."""
+        if not self._init:
+            return UpdateResult(False, reason="not initialised")
+        reason = _check_fix(fix)
+        if reason:
+            return UpdateResult(False, reason=reason)
+        z, H, N = self._gnss_terms(fix)
+        S = H @ self.P @ H.T + N
+        S = 0.5 * (S + S.T)
+        return UpdateResult(False, z, S, float(z @ np.linalg.solve(S, z)), "prediction only")
+
+    def update_gnss(self, fix: GnssFix) -> UpdateResult:
+        if not self._init:
+            return UpdateResult(False, reason="not initialised")
+        reason = _check_fix(fix)
+        if reason:
+            self.counters["gnss_rejected"] += 1
+            self.last_reject_reason = f"GNSS: {reason}"
+            return UpdateResult(False, reason=reason)
+        z, H, N = self._gnss_terms(fix)
         self._P_prior = self.P
         L, P_new, S = joseph_update(self.P, H, N)
         nis = float(z @ np.linalg.solve(S, z))

@@ -64,6 +64,16 @@ class SessionConfig:
     gnss_timeout_s: float = 5.0
     #: no input for this long [s wall time]: process the buffered tail (the fusion delay holds otherwise)
     idle_drain_s: float = 0.5
+    #: outlier gate: a fix whose NIS exceeds this is rejected without touching the core, once the core claims to
+    #: know its attitude (3-sigma within twice the flag's bounds); 0: off. 100 is p < 1e-20 for a consistent filter
+    #: (chi-square, 3 dof) and rejects a fix 200 m off at a 1-m sigma
+    gnss_gate_nis: float = 100.0
+    #: that many consecutive gated fixes: the filter is lost (or the GNSS is): FAULT and re-initialisation
+    gnss_gate_max_consecutive: int = 5
+    #: an IMU sample off both of its neighbours by more than this (and 20 times the recent spread) is a
+    #: spike: dropped (a gap, bridged); 0: off [rad/s, m/s^2]
+    imu_spike_rad_s: float = 3.0
+    imu_spike_m_s2: float = 30.0
     #: backtracking passes over the stored window (filters/backtrack.py; 0: off) and its options
     backtrack_passes: int = 0
     backtrack_window_s: float = 60.0
@@ -115,7 +125,13 @@ class SessionConfig:
             v = values[name]
             if not (_is_num(v) and v > 0) or (math.isinf(v) and name != "backtrack_budget_s"):
                 raise ValueError(f"{name}: must be a finite number > 0, got {v!r}")
-        for name in ("max_fix_lag_s", "output_period_s", "zupt_rate_hz", "imu_timeout_s"):
+        if not (isinstance(self.gnss_gate_max_consecutive, int) and 1 <= self.gnss_gate_max_consecutive <= 1000):
+            raise ValueError(f"gnss_gate_max_consecutive: must be an integer in [1, 1000], got "
+                             f"{self.gnss_gate_max_consecutive!r}")
+        if 0 < self.gnss_gate_nis < 16.3:  # chi-square(3) at p = 1e-3: a tighter gate rejects good fixes
+            raise ValueError(f"gnss_gate_nis: {self.gnss_gate_nis} would reject good fixes (0 = off, or >= 16.3)")
+        for name in ("max_fix_lag_s", "output_period_s", "zupt_rate_hz", "imu_timeout_s", "gnss_gate_nis",
+                     "imu_spike_rad_s", "imu_spike_m_s2"):
             v = values[name]
             if not (_is_num(v) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"{name}: must be a finite number >= 0, got {v!r}")

@@ -44,7 +44,7 @@ COUNTERS = (
     "imu_reordered", "imu_future", "imu_gaps", "imu_before_init", "gnss_received", "gnss_accepted", "gnss_rejected",
     "gnss_invalid", "gnss_no_fix", "gnss_frame", "gnss_duplicate", "gnss_stale", "gnss_future", "gnss_before_init", "gnss_filter_rejected",
     "gnss_unused", "truth_received", "truth_invalid", "time_resets", "core_faults", "zupt_accepted",
-    "watchdog_trips", "inputs_dropped")
+    "watchdog_trips", "inputs_dropped", "gnss_gated", "imu_spikes", "divergences")
 
 
 @dataclass
@@ -153,6 +153,9 @@ class AlignmentSession:
         self._median_dt: float | None = None
         self._dt_count = 0
         self._probe = None
+        self._sensors_reinit = False
+        self._spread = None
+        self.gated_run = 0
         self.pre_init: deque = deque(maxlen=4000)  # IMU samples before the initialisation (level from sensors)
         self.hist_t: deque = deque(maxlen=1000)  # recent processed samples (gap bridging statistics)
         self.hist_w: deque = deque(maxlen=1000)
@@ -335,7 +338,10 @@ class AlignmentSession:
             return out
         items = b.imu[:n]
         del b.imu[:n], b.imu_t[:n]
-        for t, w, f in items:
+        for i, (t, w, f) in enumerate(items):
+            nxt = items[i + 1] if i + 1 < n else (b.imu[0] if b.imu else None)
+            if self._spike(t, w, f, nxt):
+                continue
             try:
                 self._step(t, w, f, out)
             except Exception as exc:  # noqa: BLE001 - a core failure is a fault; the alignment restarts
@@ -343,6 +349,31 @@ class AlignmentSession:
         self._apply_due_fixes(out)
         self.timing["samples"] += n
         return out
+
+    def _spike(self, t: float, w: np.ndarray, f: np.ndarray, nxt) -> bool:
+        """A sample off both of its neighbours by more than the bounds (and 20 x the recent spread): a spike
+        (a 30 rad/s glitch is inside the plausibility bound but no vehicle turns like that for 10 ms). Dropped
+        and counted; the next sample sees a gap and bridges it."""
+        cfg = self.cfg
+        if (cfg.imu_spike_rad_s <= 0 and cfg.imu_spike_m_s2 <= 0) or nxt is None or not self.hist_w \
+                or self._median_dt is None or self.processed_t is None:
+            return False
+        if t - self.processed_t > 3.0 * self._median_dt or nxt[0] - t > 3.0 * self._median_dt:
+            return False
+        if self._dt_count % 100 == 1 or self._spread is None:
+            self._spread = (float(np.linalg.norm(np.std(np.asarray(self.hist_w), axis=0))),
+                            float(np.linalg.norm(np.std(np.asarray(self.hist_f), axis=0))))
+        # off BOTH neighbours (the sample before a spike is off only one of them)
+        dw = min(float(np.linalg.norm(w - self.hist_w[-1])), float(np.linalg.norm(w - nxt[1])))
+        df = min(float(np.linalg.norm(f - self.hist_f[-1])), float(np.linalg.norm(f - nxt[2])))
+        bad_w = cfg.imu_spike_rad_s > 0 and dw > max(cfg.imu_spike_rad_s, 20.0 * self._spread[0])
+        bad_f = cfg.imu_spike_m_s2 > 0 and df > max(cfg.imu_spike_m_s2, 20.0 * self._spread[1])
+        if not (bad_w or bad_f):
+            return False
+        self.counters["imu_spikes"] += 1
+        self.last_reject = f"imu: spike at {t + self.stamp_offset_s:.6f} ({dw:.3g} rad/s, {df:.3g} m/s^2 off its neighbours)"
+        self.log("warn", "imu_spikes", f"IMU spike dropped: {self.last_reject[5:]} (imu_spikes={self.counters['imu_spikes']})")
+        return True
 
     def _step(self, t: float, w: np.ndarray, f: np.ndarray, out: list[Output]) -> None:
         prev = self.processed_t
@@ -368,6 +399,8 @@ class AlignmentSession:
         self.hist_w.append(w)
         self.hist_f.append(f)
         self._apply_fixes_until(t, out)
+        if self.core is None:  # a divergence restarted the session
+            return
         if self._zupt_due(t):
             self._zupt(t)
         if t >= self.next_out_t - 1e-9:
@@ -447,7 +480,7 @@ class AlignmentSession:
 
     def _apply_fixes_until(self, t: float, out: list[Output]) -> None:
         b = self.buf
-        while b.fix_t and b.fix_t[0] <= t:
+        while b.fix_t and b.fix_t[0] <= t and self.core is not None:
             b.fix_t.pop(0)
             fix = b.fix.pop(0)
             if fix.stamp_s == self._used_fix_stamp:
@@ -462,6 +495,23 @@ class AlignmentSession:
         if not core.supports_gnss:
             self.counters["gnss_unused"] += 1
             return
+        gate = self.cfg.gnss_gate_nis
+        if gate > 0 and self._attitude_claimed():
+            pr = core.predict_gnss(fix)
+            if pr.S.size and pr.nis > gate:
+                self.counters["gnss_gated"] += 1
+                self.counters["gnss_rejected"] += 1
+                self.gated_run += 1
+                self.last_reject = f"gnss: NIS {pr.nis:.3g} above the gate {gate:g} (|innovation| {np.linalg.norm(pr.innovation):.3g} m)"
+                self.log("warn", "gnss_gated", f"fix gated: {self.last_reject[6:]} ({self.gated_run} in a row, "
+                                               f"gnss_gated={self.counters['gnss_gated']})")
+                # an implausible fix while the core claims its attitude: the claim cannot be trusted now
+                self._lower_flag(f"a fix failed the NIS gate ({self.gated_run} in a row)")
+                if self.gated_run >= self.cfg.gnss_gate_max_consecutive:
+                    self._diverged(f"{self.gated_run} consecutive fixes beyond the NIS gate (last NIS {pr.nis:.3g}): "
+                                   "the filter (or the GNSS) is lost")
+                return
+        self.gated_run = 0
         res = self.bt.feed(fix) if self.bt is not None else core.update_gnss(fix)
         if res is None:
             return
@@ -475,6 +525,30 @@ class AlignmentSession:
             self.last_reject = f"gnss: core: {res.reason}"
             self.log("warn", "gnss_filter_rejected", f"fix rejected by the core: {res.reason}")
         self.flag.on_update(self.processed_t, res.accepted, res.nis, len(res.innovation) or 3)
+
+    def _attitude_claimed(self) -> bool:
+        """The core claims to know its attitude: 3-sigma within twice the flag's bounds at the last output."""
+        s = self.flag.sigma3_deg
+        c = self.flag.criteria
+        return bool(np.all(np.isfinite(s)) and max(s[0], s[1]) < 2.0 * c.roll_pitch_3sigma_deg
+                    and s[2] < 2.0 * c.yaw_3sigma_deg)
+
+    def _lower_flag(self, reason: str) -> None:
+        """Drop the flag at once; it rises again only after the criteria hold for hold_s again."""
+        self.flag.holding_since_s = None
+        if self.flag.aligned:
+            self.flag.aligned = False
+            self.flag.reason = reason
+            self.flag_changes.append((self.processed_t or 0.0, False, reason))
+            self.log("info", "flag", f"aligned flag lowered at t={(self.processed_t or 0.0) + self.stamp_offset_s:.3f} s: "
+                                     f"{reason}")
+
+    def _diverged(self, reason: str) -> None:
+        """Divergence: FAULT with the reason, the flag down at once, re-initialisation from the data that follow."""
+        self.counters["divergences"] += 1
+        self.log("error", "divergence", f"divergence: {reason}; re-initialising from the sensors (yaw bank)")
+        self._restart(f"divergence: {reason}")
+        self._sensors_reinit = True  # whatever the first initialisation was: a guess or the truth no longer holds
 
     def _zupt_due(self, t: float) -> bool:
         c = self.core
@@ -511,7 +585,7 @@ class AlignmentSession:
     # ------------------------------------------------------------------ initialisation
     def _try_initialize(self, t: float) -> None:
         cfg = self.cfg
-        if cfg.init_mode == "sensors":
+        if cfg.init_mode == "sensors" or self._sensors_reinit:
             return self._try_initialize_from_sensors(t)
         tr = self.buf.truth.get(t) if cfg.init_mode == "truth" else None
         core = registry.make_core(cfg.core, self.core_params)
@@ -739,18 +813,25 @@ class AlignmentSession:
         self.last_reject = f"fault: {type(exc).__name__}: {exc}"
         self.log("error", "fault", f"core fault ({type(exc).__name__}: {exc}); resetting the alignment\n"
                                    f"{traceback.format_exc(limit=3)}")
+        self._restart(f"{type(exc).__name__}: {exc}")
+
+    def _restart(self, why: str) -> None:
+        """Drop the core, keep the time line and the buffered inputs, status FAULT: re-initialise from what follows."""
         keep_t = self.processed_t
         resets = dict(self.counters)
         newest, recent, rset = self.newest_imu_t, self.recent_stamps, self._recent_set
         pending = self.buf
-        self._reset_state(f"after a fault: {exc}")
+        last_reject, offset = self.last_reject, self.stamp_offset_s
+        self._reset_state(f"after {why}")
         self.counters.update(resets)
+        self.last_reject, self.stamp_offset_s = last_reject, offset
         # keep the time line and the buffered inputs: re-initialise from the data that follow
         self.buf, self.newest_imu_t, self.recent_stamps, self._recent_set = pending, newest, recent, rset
         self.processed_t = keep_t
         self.status = AlignmentStatus.FAULT
-        self.fault_reason = f"{type(exc).__name__}: {exc}"
-        self.reason = f"fault ({self.fault_reason}); re-initialising"
+        self.fault_reason = why
+        self.reason = f"fault ({why}); re-initialising"
+        self.flag_changes.append((keep_t or 0.0, False, self.reason))
 
     @property
     def aligned(self) -> bool:
