@@ -49,6 +49,7 @@ def test_imu_message_without_a_measured_sample_says_no_estimate():
     covariance element 0 = -1; the orientation covariance is P_att_n as given (ENU axes, rad^2)."""
     from types import SimpleNamespace
 
+    pytest.importorskip("sensor_msgs", reason="builds a sensor_msgs/Imu: needs the ROS 2 message packages")
     from insalign_ros.nodes import conversions as cv
 
     C = earth.C_b_n_from_rpy(0.1, -0.2, 2.5)
