@@ -19,9 +19,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+import insalign_ros as ia  # noqa: E402
 from insalign_ros.eval import metrics as MT  # noqa: E402
-from insalign_ros.filters.registry import INMOTION_CORE_NAMES, make_core  # noqa: E402
-from insalign_ros.filters.runner import run_offline  # noqa: E402
+from insalign_ros.filters.registry import INMOTION_CORE_NAMES  # noqa: E402
 from insalign_ros.io.kitti import convert_drive  # noqa: E402
 
 
@@ -35,6 +35,9 @@ def main(argv=None):
                     help="floor of the fix sigma (the RT3003 reports ~2 cm; 0 = use it as is)")
     ap.add_argument("--yaw-hypotheses", type=int, default=1,
                     help="bank of K yaw hypotheses around each core (filters/hypotheses.py; 1 = one filter)")
+    ap.add_argument("--init", choices=["truth", "sensors"], default="truth",
+                    help="truth: the RT3003 plus --rpy-error; sensors: no truth, no guess (the session's default)")
+    ap.add_argument("--cores", nargs="+", default=list(INMOTION_CORE_NAMES))
     args = ap.parse_args(argv)
     drive = Path(args.data) / args.drive
     if not drive.exists():
@@ -43,10 +46,17 @@ def main(argv=None):
     data, rep = convert_drive(drive, gnss_rate_hz=1.0)
     print(f"{data.name}: {data.n} IMU samples over {data.t_s[-1]:.1f} s, {len(data.gnss_t_s)} fixes")
     rows, series = [], {}
-    for c in INMOTION_CORE_NAMES:
-        core = make_core(c, {"gnss_sigma_floor_m": args.gnss_sigma_floor_m, "yaw_hypotheses": args.yaw_hypotheses})
-        ests, runner = run_offline(core, data, args.rpy_error, output_period_s=1.0)
-        r = MT.evaluate(c, ests, data.t_s, data.C_b_n, float(data.t_s[0]))
+    for c in args.cores:
+        init = ({"init_mode": "truth", "init_rpy_error_deg": args.rpy_error} if args.init == "truth"
+                else {"init_mode": "sensors"})
+        res = ia.align(data, core=c, output_period_s=1.0, core_params={
+            "gnss_sigma_floor_m": args.gnss_sigma_floor_m, "yaw_hypotheses": args.yaw_hypotheses}, **init)
+        r = MT.evaluate(c, res.estimates, data.t_s, data.C_b_n, float(data.t_s[0]))
+        flag_bad = int(np.sum(res.aligned & (np.abs(res.rpy_err_deg[:, 2]) > 3.0)))
+        t_flag = res.metrics.get("aligned_first_raised_at_s")
+        print(f"{c}: initialised at {res.init_t_s - data.t_s[0]:.1f} s, flag first up at "
+              f"{'never' if t_flag is None else f'{t_flag - data.t_s[0]:.1f} s'}, outputs with the flag up and "
+              f"|yaw err| > 3 deg: {flag_bad}, fill rows/gaps: {res.counters['imu_gaps']}")
         series[c] = r
         yaw = r.rpy_err_deg[:, 2]
         t2 = MT.time_below_s(r.t_s, yaw, 2.0)
@@ -73,8 +83,8 @@ def main(argv=None):
         ax.grid(True)
         ax.legend()
         bank = f", {args.yaw_hypotheses} yaw hypotheses" if args.yaw_hypotheses > 1 else ""
-        ax.set_title(f"KITTI 0042, initial error {args.rpy_error} deg, GNSS sigma floor {args.gnss_sigma_floor_m} m"
-                     + bank, fontsize=9)
+        start = f"initial error {args.rpy_error} deg" if args.init == "truth" else "initialised from sensors"
+        ax.set_title(f"KITTI {args.drive}, {start}, GNSS sigma floor {args.gnss_sigma_floor_m} m" + bank, fontsize=9)
         fig.tight_layout()
         fig.savefig(args.fig, dpi=90)
     return 0

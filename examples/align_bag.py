@@ -1,5 +1,6 @@
-"""Write a 60-s car drive to a contract bag, then align the bag without truth from a guess 90 deg off in yaw with a
-bank of 8 yaw hypotheses (unknown heading).
+"""Write a 60-s car drive to a contract bag without truth, then align it with no guess at all: position and velocity
+from the fixes, level from the accelerometers, the unknown heading by a bank of 8 yaw hypotheses (init_mode
+"sensors", the default).
 
     python examples/align_bag.py OUT_DIR
 """
@@ -16,8 +17,7 @@ out = Path(sys.argv[1] if len(sys.argv) > 1 else "example_out")
 out.mkdir(parents=True, exist_ok=True)
 data = ia.simulate("car", seed=1, duration_s=60.0)
 bag = write_bag(data, out / "car_bag", write_truth=False)  # a recording without truth, as a user's would be
-r = ia.align(str(bag), core="iekf", core_params={"yaw_hypotheses": 8}, initial_rpy_deg=[0.0, 0.0, 90.0],
-             initial_velocity_enu_m_s=data.v_n[0].tolist())
+r = ia.align(str(bag), core="iekf")
 yaw_true = np.degrees(np.arctan2(data.C_b_n[-1][1, 0], data.C_b_n[-1][0, 0]))
 print(f"final yaw {r.rpy_deg[-1][2]:.2f} deg (truth {yaw_true:.2f} deg), 3-sigma {r.sigma3_deg[-1][2]:.2f} deg, "
       f"aligned {bool(r.aligned[-1])}")

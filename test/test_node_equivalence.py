@@ -89,11 +89,11 @@ def test_node_over_dds_equals_the_offline_api(tmp_path, ros_env, core, scenario)
     bag = write_bag(d, tmp_path / "bag")
     rpy0 = (np.degrees(earth.rpy_from_C_b_n(d.C_b_n[0])) + [2.0, -2.0, 10.0]).tolist()
     v0 = d.v_n[0].tolist()
-    session = {"initial_rpy_deg": rpy0, "initial_velocity_enu_m_s": v0, "output_period_s": 0.1}
+    session = {"init_mode": "guess", "initial_rpy_deg": rpy0, "initial_velocity_enu_m_s": v0, "output_period_s": 0.1}
     ref = ia.align(str(bag), core=core, **session)
     assert ref.counters["imu_processed"] >= d.n - 2
     mon, nodes, summary = _run(tmp_path, ros_env, bag, {
-        "core": core, "initial_rpy_deg": str(rpy0), "initial_velocity_enu_m_s": str(v0), "pose_rate_hz": 10.0,
+        "core": core, "init_mode": "guess", "initial_rpy_deg": str(rpy0), "initial_velocity_enu_m_s": str(v0), "pose_rate_hz": 10.0,
         "imu_timeout_s": 0.0})
     try:
         diffs, n_pub, n_off = _compare(mon, summary, ref, float(d.t_s[0]))
@@ -114,11 +114,12 @@ def test_lagged_fixes_over_dds_give_the_on_time_result_and_the_watchdog_drops_th
     d = make_scenario("ship", seed=2, duration_s=60.0)
     bag = write_bag(d, tmp_path / "bag")
     rpy0 = (np.degrees(earth.rpy_from_C_b_n(d.C_b_n[0])) + [1.0, -1.0, 3.0]).tolist()
-    session = {"initial_rpy_deg": rpy0, "initial_velocity_enu_m_s": d.v_n[0].tolist(), "output_period_s": 0.1}
+    session = {"init_mode": "guess", "initial_rpy_deg": rpy0, "initial_velocity_enu_m_s": d.v_n[0].tolist(),
+               "output_period_s": 0.1}
     on_time = ia.align(str(bag), core="iekf", **session)
     # every fix published 0.3 s of data time after its stamp (the node's default fusion delay is 0.5 s)
     mon, nodes, summary = _run(tmp_path, ros_env, bag, {
-        "core": "iekf", "initial_rpy_deg": str(rpy0), "initial_velocity_enu_m_s": str(d.v_n[0].tolist()),
+        "core": "iekf", "init_mode": "guess", "initial_rpy_deg": str(rpy0), "initial_velocity_enu_m_s": str(d.v_n[0].tolist()),
         "imu_timeout_s": 1.0}, fix_delay_s=0.3)
     try:
         diffs, _, n_off = _compare(mon, summary, on_time, float(d.t_s[0]))

@@ -167,6 +167,7 @@ def run_alignment(args, log_dir: Path, out=None) -> tuple[int, dict]:
     if args.yaw_hypotheses > 1:  # unknown heading: a bank of yaw hypotheses (filters/hypotheses.py)
         align_params["yaw_hypotheses"] = args.yaw_hypotheses
     if args.bag:
+        align_params["init_mode"] = "guess"
         align_params["initial_rpy_deg"] = str([float(x) for x in args.initial_rpy_deg.split(",")])
         align_params["init_from_ground_truth"] = args.bag_truth_init
     sim_params = {"rate_factor": args.rate_factor, "wait_for_subscribers": 1, "wait_timeout_s": 30.0,

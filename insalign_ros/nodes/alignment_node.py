@@ -50,6 +50,11 @@ from . import conversions as cv
 from .qos import QOS_CHOICES, imu_qos
 
 _SESSION_DOC = {  # session parameters the node exposes under the same names (SessionConfig has the meaning)
+    "init_mode": "sensors (no guess: position/velocity from the fixes, level from the accelerometers, unknown heading "
+                 "-> yaw bank), guess (initial_rpy_deg) or truth (ground_truth/pose; init_from_ground_truth)",
+    "init_level_window_s": "sensors: accelerometer averaging window for roll and pitch [s]",
+    "unknown_heading_hypotheses": "sensors: yaw hypotheses when the heading is unknown (GNSS cores)",
+    "init_accel_m_s2": "sensors: vehicle acceleration assumed when the fixes cannot tell it [m/s^2]",
     "initial_rpy_deg": "initial attitude guess roll, pitch, yaw [deg] (yaw from East, CCW)",
     "initial_velocity_enu_m_s": "initial velocity guess, ENU [m/s]",
     "init_rpy_error_deg": "Euler error added to the truth when init_from_ground_truth [deg]",
@@ -75,7 +80,8 @@ _SESSION_DOC = {  # session parameters the node exposes under the same names (Se
 #: node parameters: name -> (default, description, read_only)
 NODE_PARAMS = {
     "core": ("iekf", "alignment core (filters/registry.py); read-only after start", True),
-    "init_from_ground_truth": (False, "initialise from ground_truth/pose plus init_rpy_error_deg (tests, demos)", False),
+    "init_from_ground_truth": (False, "initialise from ground_truth/pose plus init_rpy_error_deg (tests, demos; "
+                                      "overrides init_mode)", False),
     "pose_rate_hz": (10.0, "~/pose, ~/euler_error and aligned-flag evaluation rate [Hz data time] (0: every Imu)", False),
     "use_imu_covariance": (False, "take gyro ARW / accel VRW from the Imu message covariances", False),
     "gnss_sigma_m": (1.0, "GNSS 1-sigma per axis [m] when NavSatFix gives no covariance", False),
@@ -202,7 +208,8 @@ class AlignmentNode(Node):
     def _session_args(self, p: dict):
         sp = {k: p[k] for k in _SESSION_DOC}
         sp["core"] = p["core"]
-        sp["init_mode"] = "truth" if p["init_from_ground_truth"] else "guess"
+        if p["init_from_ground_truth"]:
+            sp["init_mode"] = "truth"
         sp["output_period_s"] = 1.0 / p["pose_rate_hz"] if p["pose_rate_hz"] > 0 else 0.0
         core_params = {n: p[n] for n in self.core_param_names}
         if core_params.get("lmi_async") == "auto":  # PI-LIEKF: never solve the LMI inside the processing timer

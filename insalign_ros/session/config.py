@@ -18,9 +18,17 @@ class SessionConfig:
 
     #: alignment core (filters/registry.py)
     core: str = "iekf"
-    #: initial attitude: "guess" (``initial_rpy_deg``) or "truth" (a ground-truth pose at an IMU stamp plus
+    #: initial state: "sensors" (no guess needed: position and velocity from the first fixes, roll and pitch from
+    #: the accelerometers, heading unknown -> a bank of ``unknown_heading_hypotheses`` yaw hypotheses), "guess"
+    #: (``initial_rpy_deg``, ``initial_velocity_enu_m_s``) or "truth" (a ground-truth pose at an IMU stamp plus
     #: ``init_rpy_error_deg``: simulations and tests)
-    init_mode: str = "guess"
+    init_mode: str = "sensors"
+    #: sensors: accelerometer averaging window for roll and pitch before the initialisation stamp [s]
+    init_level_window_s: float = 1.0
+    #: sensors: yaw hypotheses of the bank when the heading is unknown (GNSS cores whose yaw_hypotheses is 1)
+    unknown_heading_hypotheses: int = 8
+    #: sensors: vehicle acceleration assumed when the fixes cannot tell it (velocity and level sigmas) [m/s^2]
+    init_accel_m_s2: float = 1.0
     #: initial attitude guess roll, pitch, yaw [deg] (yaw from East, counter-clockwise)
     initial_rpy_deg: list = field(default_factory=lambda: [0.0, 0.0, 0.0])
     #: initial velocity guess, ENU [m/s]
@@ -83,8 +91,11 @@ class SessionConfig:
 
         if self.core not in registry.CORES:
             raise ValueError(f"core: unknown core {self.core!r}; choose one of {sorted(registry.core_names())}")
-        if self.init_mode not in ("guess", "truth"):
-            raise ValueError(f"init_mode: must be 'guess' or 'truth', got {self.init_mode!r}")
+        if self.init_mode not in ("sensors", "guess", "truth"):
+            raise ValueError(f"init_mode: must be 'sensors', 'guess' or 'truth', got {self.init_mode!r}")
+        if not (isinstance(self.unknown_heading_hypotheses, int) and 1 <= self.unknown_heading_hypotheses <= 36):
+            raise ValueError(f"unknown_heading_hypotheses: must be an integer in [1, 36], got "
+                             f"{self.unknown_heading_hypotheses!r}")
         values = self.to_dict()
         for name in ("initial_rpy_deg", "initial_velocity_enu_m_s", "init_rpy_error_deg"):
             v = list(values[name])
@@ -98,7 +109,7 @@ class SessionConfig:
             setattr(self, name, [float(x) for x in v])
         if any(math.isfinite(x) and not x > 0 for x in self.init_sigma_rpy_deg):
             raise ValueError(f"init_sigma_rpy_deg: must be > 0 (or NaN), got {self.init_sigma_rpy_deg}")
-        positive = ("max_rate_rad_s", "max_acc_m_s2", "max_gap_s", "gap_factor", "max_fix_ahead_s",
+        positive = ("init_level_window_s", "init_accel_m_s2", "max_rate_rad_s", "max_acc_m_s2", "max_gap_s", "gap_factor", "max_fix_ahead_s",
                     "zupt_sigma_m_s", "gnss_timeout_s", "backtrack_window_s", "backtrack_budget_s", "idle_drain_s")
         for name in positive:
             v = values[name]

@@ -152,6 +152,8 @@ class AlignmentSession:
         self.dts: deque = deque(maxlen=101)
         self._median_dt: float | None = None
         self._dt_count = 0
+        self._probe = None
+        self.pre_init: deque = deque(maxlen=4000)  # IMU samples before the initialisation (level from sensors)
         self.hist_t: deque = deque(maxlen=1000)  # recent processed samples (gap bridging statistics)
         self.hist_w: deque = deque(maxlen=1000)
         self.hist_f: deque = deque(maxlen=1000)
@@ -350,6 +352,7 @@ class AlignmentSession:
             self._track_period(dt)
         if self.core is None:
             self.counters["imu_before_init"] += 1
+            self.pre_init.append((t, w, f))
             self._try_initialize(t)
             if self.core is not None:
                 self._apply_fixes_until(t, out)  # a fix at the initialisation stamp (not the one used) is fused
@@ -508,6 +511,8 @@ class AlignmentSession:
     # ------------------------------------------------------------------ initialisation
     def _try_initialize(self, t: float) -> None:
         cfg = self.cfg
+        if cfg.init_mode == "sensors":
+            return self._try_initialize_from_sensors(t)
         tr = self.buf.truth.get(t) if cfg.init_mode == "truth" else None
         core = registry.make_core(cfg.core, self.core_params)
         try:
@@ -547,8 +552,13 @@ class AlignmentSession:
         except Exception:
             core.close()
             raise
+        self._start(core, t, pos, used_fix, rpy, v0)
+
+    def _start(self, core: AlignmentCore, t: float, pos, used_fix, rpy, v0, how: str = "") -> None:
+        cfg = self.cfg
         # fixes up to the initialisation stamp: the one that gave the position is consumed, older ones dropped
         self._used_fix_stamp = used_fix.stamp_s if used_fix is not None else None
+        self.pre_init.clear()
         self.core = core
         if cfg.backtrack_passes > 0:
             from ..filters.backtrack import BacktrackingAligner
@@ -564,7 +574,83 @@ class AlignmentSession:
         self.fault_reason = ""
         self.log("info", "init", f"initialised {cfg.core} at t={t + self.stamp_offset_s:.3f} s, lat {pos[0] / D2R:.6f} deg, lon "
                                  f"{pos[1] / D2R:.6f} deg, h {pos[2]:.1f} m, rpy "
-                                 f"{np.round(rpy / D2R, 2).tolist()} deg, v {np.round(v0, 3).tolist()} m/s")
+                                 f"{np.round(rpy / D2R, 2).tolist()} deg, v {np.round(v0, 3).tolist()} m/s{how}")
+
+    def _try_initialize_from_sensors(self, t: float) -> None:
+        """init_mode 'sensors': no guess. Position from the newest fix; velocity from the last two fixes (0 for a
+        static core); roll and pitch from the mean specific force over ``init_level_window_s``; heading unknown.
+
+        Sigmas are honest rather than small: velocity sqrt(2) sigma_p / dt plus the unknown acceleration over the
+        half interval and the age of the fix; level the accelerometer spread, the vehicle acceleration (the fixes'
+        second difference, else ``init_accel_m_s2``) over g, and a 1-deg floor for an unknown accelerometer bias
+        (10 mg on a poor MEMS: 0.6 deg). Heading: a bank of ``unknown_heading_hypotheses`` hypotheses for GNSS
+        cores (uniform prior); static cores find it themselves (gyrocompassing bootstrap)."""
+        cfg = self.cfg
+        fixes = self.buf.fix[:bisect.bisect_right(self.buf.fix_t, t)]
+        if self._probe is None:  # capabilities of the configured core (built once, not per sample)
+            probe = registry.make_core(cfg.core, self.core_params)
+            self._probe = (probe.supports_gnss, probe.default_initial_sigmas())
+            probe.close()
+        gnss_core, (sig_rpy0, sig_v0, sig_p0) = self._probe
+        if not gnss_core and all(math.isfinite(x) for x in cfg.static_position_deg_m):
+            la, lo, h = cfg.static_position_deg_m
+            pos, used, sig_p = (la * D2R, lo * D2R, float(h)), None, sig_p0
+        elif fixes:
+            used = fixes[-1]
+            pos = earth.ecef_to_geodetic(used.p_e)
+            sig_p = max(sig_p0, math.sqrt(max(float(np.trace(used.R_e)) / 3.0, 0.0)))
+        else:
+            self.status = AlignmentStatus.WAITING_FOR_GNSS
+            self.reason = "waiting for a GNSS fix (initial position)"
+            return
+        a_est = cfg.init_accel_m_s2
+        if gnss_core:
+            recent = [fx for fx in fixes if t - fx.stamp_s <= 3.0]
+            if len(recent) < 2:
+                self.status = AlignmentStatus.WAITING_FOR_GNSS
+                self.reason = f"waiting for a second GNSS fix (initial velocity; {len(recent)} of 2 within 3 s)"
+                return
+            f1, f2 = recent[-2], recent[-1]
+            dt = f2.stamp_s - f1.stamp_s
+            C_en = earth.C_e_n(pos[0], pos[1])
+            v0 = C_en @ (np.asarray(f2.p_e) - np.asarray(f1.p_e)) / dt
+            if len(recent) >= 3:
+                f0 = recent[-3]
+                dt0 = f1.stamp_s - f0.stamp_s
+                v_prev = C_en @ (np.asarray(f1.p_e) - np.asarray(f0.p_e)) / dt0
+                a_est = float(np.linalg.norm(v0 - v_prev)) / (0.5 * (dt + dt0)) + 0.5  # + margin for noise/jerk
+            s_p = math.sqrt(max(float(np.trace(f2.R_e)) / 3.0, 0.0))
+            sig_v = math.sqrt(2.0) * s_p / dt + a_est * (0.5 * dt + (t - f2.stamp_s))
+        else:
+            v0, sig_v, a_est = np.zeros(3), sig_v0, 0.0
+        win = [(w_, f_) for (tt, w_, f_) in self.pre_init if tt > t - cfg.init_level_window_s]
+        if len(win) < 5:
+            self.status = AlignmentStatus.WAITING_FOR_DATA
+            self.reason = f"collecting accelerometer data for the level ({len(win)} samples)"
+            return
+        F = np.asarray([f_ for _, f_ in win])
+        fm = F.mean(axis=0)
+        g = float(np.linalg.norm(fm))
+        roll, pitch = math.atan2(fm[1], fm[2]), math.atan2(-fm[0], math.hypot(fm[1], fm[2]))
+        spread = float(np.linalg.norm(F.std(axis=0))) / max(g, 1.0)
+        sig_level = math.sqrt((1.0 * D2R) ** 2 + (a_est / max(g, 1.0)) ** 2 + spread ** 2)
+        params = dict(self.core_params)
+        if gnss_core and params.get("yaw_hypotheses", 1) == 1 and cfg.unknown_heading_hypotheses > 1:
+            params["yaw_hypotheses"] = cfg.unknown_heading_hypotheses
+        core = registry.make_core(cfg.core, params)
+        sig_yaw = 1e4 if gnss_core else sig_rpy0[2]  # unknown: uniform over the bank's hypotheses
+        user = cfg.init_sigma_rpy_deg
+        sig = [u * D2R if math.isfinite(u) else d for u, d in zip(user, (sig_level, sig_level, sig_yaw * D2R))]
+        rpy = np.array([roll, pitch, 0.0])
+        try:
+            core.initialize(t, pos[0], pos[1], pos[2], earth.C_b_n_from_rpy(*rpy), v0, np.diag(np.square(sig)),
+                            sig_v, sig_p)
+        except Exception:
+            core.close()
+            raise
+        self._start(core, t, pos, used, rpy, v0, how=(
+            f" (from sensors: level 1-sigma {sig_level / D2R:.2f} deg from {len(win)} samples, velocity 1-sigma "
+            f"{sig_v:.2f} m/s, heading unknown: {params.get('yaw_hypotheses', 1)} hypotheses)"))
 
     def _truth_velocity(self, tr: TruthSample) -> np.ndarray:
         """Truth velocity: given, or the slope at ``tr`` of a quadratic through up to two truth positions on each
