@@ -86,10 +86,13 @@ def _max_angle_rad(a, b) -> float:
 
 
 @pytest.mark.timeout(120)
-def test_frd_and_mounted_imu_give_the_vehicle_flu_estimate_through_align():
+@pytest.mark.parametrize("init_mode", ["guess", "sensors"])
+def test_frd_and_mounted_imu_give_the_vehicle_flu_estimate_through_align(init_mode):
+    """With a guess, and with the default initialisation from the sensors (level from the accelerometers: it must see
+    the converted specific force)."""
     d = ia.simulate("ship", seed=4, duration_s=30.0)
     rpy0 = (np.degrees(earth.rpy_from_C_b_n(d.C_b_n[0])) + [2.0, -2.0, 20.0]).tolist()
-    session = {"initial_rpy_deg": rpy0, "initial_velocity_enu_m_s": d.v_n[0].tolist()}
+    session = {"init_mode": init_mode, "initial_rpy_deg": rpy0, "initial_velocity_enu_m_s": d.v_n[0].tolist()}
     ref = ia.align(d, core="iekf", **session)
     for axes, mount in (("frd", [0.0, 0.0, 0.0]), ("flu", MOUNT_DEG), ("frd", MOUNT_DEG)):
         w_s, f_s = _sensor_data(d, axes, mount)
@@ -123,9 +126,10 @@ def test_imu_axes_over_dds_frd_mounted_equals_the_flu_offline_run(tmp_path, monk
     bag = write_bag(dataclasses.replace(d, omega_ib_b=w_s, f_ib_b=f_s), tmp_path / "bag")
     rpy0 = (np.degrees(earth.rpy_from_C_b_n(d.C_b_n[0])) + [2.0, -2.0, 10.0]).tolist()
     v0 = d.v_n[0].tolist()
-    ref = ia.align(d, core="iekf", initial_rpy_deg=rpy0, initial_velocity_enu_m_s=v0, output_period_s=0.1)
+    ref = ia.align(d, core="iekf", init_mode="guess", initial_rpy_deg=rpy0, initial_velocity_enu_m_s=v0,
+                   output_period_s=0.1)
     mon, nodes, summary = _run(tmp_path, env, bag, {
-        "core": "iekf", "initial_rpy_deg": str(rpy0), "initial_velocity_enu_m_s": str(v0), "pose_rate_hz": 10.0,
+        "core": "iekf", "init_mode": "guess", "initial_rpy_deg": str(rpy0), "initial_velocity_enu_m_s": str(v0), "pose_rate_hz": 10.0,
         "imu_timeout_s": 0.0, "imu_axes": "frd", "imu_mount_rpy_deg": str(MOUNT_DEG)})
     try:
         diffs, n_pub, n_off = _compare(mon, summary, ref, float(d.t_s[0]))
