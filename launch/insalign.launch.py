@@ -3,6 +3,10 @@
     ros2 launch insalign_ros insalign.launch.py [core:=iekf] [scenario:=ship] [rate_factor:=1.0]
         [source:=scenario|bag] [bag_path:=/path/to/bag] [init_from_ground_truth:=true] [init_rpy_error_deg:=...]
 
+The alignment node starts with its own defaults (core iekf, no ground-truth initialisation: what works on a real
+recording without truth); ``init_from_ground_truth:=true`` (a simulated scenario or a bag with truth) initialises from
+the truth plus ``init_rpy_error_deg``. test/test_install_honesty.py checks these defaults against the node's.
+
 Parameters come from config/imu_sim.yaml, config/alignment_node.yaml and config/<core>.yaml (installed under
 share/insalign_ros/config), then the launch arguments. The test suite does not import this file (launch is not on
 PyPI; a test only parses it); ``insalign-demo`` is the launch-free equivalent. Set ``use_sim_time:=true`` to run
@@ -44,16 +48,16 @@ def _nodes(context):
 
 def generate_launch_description():
     return LaunchDescription([
-        DeclareLaunchArgument("core", default_value="liekf", description="alignment core (config/<core>.yaml)"),
+        DeclareLaunchArgument("core", default_value="iekf", description="alignment core (config/<core>.yaml)"),
         DeclareLaunchArgument("source", default_value="scenario", description="scenario | bag"),
         DeclareLaunchArgument("scenario", default_value="ship", description="ship | car | static | two_position"),
         DeclareLaunchArgument("bag_path", default_value="", description="contract rosbag2 for source:=bag"),
         DeclareLaunchArgument("seed", default_value="0", description="scenario seed"),
         DeclareLaunchArgument("rate_factor", default_value="1.0", description="1.0 = real time"),
         DeclareLaunchArgument("use_sim_time", default_value="false", description="alignment_node on /clock"),
-        DeclareLaunchArgument("init_from_ground_truth", default_value="true",
-                              description="initialise from ground_truth/pose plus init_rpy_error_deg"),
-        DeclareLaunchArgument("init_rpy_error_deg", default_value="5.0,-5.0,30.0",
+        DeclareLaunchArgument("init_from_ground_truth", default_value="false",
+                              description="initialise from ground_truth/pose plus init_rpy_error_deg (needs truth)"),
+        DeclareLaunchArgument("init_rpy_error_deg", default_value="0.0,0.0,0.0",
                               description="roll,pitch,yaw error added to the truth [deg]"),
         OpaqueFunction(function=_nodes),
     ])

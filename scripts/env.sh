@@ -5,8 +5,14 @@ INSALIGN_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 INSALIGN_VENV="${INSALIGN_VENV:-$INSALIGN_ROOT/.venv}"
 PYTHON="${PYTHON:-python3}"
 
-if ! "$PYTHON" -c 'import sys; sys.exit(0 if (3, 10) <= sys.version_info[:2] <= (3, 14) else 1)'; then
-  echo "insalign_ros needs CPython 3.10-3.14 on Linux x86_64 (the ROS 2 Jazzy PyPI wheels); found: $("$PYTHON" --version 2>&1)" >&2
+# CPython 3.11-3.14: the ROS 2 Jazzy PyPI wheels exist for 3.10-3.14 (Linux x86_64 only), but the pinned numpy 2.4 and
+# scipy 1.17 need Python >= 3.11. An apt ROS 2 Jazzy (Ubuntu 24.04) has its own path: README, requirements-apt.txt.
+if [ "$(uname -m)" != "x86_64" ] || [ "$(uname -s)" != "Linux" ]; then
+  echo "insalign_ros's virtualenv needs Linux x86_64: the ROS 2 Jazzy PyPI wheels (ros-jazzy-rclpy ...) exist for no other platform; found $(uname -s) $(uname -m). With ROS 2 Jazzy from apt, see README (requirements-apt.txt)" >&2
+  exit 2
+fi
+if ! "$PYTHON" -c 'import sys; sys.exit(0 if (3, 11) <= sys.version_info[:2] <= (3, 14) else 1)'; then
+  echo "insalign_ros needs CPython 3.11-3.14 (numpy==2.4.6 and scipy==1.17.1 in requirements.txt need Python >= 3.11; the ROS 2 Jazzy wheels stop at 3.14); found: $("$PYTHON" --version 2>&1). Set PYTHON=python3.11 (or newer)" >&2
   exit 2
 fi
 if [ ! -x "$INSALIGN_VENV/bin/python" ]; then

@@ -112,8 +112,8 @@ def test_so3_blocks_against_series():
         phi *= n / np.linalg.norm(phi)
         K = lie.hat3(phi)
         # sums of phi_x^k/(k+1)! and /(k+2)! to high order
-        S1 = sum(np.linalg.matrix_power(K, k) / math.factorial(k + 1) for k in range(30))
-        S2 = sum(np.linalg.matrix_power(K, k) / math.factorial(k + 2) for k in range(30))
+        S1 = sum(np.linalg.matrix_power(K, k) / float(math.factorial(k + 1)) for k in range(30))
+        S2 = sum(np.linalg.matrix_power(K, k) / float(math.factorial(k + 2)) for k in range(30))
         assert np.allclose(lie.so3_left_jacobian(phi), S1, atol=1e-14)
         assert np.allclose(lie.so3_gamma2(phi), S2, atol=1e-14)
         assert np.allclose(lie.so3_left_jacobian_inv(phi) @ S1, np.eye(3), atol=1e-13)

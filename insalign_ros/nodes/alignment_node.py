@@ -4,11 +4,18 @@ Topics (relative names, remappable as usual):
 
 - in ``imu/data`` sensor_msgs/Imu, ``gps/fix`` sensor_msgs/NavSatFix (QoS ``imu_qos`` / ``gnss_qos``: the
   sensor-data profile by default, which matches reliable and best-effort publishers), ``ground_truth/pose``
-  geometry_msgs/PoseStamped (optional: initialisation in tests and the Euler errors);
+  geometry_msgs/PoseStamped (optional: initialisation in tests and the Euler errors). The Imu's rates and specific
+  forces are turned into the vehicle FLU frame once, in the callback (``imu_axes``, ``imu_mount_rpy_deg``:
+  conversions.imu_to_vehicle_matrix; the convention is written there and in docs/nodes.md);
 - out ``~/pose`` PoseWithCovarianceStamped (frame ``enu_frame_id``: local ENU anchored at the initial position;
   orientation body FLU -> ENU; covariance in the ROS order x y z rot x rot y rot z [m^2, rad^2]),
   ``~/euler_error`` and ``~/euler_error_3sigma`` geometry_msgs/Vector3Stamped (roll, pitch, yaw [deg]; the error
-  only when ground truth is present), ``~/aligned`` std_msgs/Bool (reliable, transient local), ``/diagnostics``.
+  only when ground truth is present), ``~/aligned`` std_msgs/Bool (reliable, transient local), ``/diagnostics``;
+  ``~/imu`` sensor_msgs/Imu (frame ``body_frame_id``: the estimated orientation vehicle FLU -> ENU with the REP 145
+  orientation covariance, and the measured rate and specific force of the IMU sample at that stamp:
+  conversions.imu_msg), ``~/datum`` sensor_msgs/NavSatFix (reliable, transient local: the ENU origin of ``~/pose``,
+  published at each initialisation);
+- service ``~/reset`` std_srvs/Trigger: drop the estimate and every buffered input, start the alignment over.
 
 The callbacks only convert a message to a sample and push it into the session; a timer (``process_rate_hz``)
 lets the session process the buffered inputs in stamp order and publishes what comes out. The node decides
@@ -21,7 +28,7 @@ from __future__ import annotations
 import math
 import sys
 import time
-from collections import deque
+from collections import OrderedDict, deque
 
 import numpy as np
 import rclpy
@@ -32,6 +39,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, NavSatFix
 from std_msgs.msg import Bool
+from std_srvs.srv import Trigger
 
 from ..eval.aligned import AlignedCriteria
 from ..filters import registry
@@ -77,6 +85,12 @@ NODE_PARAMS = {
     "pose_rate_hz": (10.0, "~/pose, ~/euler_error and aligned-flag evaluation rate [Hz data time] (0: every Imu)", False),
     "use_imu_covariance": (False, "take gyro ARW / accel VRW from the Imu message covariances", False),
     "gnss_sigma_m": (1.0, "GNSS 1-sigma per axis [m] when NavSatFix gives no covariance", False),
+    "imu_axes": ("flu", "axes of the Imu rates and accelerations: flu (x forward, y left, z up; REP 103) or frd "
+                        "(x forward, y right, z down)", True),
+    "imu_mount_rpy_deg": ([0.0, 0.0, 0.0], "roll, pitch, yaw [deg] of the IMU's FLU axes (after imu_axes) in the "
+                          "vehicle FLU frame, C = Rz(yaw) Ry(pitch) Rx(roll) as a URDF joint base_link -> imu_link; "
+                          "rates and specific forces are rotated into the vehicle frame", True),
+    "body_frame_id": ("base_link", "frame_id of ~/imu: the vehicle FLU frame whose orientation is estimated", False),
     "imu_frame_id": ("", "required Imu frame_id ('' accepts any: drivers use imu, imu_link, gnss_link, ...; the "
                          "frames seen are logged)", False),
     "gnss_frame_id": ("", "required NavSatFix frame_id ('' accepts any)", False),
@@ -158,6 +172,12 @@ class AlignmentNode(Node):
         self.pub_err = self.create_publisher(Vector3Stamped, "~/euler_error", 50)
         self.pub_err3 = self.create_publisher(Vector3Stamped, "~/euler_error_3sigma", 50)
         self.pub_aligned = self.create_publisher(Bool, "~/aligned", _latched_qos())
+        self.pub_imu = self.create_publisher(Imu, "~/imu", 50)
+        self.pub_datum = self.create_publisher(NavSatFix, "~/datum", _latched_qos())
+        self.create_service(Trigger, "~/reset", self._on_reset)
+        self._datum_anchor = None  # the session anchor last published on ~/datum
+        #: measured samples (vehicle FLU) by stamp, for ~/imu: stamp -> (omega, f, cov omega, cov f), arrival order
+        self._recent_imu: OrderedDict = OrderedDict()
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._log_state: dict = {}
         self.published_aligned = False
@@ -212,6 +232,10 @@ class AlignmentNode(Node):
         for name in ("imu_qos", "gnss_qos"):
             if p[name] not in QOS_CHOICES:
                 raise ValueError(f"{name}: must be one of {QOS_CHOICES}, got {p[name]!r}")
+        if p["imu_axes"] not in cv.IMU_AXES:
+            raise ValueError(f"imu_axes: must be one of {cv.IMU_AXES}, got {p['imu_axes']!r}")
+        C = cv.imu_to_vehicle_matrix(p["imu_axes"], p["imu_mount_rpy_deg"])
+        self.C_s_v = None if np.array_equal(C, np.eye(3)) else C  # driver axes -> vehicle FLU (None: identity)
         self.params = p
         self.throttle_s = float(p["log_throttle_s"])
         self.criteria = self.session.flag.criteria
@@ -272,13 +296,16 @@ class AlignmentNode(Node):
         if frame and h.frame_id != frame:
             self.session.reject_input("imu", "imu_frame", f"frame_id {h.frame_id!r} is not {frame!r}", wall)
         else:
-            sample, reason = cv.imu_sample_fast(msg, self._cov_ok, self._epoch(msg))
+            sample, reason = cv.imu_sample_fast(msg, self._cov_ok, self._epoch(msg), self.C_s_v)
             if sample is None:
                 self.session.reject_input("imu", "imu_invalid", reason, wall)
             else:
                 if p["use_imu_covariance"] and not self._noise_done:
                     self._noise_from(msg, sample.stamp_s)
-                self.session.push_imu(sample, wall)
+                if self.session.push_imu(sample, wall):
+                    self._recent_imu[sample.stamp_s] = (sample.omega_ib_b, sample.f_ib_b,
+                                                        msg.angular_velocity_covariance,
+                                                        msg.linear_acceleration_covariance)
         self.timing_s.append(time.perf_counter() - t0)
         self.stamp_age_s.append(time.time() - (h.stamp.sec + 1e-9 * h.stamp.nanosec))
 
@@ -338,9 +365,13 @@ class AlignmentNode(Node):
             self.get_logger().error(f"session error {type(exc).__name__}: {exc}", throttle_duration_sec=5.0)
             outs = []
         frame = self.params["enu_frame_id"]
+        if self.session.anchor is not self._datum_anchor:
+            self._publish_datum()
         for o in outs:
             est = o.estimate
             self.pub_pose.publish(cv.pose_msg(est, self.session.anchor, frame, "", self.epoch_s))
+            self.pub_imu.publish(cv.imu_msg(est, self.params["body_frame_id"], self.epoch_s,
+                                            self._measured_sample(o.stamp_s)))
             m3 = Vector3Stamped()
             cv.set_stamp(m3, o.stamp_s, self.epoch_s)
             m3.header.frame_id = frame
@@ -352,8 +383,47 @@ class AlignmentNode(Node):
                 self.pub_err.publish(me)
             self.pub_err3.publish(m3)
         self._publish_flag()
+        self._forget_samples()
         if outs:
             self.process_s.append(time.perf_counter() - t0)
+
+    def _measured_sample(self, t: float):
+        """The measured sample at output stamp ``t`` for ~/imu, covariances in vehicle FLU; None when there is none
+        (a sample bridging a gap)."""
+        s = self._recent_imu.get(t)
+        if s is None:
+            return None
+        return s[0], s[1], cv.covariance_to_vehicle(s[2], self.C_s_v), cv.covariance_to_vehicle(s[3], self.C_s_v)
+
+    def _forget_samples(self) -> None:
+        """Drop the samples the session has processed (their outputs are out), and keep the store bounded."""
+        t = self.session.filter_time_s
+        d = self._recent_imu
+        while d and ((t is not None and next(iter(d)) < t) or len(d) > self.session.MAX_BUFFER):
+            d.popitem(last=False)
+
+    def _publish_datum(self) -> None:
+        """~/datum: the ENU origin of ~/pose, once per initialisation (transient local: late joiners get it)."""
+        s = self.session
+        self._datum_anchor = s.anchor
+        if s.anchor is None:
+            return
+        self.pub_datum.publish(cv.datum_msg(s.anchor, s.init_t, self.params["enu_frame_id"], self.epoch_s))
+        self.get_logger().info(f"datum (ENU origin of ~/pose): lat {math.degrees(s.anchor[0]):.7f} deg, lon "
+                               f"{math.degrees(s.anchor[1]):.7f} deg, h {s.anchor[2]:.2f} m")
+
+    def _on_reset(self, request, response):
+        """~/reset (std_srvs/Trigger): restart the alignment from nothing (the session's reset)."""
+        was = self.session.status.value
+        self.session.reset("reset service")
+        self._recent_imu.clear()
+        self._publish_datum()
+        self._publish_flag()
+        self.get_logger().warning(f"alignment restarted by ~/reset (was: {was})")
+        response.success = True
+        response.message = (f"alignment restarted (core {self.core_name}; was {was}); buffered inputs dropped, "
+                            f"~/datum is published again at the next initialisation")
+        return response
 
     def _publish_flag(self) -> None:
         now = self.session.aligned

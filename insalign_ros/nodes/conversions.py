@@ -4,6 +4,20 @@ Each ``*_from_msg`` returns ``(value, "")`` or ``(None, reason)``; it never rais
 what the node logs (throttled) and counts in /diagnostics. Frames: sensor_msgs/Imu in the body FLU frame
 (REP 103/145), NavSatFix position covariance in ENU [m^2] (REP: "ENU"), poses in the local ENU frame ``enu``
 anchored at the first accepted fix.
+
+IMU axes and mounting (docs/nodes.md, "IMU axes and mounting"): the session works in the *vehicle* FLU frame ``v``
+(x forward, y left, z up of the vehicle; the ``b`` of ``C_b_n`` everywhere else). A driver reports rates and specific
+forces in its own sensor axes ``s``. Two node parameters describe them and :func:`imu_to_vehicle_matrix` turns
+them into one constant rotation ``C_s_v``, applied once per message by :func:`imu_to_vehicle`:
+
+- ``imu_axes``: ``flu`` (REP 103: x forward, y left, z up) or ``frd`` (x forward, y right, z down: SBG, VectorNav,
+  many aerospace IMUs). FRD -> FLU is a 180 deg rotation about x, :func:`frd_to_flu`.
+- ``imu_mount_rpy_deg``: roll, pitch, yaw [deg] of the IMU's FLU axes (after ``imu_axes``) in the vehicle FLU frame,
+  in the convention of a URDF joint or ``static_transform_publisher base_link imu_link``: C_s_v = Rz(yaw) Ry(pitch)
+  Rx(roll) (fixed axes x, y, z of the vehicle, in that order; REP 103 signs: positive pitch turns the IMU's x axis
+  down, positive yaw turns it to the left). A vector measured in IMU axes is ``v_v = C_s_v v_s``. Example: an IMU
+  whose x axis points to the vehicle's left and z up has yaw 90: it measures a forward acceleration on its -y axis.
+  Only the rotation is applied: the IMU's position in the vehicle (lever arm) is not.
 """
 
 from __future__ import annotations
@@ -13,7 +27,7 @@ import math
 import numpy as np
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from scipy.spatial.transform import Rotation
-from sensor_msgs.msg import Imu, NavSatFix
+from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
 
 from ..core import earth
 from ..core.types import GnssFix, ImuSample
@@ -31,6 +45,48 @@ def set_stamp(msg, t_s: float, epoch_s: int = 0) -> None:
     """Inverse of :func:`stamp_s`: ``t_s`` seconds after ``epoch_s``, to the nearest nanosecond."""
     ns = epoch_s * 1_000_000_000 + int(round(t_s * 1e9))
     msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 1_000_000_000)
+
+
+#: accepted values of the node parameter ``imu_axes``
+IMU_AXES = ("flu", "frd")
+#: FRD (x forward, y right, z down) -> FLU (x forward, y left, z up): a 180 deg rotation about x (its own inverse)
+C_FRD_FLU = np.diag([1.0, -1.0, -1.0])
+
+
+def frd_to_flu(v_frd: np.ndarray) -> np.ndarray:
+    """Vectors (3,) or (N, 3) in FRD axes (x forward, y right, z down) -> the same vectors in FLU axes."""
+    return np.asarray(v_frd, float) @ C_FRD_FLU.T
+
+
+def mount_rotation(imu_mount_rpy_deg) -> np.ndarray:
+    """C_s_v: IMU FLU axes -> vehicle FLU axes from the mounting roll, pitch, yaw [deg] of the IMU in the vehicle
+    (Rz(yaw) Ry(pitch) Rx(roll), as a URDF joint or static_transform_publisher base_link -> imu_link)."""
+    rpy = [float(x) for x in imu_mount_rpy_deg]
+    if len(rpy) != 3 or not all(math.isfinite(x) for x in rpy):
+        raise ValueError(f"imu_mount_rpy_deg: need 3 finite numbers [deg], got {list(imu_mount_rpy_deg)}")
+    return Rotation.from_euler("xyz", rpy, degrees=True).as_matrix()
+
+
+def imu_to_vehicle_matrix(imu_axes: str, imu_mount_rpy_deg) -> np.ndarray:
+    """The one rotation from the driver's axes to the vehicle FLU frame: C_s_v = mount_rotation @ (FRD -> FLU)."""
+    if imu_axes not in IMU_AXES:
+        raise ValueError(f"imu_axes: must be one of {IMU_AXES}, got {imu_axes!r}")
+    C = mount_rotation(imu_mount_rpy_deg)
+    return C @ C_FRD_FLU if imu_axes == "frd" else C
+
+
+def imu_to_vehicle(omega_s: np.ndarray, f_s: np.ndarray, C_s_v: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Angular rate [rad/s] and specific force [m/s^2] (each (3,) or (N, 3)) in the driver's axes -> vehicle FLU
+    (``C_s_v`` from :func:`imu_to_vehicle_matrix`; None: already vehicle FLU, returned as they are)."""
+    if C_s_v is None:
+        return omega_s, f_s
+    return np.asarray(omega_s, float) @ C_s_v.T, np.asarray(f_s, float) @ C_s_v.T
+
+
+def covariance_to_vehicle(cov_s, C_s_v: np.ndarray | None) -> np.ndarray:
+    """A row-major 3x3 covariance of a vector in the driver's axes -> vehicle FLU: C_s_v Sigma C_s_v^T, (9,)."""
+    c = np.asarray(cov_s, float).reshape(3, 3)
+    return (c if C_s_v is None else C_s_v @ c @ C_s_v.T).reshape(-1)
 
 
 def _finite(*vals) -> bool:
@@ -80,9 +136,11 @@ def imu_from_msg(msg: Imu, max_rate_rad_s: float, max_acc_m_s2: float,
     return ImuSample(t, omega, f), ""
 
 
-def imu_sample_fast(msg: Imu, cov_ok: dict, epoch_s: int = 0) -> tuple[ImuSample | None, str]:
-    """sensor_msgs/Imu -> ImuSample for the node's callback: the message-level checks only (orientation finite,
-    covariances usable, stamp > 0); the session checks the values. A covariance seen before is not checked again
+def imu_sample_fast(msg: Imu, cov_ok: dict, epoch_s: int = 0,
+                    C_s_v: np.ndarray | None = None) -> tuple[ImuSample | None, str]:
+    """sensor_msgs/Imu -> ImuSample in vehicle FLU axes for the node's callback (``C_s_v``: the driver's axes to the
+    vehicle, :func:`imu_to_vehicle_matrix`; None: the message is already vehicle FLU): the message-level checks only
+    (orientation finite, covariances usable, stamp > 0); the session checks the values. A covariance seen before is not checked again
     (``cov_ok``: covariance tuple -> reason, bounded): drivers send the same covariance in every message."""
     h = msg.header.stamp
     if not (h.sec > 0 or h.nanosec > 0):
@@ -107,7 +165,8 @@ def imu_sample_fast(msg: Imu, cov_ok: dict, epoch_s: int = 0) -> tuple[ImuSample
         if reason:
             return None, reason
     w, a = msg.angular_velocity, msg.linear_acceleration
-    return ImuSample(t, np.array((w.x, w.y, w.z)), np.array((a.x, a.y, a.z))), ""
+    omega, f = imu_to_vehicle(np.array((w.x, w.y, w.z)), np.array((a.x, a.y, a.z)), C_s_v)
+    return ImuSample(t, omega, f), ""
 
 
 def imu_noise_from_msg(msg: Imu, dt_s: float) -> dict:
@@ -215,4 +274,46 @@ def pose_msg(est, anchor, frame_id: str, child_frame_id: str, epoch_s: int = 0) 
     o = msg.pose.pose.orientation
     o.x, o.y, o.z, o.w = (float(x) for x in q)
     msg.pose.covariance = pose_cov_ros(position_cov_n(est, est.C_b_n), est.P_att_n)
+    return msg
+
+
+def imu_msg(est, frame_id: str, epoch_s: int = 0, sample=None) -> Imu:
+    """A core estimate -> sensor_msgs/Imu (REP 145) in the vehicle FLU frame ``frame_id``, as robot_localization's
+    navsat_transform takes it: orientation body FLU -> ENU (yaw from East, counter-clockwise) and its covariance
+    P_att_n [rad^2] (attitude error about the fixed ENU axes x, y, z, as REP 145 asks).
+
+    ``sample``: (omega_ib_v [rad/s], f_ib_v [m/s^2], cov_omega (9,), cov_f (9,)) of the IMU sample at the estimate's
+    stamp, in vehicle FLU, as measured (not bias-corrected); the covariances are the driver's rotated into the
+    vehicle frame (all zeros: unknown). None (no measured sample at that stamp, e.g. one bridging a gap): zero vectors
+    with covariance element 0 set to -1 (REP 145: "no estimate")."""
+    msg = Imu()
+    set_stamp(msg, est.stamp_s, epoch_s)
+    msg.header.frame_id = frame_id
+    o = msg.orientation
+    o.x, o.y, o.z, o.w = (float(x) for x in quat_xyzw(est.C_b_n))
+    P = np.asarray(est.P_att_n, float)
+    msg.orientation_covariance = (0.5 * (P + P.T)).reshape(-1).tolist()
+    if sample is None:
+        msg.angular_velocity_covariance[0] = -1.0
+        msg.linear_acceleration_covariance[0] = -1.0
+        return msg
+    w, f, cov_w, cov_f = sample
+    msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = (float(x) for x in w)
+    msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z = (float(x) for x in f)
+    msg.angular_velocity_covariance = [float(x) for x in cov_w]
+    msg.linear_acceleration_covariance = [float(x) for x in cov_f]
+    return msg
+
+
+def datum_msg(anchor, stamp_s: float, frame_id: str, epoch_s: int = 0) -> NavSatFix:
+    """The ENU origin of ~/pose (lat_rad, lon_rad, h_m: WGS84, ellipsoidal height) -> NavSatFix [deg, m].
+
+    A frame definition, not a measurement: status FIX, covariance UNKNOWN; ``frame_id``: the ENU frame it anchors."""
+    msg = NavSatFix()
+    set_stamp(msg, stamp_s, epoch_s)
+    msg.header.frame_id = frame_id
+    msg.status.status = NavSatStatus.STATUS_FIX
+    msg.latitude, msg.longitude = math.degrees(anchor[0]), math.degrees(anchor[1])
+    msg.altitude = float(anchor[2])
+    msg.position_covariance_type = NavSatFix.COVARIANCE_TYPE_UNKNOWN
     return msg

@@ -14,7 +14,6 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.integrate import cumulative_simpson
 
 from ..core import earth
 from . import error_model
@@ -216,6 +215,20 @@ def _car_profiles(t, p):
     return np.maximum(speed, 0.0), heading
 
 
+def cumulative_simpson_even_nodes(y: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Integral of ``y(x)`` from ``x[0]`` to each even-index node ``x[0], x[2], ...`` by composite Simpson on a
+    uniform grid of odd length: what ``scipy.integrate.cumulative_simpson(y, x=x, initial=0)[::2]`` gives (the
+    same sums), written here because that function needs scipy >= 1.12 and Ubuntu 24.04's apt scipy is 1.11."""
+    y, x = np.asarray(y, float), np.asarray(x, float)
+    if x.ndim != 1 or x.shape[0] % 2 != 1 or y.shape[-1] != x.shape[0]:
+        raise ValueError("cumulative_simpson_even_nodes: need matching 1-D grids of odd length")
+    h = np.diff(x)
+    if x.shape[0] > 1 and not np.allclose(h, h[0], rtol=1e-9, atol=0.0):
+        raise ValueError("cumulative_simpson_even_nodes: the grid must be uniform")
+    pairs = (h[0] if x.shape[0] > 1 else 0.0) / 3.0 * (y[..., 0:-2:2] + 4.0 * y[..., 1::2] + y[..., 2::2])
+    return np.concatenate([np.zeros(y.shape[:-1] + (1,)), np.cumsum(pairs, axis=-1)], axis=-1)
+
+
 def _car(t, p, profiles=None):
     """Car on a hilly road from speed/heading profiles (default: _car_profiles) -> (p_n, v_n, rpy)."""
     profiles = profiles or _car_profiles
@@ -223,10 +236,7 @@ def _car(t, p, profiles=None):
     tf = np.linspace(t[0], t[-1], 4 * (len(t) - 1) + 1)
     speed_f, head_f = profiles(tf, p)
     ve_f, vn_f = speed_f * np.cos(head_f), speed_f * np.sin(head_f)
-    pe_f = cumulative_simpson(ve_f, x=tf, initial=0.0)
-    pn_f = cumulative_simpson(vn_f, x=tf, initial=0.0)
-    s_f = cumulative_simpson(speed_f, x=tf, initial=0.0)  # distance along the path [m]
-    pe, pn, s = pe_f[::4], pn_f[::4], s_f[::4]
+    pe, pn, s = cumulative_simpson_even_nodes(np.stack([ve_f, vn_f, speed_f]), tf)[:, ::2]  # s: along the path [m]
     speed, heading = profiles(t, p)
     k = 2 * np.pi / p["hill_length_m"]
     pu = p["hill_amp_m"] * np.sin(k * s)
