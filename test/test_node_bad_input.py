@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from insalign_ros.cli.bringup import isolated_ros_env, start_node, stop_nodes
+from insalign_ros.cli.bringup import start_node, stop_nodes
 from insalign_ros.core import earth
 
 pytestmark = pytest.mark.ros
@@ -109,13 +109,6 @@ class Feeder:
         self.node.destroy_node()
         self.rclpy.shutdown(context=self.ctx)
 
-
-@pytest.fixture
-def ros_env(monkeypatch):
-    env = isolated_ros_env()
-    for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
-        monkeypatch.setenv(k, env[k])
-    return env
 
 
 def _bad_imu_messages(feed, k):

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from insalign_ros.cli.bringup import isolated_ros_env, start_node, stop_nodes
+from insalign_ros.cli.bringup import start_node, stop_nodes
 from insalign_ros.core import earth
 
 pytestmark = pytest.mark.ros
@@ -20,13 +20,6 @@ pytestmark = pytest.mark.ros
 ALIGN = "insalign_ros.nodes.alignment_node"
 T0_NS = 1_700_000_000 * 1_000_000_000  # a wall-clock-like epoch, as a host-stamped driver would give
 
-
-@pytest.fixture
-def ros_env(monkeypatch):
-    env = isolated_ros_env()
-    for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
-        monkeypatch.setenv(k, env[k])
-    return env
 
 
 class Driver:

@@ -10,8 +10,9 @@ import time
 
 import numpy as np
 import pytest
+from conftest import sim_summary
 
-from insalign_ros.cli.bringup import isolated_ros_env, start_node, stop_nodes, wait_for_exit
+from insalign_ros.cli.bringup import start_node, stop_nodes, wait_for_exit
 
 pytestmark = pytest.mark.ros
 
@@ -19,19 +20,6 @@ SIM = "insalign_ros.nodes.imu_sim_node"
 ALIGN = "insalign_ros.nodes.alignment_node"
 
 
-@pytest.fixture
-def ros_env(monkeypatch):
-    env = isolated_ros_env()
-    for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
-        monkeypatch.setenv(k, env[k])
-    return env
-
-
-def _sim_summary(node) -> dict:
-    for line in reversed(node.output().splitlines()):
-        if line.startswith("SIM_SUMMARY "):
-            return json.loads(line[len("SIM_SUMMARY "):])
-    return {}
 
 
 def _pose_cov_ok(msg) -> tuple[bool, str]:
@@ -52,7 +40,7 @@ def _run_lossless_ship(nodes, ros_env, tmp_path, seed, duration_s):
         "qos_depth": 9000})
     nodes.append(sim)
     assert wait_for_exit(sim, 90.0) == 0, sim.output()[-2000:]
-    return sim, _sim_summary(sim)
+    return sim, sim_summary(sim)
 
 
 @pytest.mark.timeout(120)

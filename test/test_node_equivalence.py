@@ -3,15 +3,15 @@ DDS (reliable, deep histories: nothing lost) gives the estimates of ``insalign_r
 same stamps, to 1e-9 rad; with every fix published 0.3 s of data time late the result is the on-time one; when
 the IMU goes silent the watchdog drops the flag and /diagnostics says why."""
 
-import json
 import math
 
 import numpy as np
 import pytest
+from conftest import sim_summary
 from scipy.spatial.transform import Rotation
 
 import insalign_ros as ia
-from insalign_ros.cli.bringup import isolated_ros_env, start_node, stop_nodes, wait_for_exit
+from insalign_ros.cli.bringup import start_node, stop_nodes, wait_for_exit
 from insalign_ros.core import earth
 
 pytestmark = pytest.mark.ros
@@ -20,19 +20,6 @@ SIM = "insalign_ros.nodes.imu_sim_node"
 ALIGN = "insalign_ros.nodes.alignment_node"
 
 
-@pytest.fixture
-def ros_env(monkeypatch):
-    env = isolated_ros_env()
-    for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
-        monkeypatch.setenv(k, env[k])
-    return env
-
-
-def _sim_summary(node) -> dict:
-    for line in reversed(node.output().splitlines()):
-        if line.startswith("SIM_SUMMARY "):
-            return json.loads(line[len("SIM_SUMMARY "):])
-    return {}
 
 
 def _run(tmp_path, ros_env, bag, node_params, fix_delay_s=0.0, name="alignment_node"):
@@ -52,7 +39,7 @@ def _run(tmp_path, ros_env, bag, node_params, fix_delay_s=0.0, name="alignment_n
             "wait_timeout_s": 30.0, "qos": "reliable", "qos_depth": 20000, "fix_delay_s": fix_delay_s})
         nodes.append(sim)
         assert wait_for_exit(sim, 90.0) == 0, sim.output()[-2000:]
-        summary = _sim_summary(sim)
+        summary = sim_summary(sim)
         assert mon.wait_for(lambda m: m.counter("imu_received") == summary["imu_sent"], 20.0), mon.diag
         # the tail behind the fusion delay is processed once the input has been idle for idle_drain_s
         assert mon.wait_for(lambda m: int(m.diag.get("buffered_imu", "1")) == 0, 10.0), mon.diag

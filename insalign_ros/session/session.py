@@ -263,19 +263,19 @@ class AlignmentSession:
         self.recent_stamps.append(t)
         self._recent_set.add(t)
 
-    def _reject_imu(self, counter: str, reason: str) -> bool:
+    def _reject(self, topic: str, what: str, counter: str, reason: str) -> bool:
+        """Count a rejected input under its own counter and the topic's total; a throttled log line; False."""
         self.counters[counter] += 1
-        self.counters["imu_rejected"] += 1
-        self.last_reject = f"imu: {reason}"
-        self.log("warn", counter, f"rejected imu sample: {reason} ({counter}={self.counters[counter]})")
+        self.counters[f"{topic}_rejected"] += 1
+        self.last_reject = f"{topic}: {reason}"
+        self.log("warn", counter, f"rejected {topic} {what}: {reason} ({counter}={self.counters[counter]})")
         return False
 
+    def _reject_imu(self, counter: str, reason: str) -> bool:
+        return self._reject("imu", "sample", counter, reason)
+
     def _reject_fix(self, counter: str, reason: str) -> bool:
-        self.counters[counter] += 1
-        self.counters["gnss_rejected"] += 1
-        self.last_reject = f"gnss: {reason}"
-        self.log("warn", counter, f"rejected gnss fix: {reason} ({counter}={self.counters[counter]})")
-        return False
+        return self._reject("gnss", "fix", counter, reason)
 
     def _jump_candidate(self, sample: ImuSample, dt: float) -> bool:
         """Samples off the time line: a run of self-consistent ones is a real time jump -> reset."""
