@@ -68,7 +68,7 @@ class Driver:
         m.position_covariance_type = self.NavSatFix.COVARIANCE_TYPE_DIAGONAL_KNOWN
         return m
 
-    def stream(self, msgs_per_s=800.0, fix_delay_s=0.15):
+    def stream(self, msgs_per_s=1000.0, fix_delay_s=0.15):
         d = self.d
         j = 0
         t_wall = time.monotonic()
@@ -111,7 +111,7 @@ def test_driver_style_stream_with_default_parameters(tmp_path, ros_env, scenario
     from insalign_ros.nodes.monitor import AlignmentMonitor
     from insalign_ros.sim.scenarios import make_scenario
 
-    d = make_scenario(scenario, seed=4, duration_s=130.0, rate_hz=100.0, **overrides)
+    d = make_scenario(scenario, seed=4, duration_s=105.0, rate_hz=100.0, **overrides)
     node = start_node(ALIGN, ros_env, log_dir=tmp_path, remaps={"imu/data": "/imu/data_raw", "gps/fix": "/fix"})
     mon = AlignmentMonitor(keep_poses=100000)
     drv = Driver(d)
