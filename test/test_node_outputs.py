@@ -167,7 +167,7 @@ def _ns(msg) -> int:
 
 
 def _sim_first_stamp_ns(sim) -> int:
-    from test_node_equivalence import _sim_summary
+    from conftest import sim_summary as _sim_summary
 
     return _sim_summary(sim)["first_stamp_ns"]
 
