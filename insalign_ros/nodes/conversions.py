@@ -106,36 +106,6 @@ def check_covariance(cov, n: int, what: str) -> str:
     return validation.check_covariance(c, f"{what} covariance", require_positive_diag=True) or ""
 
 
-def imu_from_msg(msg: Imu, max_rate_rad_s: float, max_acc_m_s2: float,
-                 frame_id: str = "") -> tuple[ImuSample | None, str]:
-    """sensor_msgs/Imu -> ImuSample (omega_ib_b [rad/s], f_ib_b [m/s^2]) or (None, reason)."""
-    if frame_id and msg.header.frame_id != frame_id:
-        return None, f"frame_id {msg.header.frame_id!r} is not {frame_id!r}"
-    w, a, q = msg.angular_velocity, msg.linear_acceleration, msg.orientation
-    t = stamp_s(msg)
-    omega = np.array([w.x, w.y, w.z])
-    f = np.array([a.x, a.y, a.z])
-    reason = (validation.check_vector(omega, "angular_velocity", max_rate_rad_s)
-              or validation.check_vector(f, "linear_acceleration", max_acc_m_s2))
-    if reason:
-        return None, reason
-    if not _finite(q.x, q.y, q.z, q.w):
-        return None, "orientation: non-finite value"
-    if not t > 0.0:
-        return None, f"stamp {t:.6f} s is not positive"
-    for cov, name in ((msg.angular_velocity_covariance, "angular_velocity"),
-                      (msg.linear_acceleration_covariance, "linear_acceleration"),
-                      (msg.orientation_covariance, "orientation")):
-        if name == "orientation" and cov[0] == -1.0:  # REP 145: no orientation estimate
-            if not np.all(np.isfinite(np.asarray(cov, float))):
-                return None, "orientation covariance: non-finite value"
-            continue
-        reason = check_covariance(cov, 3, name)
-        if reason:
-            return None, reason
-    return ImuSample(t, omega, f), ""
-
-
 def imu_sample_fast(msg: Imu, cov_ok: dict, epoch_s: int = 0,
                     C_s_v: np.ndarray | None = None) -> tuple[ImuSample | None, str]:
     """sensor_msgs/Imu -> ImuSample in vehicle FLU axes for the node's callback (``C_s_v``: the driver's axes to the

@@ -583,46 +583,53 @@ class AlignmentSession:
             self.log("info", "backtrack", "backtracking: handed over to the re-aligned core")
 
     # ------------------------------------------------------------------ initialisation
+    def _capabilities(self):
+        """(supports_gnss, default_initial_sigmas) of the configured core, from one probe built once (not per
+        sample while the session waits for its first fix)."""
+        if self._probe is None:
+            probe = registry.make_core(self.cfg.core, self.core_params)
+            self._probe = (probe.supports_gnss, probe.default_initial_sigmas())
+            probe.close()
+        return self._probe
+
     def _try_initialize(self, t: float) -> None:
         cfg = self.cfg
         if cfg.init_mode == "sensors" or self._sensors_reinit:
             return self._try_initialize_from_sensors(t)
         tr = self.buf.truth.get(t) if cfg.init_mode == "truth" else None
+        gnss_core, (sig_rpy, sig_v, sig_p) = self._capabilities()
+        static = not gnss_core
+        pos, used_fix = None, None
+        if static and all(math.isfinite(x) for x in cfg.static_position_deg_m):
+            la, lo, h = cfg.static_position_deg_m
+            pos = (la * D2R, lo * D2R, float(h))
+        elif tr is not None and tr.llh is not None:
+            pos = tuple(float(x) for x in tr.llh)
+        else:
+            j = bisect.bisect_right(self.buf.fix_t, t)
+            if j > 0:
+                used_fix = self.buf.fix[j - 1]
+                pos = earth.ecef_to_geodetic(used_fix.p_e)
+        if pos is None:
+            self.status = AlignmentStatus.WAITING_FOR_GNSS
+            self.reason = ("waiting for a GNSS fix (initial position)" if not static else
+                           "waiting for a GNSS fix or static_position_deg_m (site position)")
+            return
+        if cfg.init_mode == "truth":
+            if tr is None:
+                self.status = AlignmentStatus.WAITING_FOR_DATA
+                self.reason = "waiting for a ground-truth pose at an IMU stamp (init_mode truth)"
+                return
+            rpy = earth.rpy_from_C_b_n(np.asarray(tr.C_b_n, float)) + np.asarray(cfg.init_rpy_error_deg) * D2R
+            v0 = self._truth_velocity(tr)
+        else:
+            rpy = np.asarray(cfg.initial_rpy_deg) * D2R
+            v0 = np.asarray(cfg.initial_velocity_enu_m_s, float)
+        sig_rpy = [u if math.isfinite(u) else d for u, d in zip(cfg.init_sigma_rpy_deg, sig_rpy)]
+        P_att = np.diag((np.asarray(sig_rpy, float) * D2R) ** 2)
         core = registry.make_core(cfg.core, self.core_params)
         try:
-            static = not core.supports_gnss
-            pos, used_fix = None, None
-            if static and all(math.isfinite(x) for x in cfg.static_position_deg_m):
-                la, lo, h = cfg.static_position_deg_m
-                pos = (la * D2R, lo * D2R, float(h))
-            elif tr is not None and tr.llh is not None:
-                pos = tuple(float(x) for x in tr.llh)
-            else:
-                j = bisect.bisect_right(self.buf.fix_t, t)
-                if j > 0:
-                    used_fix = self.buf.fix[j - 1]
-                    pos = earth.ecef_to_geodetic(used_fix.p_e)
-            if pos is None:
-                self.status = AlignmentStatus.WAITING_FOR_GNSS
-                self.reason = ("waiting for a GNSS fix (initial position)" if not static else
-                               "waiting for a GNSS fix or static_position_deg_m (site position)")
-                return
-            if cfg.init_mode == "truth":
-                if tr is None:
-                    self.status = AlignmentStatus.WAITING_FOR_DATA
-                    self.reason = "waiting for a ground-truth pose at an IMU stamp (init_mode truth)"
-                    return
-                rpy = earth.rpy_from_C_b_n(np.asarray(tr.C_b_n, float)) + np.asarray(cfg.init_rpy_error_deg) * D2R
-                v0 = self._truth_velocity(tr)
-            else:
-                rpy = np.asarray(cfg.initial_rpy_deg) * D2R
-                v0 = np.asarray(cfg.initial_velocity_enu_m_s, float)
-            C0 = earth.C_b_n_from_rpy(*rpy)
-            sig_rpy, sig_v, sig_p = core.default_initial_sigmas()
-            user = cfg.init_sigma_rpy_deg
-            sig_rpy = [u if math.isfinite(u) else d for u, d in zip(user, sig_rpy)]
-            P_att = np.diag((np.asarray(sig_rpy, float) * D2R) ** 2)
-            core.initialize(t, pos[0], pos[1], pos[2], C0, v0, P_att, sig_v, sig_p)
+            core.initialize(t, pos[0], pos[1], pos[2], earth.C_b_n_from_rpy(*rpy), v0, P_att, sig_v, sig_p)
         except Exception:
             core.close()
             raise
@@ -661,11 +668,7 @@ class AlignmentSession:
         cores (uniform prior); static cores find it themselves (gyrocompassing bootstrap)."""
         cfg = self.cfg
         fixes = self.buf.fix[:bisect.bisect_right(self.buf.fix_t, t)]
-        if self._probe is None:  # capabilities of the configured core (built once, not per sample)
-            probe = registry.make_core(cfg.core, self.core_params)
-            self._probe = (probe.supports_gnss, probe.default_initial_sigmas())
-            probe.close()
-        gnss_core, (sig_rpy0, sig_v0, sig_p0) = self._probe
+        gnss_core, (sig_rpy0, sig_v0, sig_p0) = self._capabilities()
         if not gnss_core and all(math.isfinite(x) for x in cfg.static_position_deg_m):
             la, lo, h = cfg.static_position_deg_m
             pos, used, sig_p = (la * D2R, lo * D2R, float(h)), None, sig_p0
