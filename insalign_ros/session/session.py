@@ -762,6 +762,8 @@ class AlignmentSession:
             self.flag_changes.append((t, now, self.flag.reason))
             self.log("info", "flag", f"aligned flag {'raised' if now else 'lowered'} at t={t + self.stamp_offset_s:.3f} s: {self.flag.reason}")
         self.status = AlignmentStatus.ALIGNED if now else AlignmentStatus.CONVERGING
+        if not now and est.status == AlignmentStatus.WAITING_FOR_MOTION:  # issue 14: core auto, heading needs motion
+            self.status = est.status
         self.reason = self.flag.reason if not est.reason else f"{self.flag.reason}; {est.reason}"
         tr = self._truth_at(t)
         err = None
