@@ -69,6 +69,9 @@ class AutoConfig(ConfigDict):
     #: zero-velocity constraint of the in-motion core at stops: position hold 1-sigma [m] and rate [Hz]
     stop_hold_sigma_m: float = 0.05
     stop_hold_rate_hz: float = 10.0
+    #: ... only when the in-motion core's own horizontal speed agrees: below this [m/s] (the IMU-only detector can
+    #: take a smooth constant acceleration for rest: a position hold while driving would wreck the attitude)
+    stop_speed_max_m_s: float = 0.5
 
     def validate(self) -> None:
         self.check_field_types(non_negative=True)
@@ -78,7 +81,8 @@ class AutoConfig(ConfigDict):
                 raise ValueError(f"{name}: unknown core {v!r}; choose one of {sorted(set(registry.CORES) - {'auto'})}")
         if not 2 <= self.unknown_heading_hypotheses <= 36:
             raise ValueError(f"unknown_heading_hypotheses: must be in [2, 36], got {self.unknown_heading_hypotheses}")
-        for name in ("heading_floor_max_deg", "heading_trust_sigma_deg", "stop_hold_sigma_m", "stop_hold_rate_hz"):
+        for name in ("heading_floor_max_deg", "heading_trust_sigma_deg", "stop_hold_sigma_m", "stop_hold_rate_hz",
+                     "stop_speed_max_m_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}: must be > 0, got {getattr(self, name)}")
 
@@ -213,7 +217,7 @@ class AutoCore(AlignmentCore):
         if dec.moving and self.state == "stopped":
             self._hold_p_e = None
             self._set_state(t, "in motion", f"driving again since {dec.since_s:.2f} s")
-        elif not dec.moving and self.state == "in motion":
+        elif not dec.moving and self.state == "in motion" and self._speed() < self.cfg.stop_speed_max_m_s:
             self.counters["stops"] += 1
             e = self.motion.estimate()
             self._hold_p_e = np.asarray(earth.geodetic_to_ecef(e.lat_rad, e.lon_rad, e.h_m), float)
@@ -226,13 +230,27 @@ class AutoCore(AlignmentCore):
                 res = self.motion.update_gnss(GnssFix(t, self._hold_p_e, np.eye(3) * self.cfg.stop_hold_sigma_m ** 2))
                 self.counters["stop_holds"] += int(res.accepted)
 
+    def _motion_evidence(self) -> bool:
+        """Moving, or evidence of motion not yet declared (the horizontal velocity change over the detector's
+        threshold): a zero-velocity update now would pull the static core towards a wrong level."""
+        if self.detector is None:
+            return False
+        if self.detector.decision.moving:
+            return True
+        d = self.detector.diagnostics()
+        return bool(d["dv_h_m_s"] > d["dv_h_threshold_m_s"])
+
+    def _speed(self) -> float:
+        """Horizontal speed of the in-motion core [m/s] (a stop is declared only when it agrees)."""
+        v = self.motion.estimate().v_n
+        return float(math.hypot(v[0], v[1]))
+
     def update_zero_velocity(self, stamp_s: float, sigma_v_m_s: float) -> UpdateResult:
         if self.motion is not None:
             return UpdateResult(False, reason="in motion: the in-motion core holds its position at stops")
-        d = self.detector.decision if self.detector is not None else None
-        if d is not None and d.moving:
+        if self._motion_evidence():
             self.counters["zupt_rejected_moving"] += 1
-            return UpdateResult(False, reason="moving")
+            return UpdateResult(False, reason="motion evidence: no zero-velocity update")
         res = self.static.update_zero_velocity(stamp_s, sigma_v_m_s)
         est = self.static.estimate()
         self.snaps.append((float(stamp_s), est))
