@@ -79,7 +79,7 @@ _SESSION_DOC = {  # session parameters the node exposes under the same names (Se
 }
 #: node parameters: name -> (default, description, read_only)
 NODE_PARAMS = {
-    "core": ("iekf", "alignment core (filters/registry.py); read-only after start", True),
+    "core": ("iekf", "alignment core (filters/registry.py; auto: session/auto.py); read-only after start", True),
     "init_from_ground_truth": (False, "initialise from ground_truth/pose plus init_rpy_error_deg (tests, demos; "
                                       "overrides init_mode)", False),
     "pose_rate_hz": (10.0, "~/pose, ~/euler_error and aligned-flag evaluation rate [Hz data time] (0: every Imu)", False),

@@ -58,6 +58,9 @@ class AutoConfig(ConfigDict):
     acc_bias_mg: float = 1.0
     gyro_arw_deg_sqrt_h: float = 0.26
     acc_vrw_m_s_sqrt_h: float = 0.029
+    #: in-motion core: floor of the fix sigma [m] (its ``gnss_sigma_floor_m``; e.g. 1 m for KITTI's RT3003, which
+    #: reports centimetres); the in-motion core keeps its own defaults otherwise
+    gnss_sigma_floor_m: float = 0.0
     #: gyrocompassing is trusted for the heading only where the azimuth floor eps/(omega_ie cos lat) is below this
     heading_floor_max_deg: float = 1.0
     #: ... and the static yaw 1-sigma at the hand-over below this (else the yaw bank is used)
@@ -286,7 +289,8 @@ class AutoCore(AlignmentCore):
         P = np.array(est.P_att_n, float)
         yaw_sigma = math.sqrt(max(P[2, 2], 0.0))
         self.heading_trusted = self.grade_allows_heading and yaw_sigma <= cfg.heading_trust_sigma_deg * D2R
-        params = {}
+        params = {k: v for k, v in {"gnss_sigma_floor_m": cfg.gnss_sigma_floor_m}.items()
+                  if k in {f.name for f in fields(registry.CORES[cfg.motion_core][1])}}
         if not self.heading_trusted:
             params["yaw_hypotheses"] = cfg.unknown_heading_hypotheses
             P[2, :] = P[:, 2] = 0.0
