@@ -41,6 +41,9 @@ from .motion import MotionConfig, MotionDetector
 
 D2R = math.pi / 180.0
 
+#: hand-over without a snapshot at rest (moving from the start): level and velocity 1-sigma [deg, m/s]
+NO_REST_LEVEL_SIGMA_DEG = 5.0
+NO_REST_SIGMA_V_M_S = 20.0
 #: state names (``AutoCore.state``), in the order a parked-then-driving run passes through them
 STATES = ("static, levelling", "static, fine", "in motion", "stopped")
 
@@ -234,12 +237,10 @@ class AutoCore(AlignmentCore):
                 self.counters["stop_holds"] += int(res.accepted)
 
     def _motion_evidence(self) -> bool:
-        """Moving, or evidence of motion not yet declared (the horizontal velocity change over the detector's
+        """Moving, undecided, or evidence of motion not yet declared (the horizontal velocity change over the detector's
         threshold): a zero-velocity update now would pull the static core towards a wrong level."""
-        if self.detector is None:
-            return False
-        if self.detector.decision.moving:
-            return True
+        if self.detector is None or not self.detector.decision.decided or self.detector.decision.moving:
+            return True  # undecided counts as motion: a zero-velocity update while driving would corrupt the level
         d = self.detector.diagnostics()
         return bool(d["dv_h_m_s"] > d["dv_h_threshold_m_s"])
 
@@ -287,6 +288,9 @@ class AutoCore(AlignmentCore):
         else:  # no snapshot at rest (moving from the start): the static core now, velocity unknown
             t0, est = self._t, self.static.estimate()
         P = np.array(est.P_att_n, float)
+        if not before:  # level from accelerometers that were accelerating: as the session's sensors init, >= 5 deg
+            for i in (0, 1):
+                P[i, i] = max(P[i, i], (NO_REST_LEVEL_SIGMA_DEG * D2R) ** 2)
         yaw_sigma = math.sqrt(max(P[2, 2], 0.0))
         self.heading_trusted = self.grade_allows_heading and yaw_sigma <= cfg.heading_trust_sigma_deg * D2R
         params = {k: v for k, v in {"gnss_sigma_floor_m": cfg.gnss_sigma_floor_m}.items()
@@ -296,10 +300,9 @@ class AutoCore(AlignmentCore):
             P[2, :] = P[:, 2] = 0.0
             P[2, 2] = (1e4 * D2R) ** 2  # unknown: uniform over the bank's hypotheses (as the session's sensors init)
         core = registry.make_core(cfg.motion_core, params)
-        sig_v = 0.05 if before else 5.0
+        sig_v = 0.05 if before else NO_REST_SIGMA_V_M_S
         try:
-            core.initialize(t0, est.lat_rad, est.lon_rad, est.h_m, est.C_b_n, np.zeros(3) if before else est.v_n, P,
-                            sig_v, self.sig_p)
+            core.initialize(t0, est.lat_rad, est.lon_rad, est.h_m, est.C_b_n, np.zeros(3), P, sig_v, self.sig_p)
             for (ts, w, f) in self.hist:
                 if ts > t0:
                     core.propagate(ImuSample(ts, w, f))
