@@ -133,3 +133,14 @@ def test_drive_stop_drive_no_reset_yaw_inside_3sigma():
     assert ratio.max() < 1.0
     assert r.aligned[w].all()  # the stop does not lose the alignment
     _flag_follows_criteria(r)
+
+
+def test_config_refusals_and_cli_choice():
+    for bad, what in [(dict(static_core="auto"), "static_core"), (dict(motion_core="nope"), "motion_core"),
+                      (dict(stop_hold_sigma_m=0.0), "stop_hold_sigma_m"),
+                      (dict(unknown_heading_hypotheses=1), "unknown_heading_hypotheses")]:
+        with pytest.raises(ValueError, match=what):
+            AutoConfig.from_dict(bad)
+    from insalign_ros.session.config import SessionConfig
+
+    assert SessionConfig.from_dict({"core": "auto"}).core == "auto"

@@ -81,16 +81,17 @@ class AutoConfig(ConfigDict):
 
     def validate(self) -> None:
         self.check_field_types(non_negative=True)
+        values = self.to_dict()
         for name in ("static_core", "motion_core"):
-            v = getattr(self, name)
+            v = values[name]
             if v == "auto" or v not in registry.CORES:
                 raise ValueError(f"{name}: unknown core {v!r}; choose one of {sorted(set(registry.CORES) - {'auto'})}")
         if not 2 <= self.unknown_heading_hypotheses <= 36:
             raise ValueError(f"unknown_heading_hypotheses: must be in [2, 36], got {self.unknown_heading_hypotheses}")
         for name in ("heading_floor_max_deg", "heading_trust_sigma_deg", "stop_hold_sigma_m", "stop_hold_rate_hz",
                      "stop_speed_max_m_s"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name}: must be > 0, got {getattr(self, name)}")
+            if not values[name] > 0:
+                raise ValueError(f"{name}: must be > 0, got {values[name]}")
 
     def static_params(self) -> dict:
         """The static core's parameters that the IMU grade sets (only the fields its config has)."""
