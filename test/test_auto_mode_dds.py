@@ -38,11 +38,9 @@ def test_auto_core_goes_through_the_states_in_order_over_dds(tmp_path, ros_env):
 
     th = threading.Thread(target=watch, daemon=True)
     try:
-        end = time.monotonic() + 30.0
-        while drv.pub_imu.get_subscription_count() < 1 or drv.pub_fix.get_subscription_count() < 1 \
-                or mon.node.count_publishers("/alignment_node/pose") < 1 or mon.diag_count < 1:
-            assert time.monotonic() < end, "alignment_node did not come up"
-            time.sleep(0.05)
+        up = (lambda m: min(drv.pub_imu.get_subscription_count(), drv.pub_fix.get_subscription_count(),
+                            m.node.count_publishers("/alignment_node/pose"), m.diag_count) >= 1)
+        assert mon.wait_for(up, 30.0), "alignment_node did not come up"
         th.start()
         drv.stream(msgs_per_s=500.0)
         assert mon.wait_for(lambda m: int(m.diag.get("buffered_imu", "1")) == 0
