@@ -54,6 +54,8 @@ def one_run(name: str, seed: int, heading_deg: float, park_s: float, drive_s: fl
         first_up_s=first_up, up_after_motion_s=float(t[after[0]] - park_s) if after.size else math.nan,
         up_at_end_of_park=bool(r.aligned[k]),
         level_err_deg=float(np.max(np.abs(r.rpy_err_deg[k, :2]))), level_floor_deg=acfg.level_floor_rad() / D2R,
+        # this run's own floor: its drawn horizontal accelerometer bias over g (body x, y ~ level axes when parked)
+        level_floor_run_deg=float(np.max(np.abs(d.bias_acc_b[:2]))) / 9.80665 / D2R,
         yaw_err_park_deg=float(abs(r.rpy_err_deg[k, 2])),
         az_floor_deg=acfg.azimuth_floor_rad(float(d.lat_rad[0])) / D2R,
         status_park=r.outputs[k].status.value, state_park=states[k],
@@ -78,6 +80,15 @@ def summary(rows: list[dict]) -> None:
         print(f"  end of park: level error / (b_acc/g floor {rs[0]['level_floor_deg']:.4f} deg): median "
               f"{np.median(lvl):.2f}, max {lvl.max():.2f}; |yaw err| / (azimuth floor {rs[0]['az_floor_deg']:.3f} "
               f"deg): median {np.median(yp):.2f}, max {yp.max():.2f}")
+        lvr = np.array([r["level_err_deg"] / max(r["level_floor_run_deg"], 1e-9) for r in rs])
+        print(f"  level error / this run's own floor (max |b_acc x, y| / g): median {np.median(lvr):.2f}, max "
+              f"{lvr.max():.2f}")
+        long = [r for r in rs if r["park_s"] >= 70.0]
+        if long:
+            yl = np.array([r["yaw_err_park_deg"] / r["az_floor_deg"] for r in long])
+            print(f"  parks >= 70 s ({len(long)} runs): flag up before the drive-off {sum(r['up_at_end_of_park'] for r in long)}"
+                  f"/{len(long)}; |yaw err| at the end of the park / azimuth floor: median {np.median(yl):.2f}, max "
+                  f"{yl.max():.2f}, within 2x: {int(np.sum(yl < 2))}/{len(long)}")
         print(f"  status at the end of the park: {sorted({r['status_park'] + ' / ' + r['state_park'] for r in rs})}")
         print(f"  |yaw err| at the end: median {np.median(fin):.3f} deg, max {fin.max():.3f} deg; resets/faults "
               f"{sum(r['resets'] for r in rs)}")

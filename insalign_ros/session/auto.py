@@ -238,12 +238,14 @@ class AutoCore(AlignmentCore):
                 self.counters["stop_holds"] += int(res.accepted)
 
     def _motion_evidence(self) -> bool:
-        """Moving, undecided, or evidence of motion not yet declared (the horizontal velocity change over the detector's
-        threshold): a zero-velocity update now would pull the static core towards a wrong level."""
+        """No zero-velocity update now: moving, undecided, or the detector's rest evidence fails (horizontal velocity
+        change or a spread over its threshold: a drive-off not yet declared, a person getting in rocking the body,
+        whose 0.035 m/s at the IMU pulled the navigation-grade gyrocompass by 0.2-0.6 deg)."""
         if self.detector is None or not self.detector.decision.decided or self.detector.decision.moving:
             return True  # undecided counts as motion: a zero-velocity update while driving would corrupt the level
         d = self.detector.diagnostics()
-        return bool(d["dv_h_m_s"] > d["dv_h_threshold_m_s"])
+        return bool(d["dv_h_m_s"] > d["dv_h_threshold_m_s"] or d["spread_f_m_s2"] > d["spread_f_threshold_m_s2"]
+                    or d["spread_omega_deg_s"] > d["spread_omega_threshold_deg_s"])
 
     def _speed(self) -> float:
         """Horizontal speed of the in-motion core [m/s] (a stop is declared only when it agrees)."""
