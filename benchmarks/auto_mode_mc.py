@@ -35,6 +35,7 @@ FLAG_YAW_DEG = 2.5  # AlignedCriteria().yaw_3sigma_deg (the flag's bound)
 
 def one_run(name: str, seed: int, heading_deg: float, park_s: float, drive_s: float) -> dict:
     import insalign_ros as ia
+    from insalign_ros.core import earth
     from insalign_ros.session.auto import AutoConfig
     from insalign_ros.sim.scenarios import make_scenario
 
@@ -58,6 +59,12 @@ def one_run(name: str, seed: int, heading_deg: float, park_s: float, drive_s: fl
         level_floor_run_deg=float(np.max(np.abs(d.bias_acc_b[:2]))) / 9.80665 / D2R,
         yaw_err_park_deg=float(abs(r.rpy_err_deg[k, 2])),
         az_floor_deg=acfg.azimuth_floor_rad(float(d.lat_rad[0])) / D2R,
+        # this run's own azimuth floor (its drawn gyro bias, East component at the end of the park) and the ARW limit
+        # of gyrocompassing over the whole park, ARW / (omega_ie cos lat sqrt(T))
+        az_floor_run_deg=float(abs((d.C_b_n[int(np.searchsorted(d.t_s, park_s - 1.0))] @ d.bias_gyro_b)[0]))
+        / (earth.OMEGA_IE_RAD_S * math.cos(float(d.lat_rad[0]))) / D2R,
+        arw_limit_deg=acfg.gyro_arw_deg_sqrt_h / 60.0 / (earth.OMEGA_IE_RAD_S * math.cos(float(d.lat_rad[0]))
+                                                          * math.sqrt(park_s)),
         status_park=r.outputs[k].status.value, state_park=states[k],
         yaw_err_end_deg=float(abs(r.rpy_err_deg[-1, 2])), final_state=states[-1],
         resets=r.counters["time_resets"] + r.counters["core_faults"] + r.counters["divergences"])
@@ -89,6 +96,9 @@ def summary(rows: list[dict]) -> None:
             print(f"  parks >= 70 s ({len(long)} runs): flag up before the drive-off {sum(r['up_at_end_of_park'] for r in long)}"
                   f"/{len(long)}; |yaw err| at the end of the park / azimuth floor: median {np.median(yl):.2f}, max "
                   f"{yl.max():.2f}, within 2x: {int(np.sum(yl < 2))}/{len(long)}")
+            yo = np.array([r["yaw_err_park_deg"] / math.hypot(r["az_floor_run_deg"], r["arw_limit_deg"]) for r in long])
+            print(f"    |yaw err| / hypot(the run's own azimuth floor, ARW limit over the park): median "
+                  f"{np.median(yo):.2f}, max {yo.max():.2f}, within 2x: {int(np.sum(yo < 2))}/{len(long)}")
         print(f"  status at the end of the park: {sorted({r['status_park'] + ' / ' + r['state_park'] for r in rs})}")
         print(f"  |yaw err| at the end: median {np.median(fin):.3f} deg, max {fin.max():.3f} deg; resets/faults "
               f"{sum(r['resets'] for r in rs)}")

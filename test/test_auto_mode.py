@@ -144,3 +144,11 @@ def test_config_refusals_and_cli_choice():
     from insalign_ros.session.config import SessionConfig
 
     assert SessionConfig.from_dict({"core": "auto"}).core == "auto"
+
+
+def test_insalign_align_core_auto(tmp_path):
+    from insalign_ros.cli.align import main
+
+    assert main(["--scenario", "park_drive", "--core", "auto", "--duration", "6", "--out-dir", str(tmp_path),
+                 "--no-progress"]) == 0
+    assert (tmp_path / "park_drive_s0_auto.csv").exists()
