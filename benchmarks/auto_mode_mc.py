@@ -11,6 +11,7 @@ error against the RT3003.
 
     python benchmarks/auto_mode_mc.py --runs 25 --workers 2
     python benchmarks/auto_mode_mc.py --runs 0 --kitti 2011_09_26_drive_0057_oxts 2011_09_30_drive_0018_oxts
+    python benchmarks/auto_mode_mc.py --runs 0 --dsd-seeds 0 1 2
 """
 
 from __future__ import annotations
@@ -138,6 +139,27 @@ def kitti(drives: list[str], data_dir: Path) -> None:
               f"{res.counters['divergences']}, faults {res.counters['core_faults']}")
 
 
+def drive_stop_drive(seeds: list[int]) -> None:
+    """The full drive_stop_drive (a 60-s stop at 70-130 s, a person getting in at 90 s): no reset, the yaw error
+    against its 3-sigma and the flag from 5 s before the stop to 20 s after it."""
+    import insalign_ros as ia
+    from insalign_ros.sim.scenarios import make_scenario
+
+    for seed in seeds:
+        d = make_scenario("drive_stop_drive", seed=seed)
+        r = ia.align(d, core="auto")
+        a, b = float(d.params["stop_start_s"]), float(d.params["stop_end_s"])
+        w = (r.t_s > a - 5) & (r.t_s < b + 20)
+        ratio = np.abs(r.rpy_err_deg[w, 2]) / r.sigma3_deg[w, 2]
+        c = r.counters
+        print(f"drive_stop_drive seed {seed}: stop {a:.0f}-{b:.0f} s; max |yaw err| / 3-sigma {ratio.max():.2f} from 5 s "
+              f"before the stop to 20 s after; flag up {r.aligned[w].mean():.0%} of that window; yaw 3-sigma at the end "
+              f"of the stop {r.sigma3_deg[np.searchsorted(r.t_s, b) - 1, 2]:.2f} deg (flag bound {FLAG_YAW_DEG}); "
+              f"|yaw err| at the end {abs(r.rpy_err_deg[-1, 2]):.3f} deg; resets/faults/divergences "
+              f"{c['time_resets'] + c['core_faults'] + c['divergences']}; hand-overs {r.diagnostics['core.handovers']}, "
+              f"stops {r.diagnostics['core.stops']}")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", type=int, default=25, help="runs per IMU grade (0: none)")
@@ -146,6 +168,7 @@ def main(argv=None) -> int:
     ap.add_argument("--drive", type=float, default=45.0, help="driving after the park [s]")
     ap.add_argument("--grades", nargs="+", default=["park_drive", "park_drive_navgrade"])
     ap.add_argument("--kitti", nargs="*", default=[])
+    ap.add_argument("--dsd-seeds", nargs="*", type=int, default=[], help="full drive_stop_drive runs (seeds)")
     ap.add_argument("--data", default=str(ROOT.parent / "shared" / "data" / "kitti_raw_oxts_sync"))
     sweep.add_arguments(ap)
     args = ap.parse_args(argv)
@@ -162,6 +185,8 @@ def main(argv=None) -> int:
         summary(rows)
     if args.kitti:
         kitti(args.kitti, Path(args.data))
+    if args.dsd_seeds:
+        drive_stop_drive(args.dsd_seeds)
     return 0
 
 

@@ -226,8 +226,7 @@ class AutoCore(AlignmentCore):
             self._set_state(t, "in motion", f"driving again since {dec.since_s:.2f} s")
         elif not dec.moving and self.state == "in motion" and self._speed() < self.cfg.stop_speed_max_m_s:
             self.counters["stops"] += 1
-            e = self.motion.estimate()
-            self._hold_p_e = np.asarray(earth.geodetic_to_ecef(e.lat_rad, e.lon_rad, e.h_m), float)
+            self._hold_p_e = self._position_e()
             self._next_hold_t = t
             self._set_state(t, "stopped", f"stopped since {dec.since_s:.2f} s: zero-velocity updates (position hold)")
         if self.state == "stopped" and t >= self._next_hold_t and self._hold_p_e is not None:
@@ -324,7 +323,14 @@ class AutoCore(AlignmentCore):
     def update_gnss(self, fix: GnssFix) -> UpdateResult:
         if self.motion is None:
             return UpdateResult(False, reason="static: fixes are not used while parked")
-        return self.motion.update_gnss(fix)
+        res = self.motion.update_gnss(fix)
+        if self._hold_p_e is not None:  # stopped: hold where the fix put the core (holds and fixes do not fight)
+            self._hold_p_e = self._position_e()
+        return res
+
+    def _position_e(self) -> np.ndarray:
+        e = self.motion.estimate()
+        return np.asarray(earth.geodetic_to_ecef(e.lat_rad, e.lon_rad, e.h_m), float)
 
     def predict_gnss(self, fix: GnssFix) -> UpdateResult:
         if self.motion is None:
