@@ -3,6 +3,7 @@
     insalign-align BAG --core iekf [--rpy-error 10 10 60 | --initial-rpy R P Y] [--duration 300] [--out-dir out]
     insalign-align --scenario ship --seed 0 --core pi_liekf --rpy-error 10 10 60
     insalign-align --scenario static --core pkf --param zupt_rate_hz=10
+    insalign-align --scenario park_drive --core auto --session-param init_mode=sensors   (parked, then driving)
 
 A thin CLI over ``insalign_ros.align`` (the same AlignmentSession as alignment_node). Initialisation: with
 ``--initial-rpy`` from that guess; when the data have truth, from the truth plus ``--rpy-error``; otherwise (or with
