@@ -43,8 +43,8 @@ def run_tasks(fn, tasks: list[tuple], args, desc: str = "runs") -> list:
     this module is uploaded to the workers: they import it by name for the scenario cache and the stage timer)."""
     from insalign_ros.eval.parallel import run_tasks as run
 
-    return run(fn, tasks, workers=args.workers, scheduler=args.scheduler, serial=args.serial, desc=desc,
-               upload=(__file__,))
+    return run(fn, tasks, workers=getattr(args, "workers", 0), scheduler=getattr(args, "scheduler", ""),
+               serial=args.serial, desc=desc, upload=(__file__,))
 
 
 # ------------------------------------------------------------------------------------- per-stage timing
