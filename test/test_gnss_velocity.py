@@ -156,3 +156,51 @@ def test_lever_arm_and_velocity_accuracy_car():
         assert r.counters["gnss_vel_accepted"] == len(d.gnss_vel_t_s)
         err[arm[0]] = abs(r.metrics["final_err_rpy_deg"][2])
     assert err[1.5] < 0.3 and err[0.0] > 0.4, err
+
+
+@pytest.mark.ros
+@pytest.mark.timeout(60)
+def test_gps_vel_over_dds_reaches_the_core(monkeypatch):
+    """imu_sim_node publishes gps/vel (a car with the antenna 1.5 m forward); alignment_node subscribes it with the
+    sensor-data profile and the core fuses every one (gnss_lever_arm_b_m set as a double array)."""
+    import time
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from insalign_ros.cli.bringup import isolated_ros_env
+    from insalign_ros.nodes.alignment_node import AlignmentNode
+    from insalign_ros.nodes.imu_sim_node import ImuSimNode
+
+    for k, v in isolated_ros_env(base={}).items():
+        monkeypatch.setenv(k, v)
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    P = lambda n, v: Parameter(n, value=v)  # noqa: E731
+    sim = ImuSimNode(context=ctx, parameter_overrides=[
+        P("scenario", "car"), P("duration_s", 6.0), P("rate_factor", 20.0), P("seed", 5), P("gnss_vel_sigma_m_s", 0.1),
+        P("gnss_lever_arm_b_m", [1.5, 0.0, 0.0]), P("wait_for_subscribers", 1), P("wait_timeout_s", 20.0),
+        P("qos_depth", 2000)])
+    node = AlignmentNode(context=ctx, parameter_overrides=[
+        P("core", "iekf"), P("init_from_ground_truth", True), P("gnss_lever_arm_b_m", [1.5, 0.0, 0.0])])
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(sim), ex.add_node(node)
+    try:
+        end = time.monotonic() + 40.0
+        while not sim._ready() and time.monotonic() < end:
+            ex.spin_once(timeout_sec=0.05)
+        nxt = sim.publish_due(time.monotonic())
+        while nxt is not None and time.monotonic() < end:
+            ex.spin_once(timeout_sec=max(0.0, min(nxt - time.monotonic(), 0.01)))
+            nxt = sim.publish_due(time.monotonic())
+        c = node.session.counters
+        while c["gnss_vel_accepted"] < sim.sent_vel and time.monotonic() < end:
+            ex.spin_once(timeout_sec=0.05)
+        assert sim.sent_vel == 7 and node.session.core.lever_b.tolist() == [1.5, 0.0, 0.0]
+        assert c["gnss_vel_received"] == c["gnss_vel_accepted"] == 7, dict(c)
+    finally:
+        ex.shutdown()
+        node.destroy_node()
+        sim.destroy_node()
+        rclpy.shutdown(context=ctx)
