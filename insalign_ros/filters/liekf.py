@@ -215,9 +215,10 @@ def _check_fix(fix: GnssFix) -> str:
     return ""
 
 
-def _check_velocity(vel: GnssVelocity) -> str:
-    v = np.asarray(vel.v_n, float)
-    R = np.asarray(vel.R_n, float)
+def check_velocity(v_n, R_n) -> str:
+    """Why a GNSS velocity (v_n (3,) [m/s], R_n (3, 3) [m^2/s^2]) is unusable, or "" (shared with the session)."""
+    v = np.asarray(v_n, float)
+    R = np.asarray(R_n, float)
     if v.shape != (3,) or R.shape != (3, 3):
         return f"bad shapes v_n {v.shape}, R_n {R.shape}"
     if not (np.all(np.isfinite(v)) and np.all(np.isfinite(R))):
@@ -225,7 +226,7 @@ def _check_velocity(vel: GnssVelocity) -> str:
     try:
         np.linalg.cholesky(0.5 * (R + R.T))
     except np.linalg.LinAlgError:
-        return "covariance R_n is not positive definite"
+        return "covariance not positive definite (unknown or zero covariance)"
     return ""
 
 
@@ -503,7 +504,7 @@ class BatchedEciCore(AlignmentCore):
         """The innovation, its covariance and NIS a GNSS velocity would have now; changes nothing."""
         if not self._init:
             return UpdateResult(False, reason="not initialised")
-        reason = _check_velocity(vel)
+        reason = check_velocity(vel.v_n, vel.R_n)
         if reason:
             return UpdateResult(False, reason=reason)
         return self._prediction(self._velocity_terms(vel))
@@ -513,7 +514,7 @@ class BatchedEciCore(AlignmentCore):
         correction in every core, PI-LIEKF included: its PI loop and LMI are built on position innovations)."""
         if not self._init:
             return UpdateResult(False, reason="not initialised")
-        reason = _check_velocity(vel)
+        reason = check_velocity(vel.v_n, vel.R_n)
         if reason:
             self.counters["gnss_vel_rejected"] += 1
             self.last_reject_reason = f"GNSS velocity: {reason}"

@@ -35,6 +35,7 @@ from ..core.types import GnssFix, GnssVelocity, ImuSample
 from ..eval.aligned import AlignedCriteria, AlignedFlag, euler_3sigma_deg
 from ..filters import registry
 from ..filters.base import AlignmentCore, AlignmentEstimate, AlignmentStatus
+from ..filters.liekf import check_velocity
 from .config import SessionConfig
 
 D2R = math.pi / 180.0
@@ -983,21 +984,13 @@ class AlignmentSession:
 
 
 def _check_velocity(t: float, v_n, R_n) -> str:
-    """Checks of one GNSS velocity: finite stamp, 3-vector, plausible speed, positive definite 3x3 covariance."""
+    """Checks of one GNSS velocity: finite stamp, the core's checks (filters/liekf.check_velocity), plausible speed."""
     if not math.isfinite(t) or t < 0.0:
         return f"stamp {t!r} is not a finite number >= 0"
-    v, R = np.asarray(v_n, float), np.asarray(R_n, float)
-    if v.shape != (3,) or R.shape != (3, 3):
-        return f"bad shapes v_n {v.shape}, R_n {R.shape}"
-    if not (np.all(np.isfinite(v)) and np.all(np.isfinite(R))):
-        return "non-finite velocity or covariance"
-    if float(np.linalg.norm(v)) > MAX_GNSS_SPEED_M_S:
-        return f"speed {np.linalg.norm(v):.3g} m/s > {MAX_GNSS_SPEED_M_S:g} m/s"
-    try:
-        np.linalg.cholesky(0.5 * (R + R.T))
-    except np.linalg.LinAlgError:
-        return "covariance not positive definite (unknown or zero covariance)"
-    return ""
+    reason = check_velocity(v_n, R_n)
+    if not reason and float(np.linalg.norm(v_n)) > MAX_GNSS_SPEED_M_S:
+        reason = f"speed {np.linalg.norm(v_n):.3g} m/s > {MAX_GNSS_SPEED_M_S:g} m/s"
+    return reason
 
 
 def _check_imu(t: float, w, f, max_rate: float, max_acc: float) -> str:
