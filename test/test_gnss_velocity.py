@@ -208,3 +208,20 @@ def test_gps_vel_over_dds_reaches_the_core(monkeypatch):
         node.destroy_node()
         sim.destroy_node()
         rclpy.shutdown(context=ctx)
+
+
+def test_align_cli_reads_the_velocity_topic(tmp_path, capsys):
+    import json
+
+    from insalign_ros.cli.align import main
+    from insalign_ros.io.bag import write_bag
+
+    bag = write_bag(make_scenario("car", seed=6, duration_s=12.0, gnss_vel_sigma_m_s=0.1), tmp_path / "b")
+    common = ["--no-plot", "--no-progress", "--out-dir", str(tmp_path), "--param", "gnss_lever_arm_b_m=[0, 0, 0]"]
+    assert main([str(bag), "--vel-topic", "/gps/vel", *common]) == 0
+    c = json.loads((tmp_path / "b_iekf_metrics.json").read_text())["counters"]
+    assert c["gnss_vel_accepted"] == 13 and c["gnss_vel_rejected"] == 0
+    assert main([str(bag), "--vel-topic", "/other", *common]) == 0  # a topic the bag lacks: fixes only
+    assert json.loads((tmp_path / "b_iekf_metrics.json").read_text())["counters"]["gnss_vel_received"] == 0
+    assert main(["--scenario", "car", "--vel-topic", "/gps/vel", *common]) == 2  # a bag option without a bag
+    assert "apply to a bag" in capsys.readouterr().err
