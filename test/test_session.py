@@ -84,20 +84,20 @@ def _drop(d, t0, T):
                    lat_rad=d.lat_rad[keep], lon_rad=d.lon_rad[keep], h_m=d.h_m[keep], v_n=d.v_n[keep])
 
 
-@pytest.mark.parametrize("scenario,core,T,t0,bound", [("ship", "iekf", 0.3, 40.0, 1.0), ("car", "liekf", 0.3, 40.0, 1.0),
-                                                      ("car", "iekf", 1.5, 52.3, 1.0), ("car", "iekf", 1.5, 30.0, 1.1)])
-def test_gap_is_bridged_and_counted_and_the_error_stays_inside_3_sigma(scenario, core, T, t0, bound):
-    """An IMU dropout: bridged by interpolation, covariance inflated by the bridge error measured on the recent
-    data; the Euler errors stay inside the published 3-sigma afterwards (docs/session.md, "Gaps"). Measured short
-    of it: after 1.5 s gaps the re-convergence overshoots slightly (car seed 2 at 30 s: 1.02 x the 3-sigma in roll
-    18 s later; the ship with 7 deg/s roll rates: up to 1.3 x), so that case has a bound of 1.1."""
+@pytest.mark.parametrize("scenario,core,T,t0", [("ship", "iekf", 0.3, 40.0), ("car", "liekf", 0.3, 40.0),
+                                                ("ship", "iekf", 1.5, 85.7), ("car", "iekf", 1.5, 30.0)])
+def test_gap_is_bridged_and_counted_and_the_error_stays_inside_3_sigma(scenario, core, T, t0):
+    """An IMU dropout: bridged by the candidate (linear, or a polynomial fitted on both sides) that does best on the
+    recent data, the covariance inflated by that candidate's worst error there; the Euler errors stay inside the
+    published 3-sigma afterwards (docs/session.md, "Gaps"; the ship at 85.7 s was 1.46 x with linear bridging and
+    the whole inflation added at the end of the gap)."""
     d = make_scenario(scenario, seed=5 if scenario == "ship" else 2, duration_s=t0 + 30.0,
                       **({"rate_hz": 50.0} if scenario == "ship" else {}))
     r = ia.align(_drop(d, t0, T), core=core, init_mode="truth", init_rpy_error_deg=[3, -3, 30])
     assert r.counters["imu_gaps"] == 1
     m = r.t_s > t0
     ratio = np.abs(r.rpy_err_deg[m]) / r.sigma3_deg[m]
-    assert ratio.max() < bound, ratio.max(axis=0)
+    assert ratio.max() < 1.0, ratio.max(axis=0)
 
 
 def test_session_refuses_values_that_would_disable_it():

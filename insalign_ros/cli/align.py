@@ -3,13 +3,16 @@
     insalign-align BAG --core iekf [--rpy-error 10 10 60 | --initial-rpy R P Y] [--duration 300] [--out-dir out]
     insalign-align --scenario ship --seed 0 --core pi_liekf --rpy-error 10 10 60
     insalign-align --scenario static --core pkf --param zupt_rate_hz=10
+    insalign-align BAGS_DIR --core iekf [--workers 4 | --scheduler tcp://host:8786 | --serial] --out-dir out
 
 A thin CLI over ``insalign_ros.align`` (the same AlignmentSession as alignment_node). Initialisation: with
 ``--initial-rpy`` from that guess; when the data have truth, from the truth plus ``--rpy-error``; otherwise (or with
 ``--session-param init_mode=sensors``) from the sensors alone (no guess: fixes, accelerometers, a yaw bank).
 Static cores get zero-velocity updates from the session (``--session-param zupt_rate_hz=10``). Writes
 <out>/<name>_<core>.csv (time, Euler estimate, error, 3-sigma, NEES, flag), a metrics JSON and a PNG like the
-PI-LIEKF paper's Fig. 3. Every user error is one line on stderr and exit status 2.
+PI-LIEKF paper's Fig. 3. Every user error is one line on stderr and exit status 2. Given a directory of bags, every
+bag is aligned with the same options as an independent Dask task (cli/fleet.py): per-bag outputs in
+<out>/<bag>/ and a summary table <out>/fleet_summary.csv (.md).
 """
 
 from __future__ import annotations
@@ -40,7 +43,7 @@ def _kv(items: list[str], what: str) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="insalign-align", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("bag", nargs="?", help="contract bag (insalign_ros.io.bag)")
+    ap.add_argument("bag", nargs="?", help="contract bag (insalign_ros.io.bag), or a directory of bags (a fleet)")
     ap.add_argument("--scenario", help="simulate instead: ship, car, static, ...")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--core", default="iekf", help="any registered core (insalign_ros.core_names())")
@@ -70,14 +73,48 @@ def main(argv=None) -> int:
                          "(filters/backtrack.py; earth_iekf, liekf)")
     ap.add_argument("--backtrack-window", type=float, default=60.0, metavar="S",
                     help="stored alignment window after initialisation [s] (with --backtrack)")
+    g = ap.add_argument_group("a directory of bags (Dask tasks; insalign_ros.eval.parallel)")
+    g.add_argument("--workers", type=int, default=0, help="LocalCluster worker processes (default: the CPU count)")
+    g.add_argument("--scheduler", default="", help="address of a running Dask scheduler, e.g. tcp://host:8786")
+    g.add_argument("--serial", action="store_true", help="no Dask: the bags one after the other, in this process")
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = ap.parse_args(argv)
     if bool(args.bag) == bool(args.scenario):
         ap.error("give exactly one of BAG or --scenario")
+    fleet = bool(args.bag) and Path(args.bag).is_dir() and not (Path(args.bag) / "metadata.yaml").exists()
+    if not fleet and (args.workers or args.scheduler or args.serial):
+        ap.error("--workers/--scheduler/--serial apply to a directory of bags")
     try:
+        if fleet:
+            return _run_fleet(args, argv)
         return _run(args)
     except (ValueError, FileNotFoundError, KeyError) as exc:
         print(f"insalign-align: {exc}", file=sys.stderr)
         return 2
+
+
+def _run_fleet(args, argv: list[str]) -> int:
+    """Every bag under the directory ``args.bag`` with the other options of ``argv``; the summary table."""
+    from .fleet import run_fleet
+
+    drop_value = {"--out-dir", "--workers", "--scheduler"}
+    rest, skip = [], False
+    for a in argv:
+        if skip:
+            skip = False
+        elif a in drop_value:
+            skip = True
+        elif a == "--serial" or a == args.bag or a.split("=", 1)[0] in drop_value:
+            continue
+        else:
+            rest.append(a)
+    rows = run_fleet(args.bag, rest, args.out_dir, args.workers, args.scheduler, args.serial,
+                     progress=not args.no_progress)
+    bad = [r for r in rows if r["rc"] != 0]
+    for r in bad:
+        print(f"insalign-align: {r['bag']}: {r.get('error', '')}", file=sys.stderr)
+    print(f"{len(rows) - len(bad)} of {len(rows)} bags aligned; wrote {Path(args.out_dir) / 'fleet_summary.csv'}")
+    return 0 if not bad else 1
 
 
 def _run(args) -> int:

@@ -414,7 +414,12 @@ def read_bag(path, imu_topic: str = IMU_TOPIC, gps_topic: str = GPS_TOPIC, truth
     streams = {imu_topic: ("imu", True), imu_invalid_topic or imu_topic + INVALID_SUFFIX: ("imu", False),
                gps_topic: ("gps", True), gps_invalid_topic or gps_topic + INVALID_SUFFIX: ("gps", False),
                truth_topic: ("truth", True), vel_topic: ("vel", True)}
-    meta, got, rejected, frames, n_unknown = _read_messages(path, streams, meta_topic, unknown_fix_sigma_m, rep)
+    from rosbags.rosbag2 import ReaderError
+
+    try:
+        meta, got, rejected, frames, n_unknown = _read_messages(path, streams, meta_topic, unknown_fix_sigma_m, rep)
+    except ReaderError as exc:  # a user error (not a rosbag2 bag, a damaged one): one line, not a traceback
+        raise ValueError(f"{path}: not a readable rosbag2 bag ({exc})") from exc
     expect = {"imu": IMU_FRAME, "gps": GPS_FRAME, "truth": TRUTH_FRAME, "vel": GPS_FRAME}
     for topic, fs in frames.items():
         if fs and fs != {expect[streams[topic][0]]}:

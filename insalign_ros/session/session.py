@@ -36,6 +36,7 @@ from ..eval.aligned import AlignedCriteria, AlignedFlag, euler_3sigma_deg
 from ..filters import registry
 from ..filters.base import AlignmentCore, AlignmentEstimate, AlignmentStatus
 from ..filters.liekf import check_velocity
+from . import gaps
 from .config import SessionConfig
 
 D2R = math.pi / 180.0
@@ -170,6 +171,7 @@ class AlignmentSession:
         self.hist_t: deque = deque(maxlen=1000)  # recent processed samples (gap bridging statistics)
         self.hist_w: deque = deque(maxlen=1000)
         self.hist_f: deque = deque(maxlen=1000)
+        self._batch: tuple[list, int] = ([], 0)  # the batch being processed and the index in it (gap look-ahead)
         self.init_t: float | None = None
         self.anchor: tuple[float, float, float] | None = None
         self.next_out_t = -math.inf
@@ -349,6 +351,7 @@ class AlignmentSession:
         items = b.imu[:n]
         del b.imu[:n], b.imu_t[:n]
         for i, (t, w, f) in enumerate(items):
+            self._batch = (items, i)
             nxt = items[i + 1] if i + 1 < n else (b.imu[0] if b.imu else None)
             if self._spike(t, w, f, nxt):
                 continue
@@ -427,54 +430,63 @@ class AlignmentSession:
     def _on_gap(self, t_a: float, t_b: float, w_b: np.ndarray, f_b: np.ndarray) -> None:
         """An IMU gap (t_a, t_b): bridge it and inflate the covariance by what the bridge may have got wrong.
 
-        Bridge: samples at the median interval, linearly interpolated between the last sample before the gap and
-        the first after it (first-order hold; the sample after the gap then covers its own interval only).
-        Inflation: the same bridge applied to every window of the gap's length in the last seconds of real data
-        gives the error it would have made in the attitude increment (integral of the rate) and the velocity
-        increment (integral of the specific force); their mean square is added to the attitude and velocity
-        variances (docs/session.md, "Gaps"). Without enough history: the rate spread times the missing time."""
+        Bridge (session/gaps.py): samples at the median interval, predicted by the candidate (linear interpolation,
+        or a polynomial fitted to the data on both sides of the gap) that makes the smallest error when applied to
+        every window of the gap's length in the recent data; the sample after the gap covers its own interval only.
+        Inflation: that worst-window error of the attitude increment (integral of the rate) and of the velocity
+        increment (integral of the specific force), as a 1-sigma, added to the attitude and velocity variances
+        (docs/session.md, "Gaps"). Without enough history: linear, and the rate spread times the missing time."""
         self.counters["imu_gaps"] += 1
         h = self._median_dt
         n_mid = max(int(round((t_b - t_a) / h)) - 1, 0)
-        w_a, f_a = (self.hist_w[-1], self.hist_f[-1]) if self.hist_w else (w_b, f_b)
         step = (t_b - t_a) / (n_mid + 1)
-        for k in range(1, n_mid + 1):
-            a = k / (n_mid + 1)
-            self._feed(ImuSample(t_a + k * step, (1 - a) * w_a + a * w_b, (1 - a) * f_a + a * f_b))
-        var_att, var_v, how = self._bridge_error_var(n_mid + 1, step)
-        # the velocity error builds up over the gap: position error ~ its mean times the gap length
-        self.core.inflate_navigation(var_att, var_v, var_v * (0.5 * (t_b - t_a)) ** 2)
-        self.log("warn", "imu_gaps", f"IMU gap of {t_b - t_a:.3f} s before {t_b:.6f} (median interval {h * 1e3:.2f} ms): "
-                                     f"bridged with {n_mid} interpolated samples, attitude 3-sigma +"
+        t_mid = t_a + step * np.arange(1, n_mid + 1)
+        ahead = [(t_b, w_b, f_b)] + [it for it in self._lookahead(t_b + 1.0)]
+        t_after = np.array([it[0] for it in ahead])
+        Y_after = np.array([np.concatenate([it[1], it[2]]) for it in ahead])
+        if self.hist_w:
+            t_before = np.asarray(self.hist_t)
+            Y_before = np.hstack([np.asarray(self.hist_w), np.asarray(self.hist_f)])
+        else:
+            t_before, Y_before = np.array([t_a]), Y_after[:1]
+        try:
+            bridge, var_att, var_v, nwin = gaps.choose(t_before, Y_before[:, :3], Y_before[:, 3:], n_mid + 1,
+                                                       float(t_after[-1] - t_b))
+            how = f"{bridge.name}, error measured on {nwin} windows of the last {t_before[-1] - t_before[0]:.1f} s"
+        except ValueError:
+            n = len(t_before)
+            s_w = float(np.linalg.norm(np.std(Y_before[:, :3], axis=0))) if n >= 3 else 0.2
+            s_f = float(np.linalg.norm(np.std(Y_before[:, 3:], axis=0))) if n >= 3 else 2.0
+            bridge, var_att, var_v = gaps.LINEAR, (s_w * (t_b - t_a)) ** 2, (s_f * (t_b - t_a)) ** 2
+            how = "linear interpolation, short history: rate spread x gap"
+        Y_mid = gaps.fill(bridge, t_before, Y_before, t_after, Y_after, t_mid)
+        # the bridge's error builds up over the gap like process noise: added in up to 5 equal parts along it (the
+        # propagation turns the velocity part into position error), and a fix stamped inside the gap is fused at
+        # its own stamp, after the part of the bridge before it
+        parts = np.array_split(np.arange(n_mid + 1), min(5, n_mid + 1))
+        for part in parts:
+            self.core.inflate_navigation(var_att / len(parts), var_v / len(parts), 0.0)
+            for k in part[part < n_mid]:
+                self._feed(ImuSample(float(t_mid[k]), Y_mid[k, :3], Y_mid[k, 3:]))
+                self._apply_fixes_until(float(t_mid[k]), [])
+                if self.core is None:  # a divergence restarted the session
+                    return
+        self.log("warn", "imu_gaps", f"IMU gap of {t_b - t_a:.3f} s before {t_b + self.stamp_offset_s:.6f} (median "
+                                     f"interval {h * 1e3:.2f} ms): bridged with {n_mid} samples, attitude 3-sigma +"
                                      f"{3 * math.sqrt(var_att) / D2R:.3f} deg ({how}; imu_gaps={self.counters['imu_gaps']})")
 
-    def _bridge_error_var(self, m: int, step: float) -> tuple[float, float, str]:
-        """Mean-square error [rad^2, (m/s)^2] of bridging ``m`` intervals by linear interpolation, measured on the
-        recent data (every window of m intervals); a conservative default when the history is too short."""
-        W = np.asarray(self.hist_w)
-        F = np.asarray(self.hist_f)
-        n = len(W)
-        if n < m + 10:
-            s_w = float(np.linalg.norm(np.std(W, axis=0))) if n >= 3 else 0.2
-            s_f = float(np.linalg.norm(np.std(F, axis=0))) if n >= 3 else 2.0
-            T = m * step
-            return (s_w * T) ** 2, (s_f * T) ** 2, "short history: rate spread x gap"
-        a = np.arange(1, m + 1) / m  # interpolation weights of the bridged samples (the last one is the real one)
-        starts = np.arange(0, n - m, max(1, (n - m) // 40))
-        ew, ef = [], []
-        for i in starts:
-            true_w = W[i + 1:i + m + 1].sum(axis=0)
-            true_f = F[i + 1:i + m + 1].sum(axis=0)
-            br_w = ((1 - a)[:, None] * W[i] + a[:, None] * W[i + m]).sum(axis=0)
-            br_f = ((1 - a)[:, None] * F[i] + a[:, None] * F[i + m]).sum(axis=0)
-            ew.append((true_w - br_w) * step)
-            ef.append((true_f - br_f) * step)
-        ew, ef = np.asarray(ew), np.asarray(ef)
-        # the worst window of the recent data as the 1-sigma (the phase of the motion in the gap is unknown), the
-        # largest axis for every axis (isotropic inflation)
-        var_att = float(np.max(ew * ew))
-        var_v = float(np.max(ef * ef))
-        return var_att, var_v, f"bridge error measured on {len(starts)} windows of the last {n * step:.1f} s"
+    def _lookahead(self, until: float):
+        """The IMU samples not processed yet (the rest of the batch being processed, then the buffer), up to the
+        stamp ``until`` [s]: data the gap bridge may use after the gap."""
+        items, i = self._batch
+        for it in items[i + 1:]:
+            if it[0] > until:
+                return
+            yield it
+        for it in self.buf.imu:
+            if it[0] > until:
+                return
+            yield it
 
     def _feed(self, event) -> None:
         if self.bt is not None:
