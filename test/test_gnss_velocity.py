@@ -178,11 +178,15 @@ def test_gps_vel_over_dds_reaches_the_core(monkeypatch):
     rclpy.init(context=ctx)
     P = lambda n, v: Parameter(n, value=v)  # noqa: E731
     sim = ImuSimNode(context=ctx, parameter_overrides=[
-        P("scenario", "car"), P("duration_s", 6.0), P("rate_factor", 20.0), P("seed", 5), P("gnss_vel_sigma_m_s", 0.1),
+        P("scenario", "car"), P("duration_s", 6.0), P("rate_factor", 10.0), P("seed", 5), P("gnss_vel_sigma_m_s", 0.1),
         P("gnss_lever_arm_b_m", [1.5, 0.0, 0.0]), P("wait_for_subscribers", 1), P("wait_timeout_s", 20.0),
         P("qos_depth", 2000)])
     node = AlignmentNode(context=ctx, parameter_overrides=[
-        P("core", "iekf"), P("init_from_ground_truth", True), P("gnss_lever_arm_b_m", [1.5, 0.0, 0.0])])
+        P("core", "iekf"), P("init_from_ground_truth", True), P("gnss_lever_arm_b_m", [1.5, 0.0, 0.0]),
+        # both nodes share one executor here, replaying 10 x real time: on a loaded machine the queued Imu callbacks
+        # can run ahead of the gps/vel callback by more than the default 0.5-s fusion delay (data time), and a
+        # publisher pause can look like a stalled driver (idle drain); give both room
+        P("max_fix_lag_s", 3.0), P("idle_drain_s", 3.0)])
     ex = SingleThreadedExecutor(context=ctx)
     ex.add_node(sim), ex.add_node(node)
     try:
@@ -201,7 +205,7 @@ def test_gps_vel_over_dds_reaches_the_core(monkeypatch):
         # every velocity sent is received and fused (one stamped before a late initialisation on a loaded machine
         # would be counted gnss_vel_before_init instead)
         vel = {k: v for k, v in c.items() if "vel" in k}
-        assert vel["gnss_vel_received"] == 7 and vel["gnss_vel_rejected"] == 0 and vel["gnss_vel_accepted"] >= 6, vel
+        assert vel["gnss_vel_received"] == 7 and vel["gnss_vel_rejected"] == 0 and vel["gnss_vel_accepted"] >= 6, str(vel)
     finally:
         ex.shutdown()
         node.destroy_node()
