@@ -59,6 +59,8 @@ def main(argv=None) -> int:
                     help="deliver each fix S seconds of data time after its stamp (receiver latency)")
     ap.add_argument("--imu-topic", default=None, help="Imu topic of the bag (default: the contract's /imu/data)")
     ap.add_argument("--gps-topic", default=None, help="NavSatFix topic (default /gps/fix)")
+    ap.add_argument("--vel-topic", default=None,
+                    help="GNSS velocity topic, TwistWithCovarianceStamped in ENU (default /gps/vel; read when present)")
     ap.add_argument("--truth-topic", default=None, help="reference pose topic, any rate (default /ground_truth/pose)")
     ap.add_argument("--unknown-fix-sigma", type=float, default=None, metavar="M",
                     help="1-sigma per axis [m] for fixes with UNKNOWN covariance (default 1 m, as the node's gnss_sigma_m)")
@@ -127,11 +129,11 @@ def _run(args) -> int:
     sp = _kv(args.session_param, "--session-param")
     SessionConfig.from_dict({"core": args.core, **sp})  # user errors before any work
     make_config(args.core, core_params)
-    reader = {k: v for k, v in (("imu_topic", args.imu_topic), ("gps_topic", args.gps_topic),
+    reader = {k: v for k, v in (("imu_topic", args.imu_topic), ("gps_topic", args.gps_topic), ("vel_topic", args.vel_topic),
                                 ("truth_topic", args.truth_topic), ("unknown_fix_sigma_m", args.unknown_fix_sigma))
               if v is not None}
     if reader and not args.bag:
-        raise ValueError("--imu-topic/--gps-topic/--truth-topic/--unknown-fix-sigma apply to a bag")
+        raise ValueError("--imu-topic/--gps-topic/--vel-topic/--truth-topic/--unknown-fix-sigma apply to a bag")
     data = load_source(args.bag or args.scenario, args.duration, args.seed, **reader)
     name = Path(args.bag).stem if args.bag else f"{args.scenario}_s{args.seed}"
     if args.initial_rpy is not None:

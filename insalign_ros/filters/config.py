@@ -36,6 +36,8 @@ class ConfigDict:
                 raise ValueError(f"{k}: expected a string, got {v!r}")
             if ftype in ("float", float) and not isinstance(v, float):
                 raise ValueError(f"{k}: expected a number, got {v!r}")
+            if ftype in ("list", list) and isinstance(v, (list, tuple)):
+                v = [float(x) if isinstance(x, (int, float)) and not isinstance(x, bool) else x for x in v]
             kwargs[k] = v
         cfg = cls(**kwargs)
         cfg.validate()
@@ -51,6 +53,11 @@ class ConfigDict:
             if f.type in ("str", str):  # choices are checked by the class that adds the field
                 if not isinstance(v, str):
                     raise ValueError(f"{f.name}: expected a string, got {v!r}")
+                continue
+            if f.type in ("list", list):  # a 3-vector (gnss_lever_arm_b_m)
+                if not (isinstance(v, (list, tuple)) and len(v) == 3 and all(
+                        isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)):
+                    raise ValueError(f"{f.name}: expected 3 finite numbers, got {v!r}")
                 continue
             if f.type in ("int", int):
                 if not (isinstance(v, int) and not isinstance(v, bool)):
@@ -118,6 +125,10 @@ class InMotionGnssConfig(InMotionConfig):
     #: lower bound of the GNSS position sigma [m] (0 = trust the fix covariance; KITTI's 2 cm RT3003 accuracy is
     #: far below the model error of 10 Hz instantaneous IMU samples)
     gnss_sigma_floor_m: float = 0.0
+    #: GNSS antenna position in the body frame FLU [m] (lever arm from the IMU): the position and velocity
+    #: measurement models predict the antenna, p_ant = p + C_b_n l, v_ant = v + C_b_n (omega_ib_b x l)
+    #: (docs/inmotion_cores.md, "GNSS velocity and lever arm")
+    gnss_lever_arm_b_m: list = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
     #: yaw hypotheses (filters/hypotheses.py): 1 = a single filter; K >= 2 runs K copies of the core at yaw offsets
     #: 360/K deg apart, weighted by their GNSS likelihoods, for a heading that is unknown (docs/inmotion_cores.md)
     yaw_hypotheses: int = 1

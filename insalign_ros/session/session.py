@@ -31,10 +31,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core import earth
-from ..core.types import GnssFix, ImuSample
+from ..core.types import GnssFix, GnssVelocity, ImuSample
 from ..eval.aligned import AlignedCriteria, AlignedFlag, euler_3sigma_deg
 from ..filters import registry
 from ..filters.base import AlignmentCore, AlignmentEstimate, AlignmentStatus
+from ..filters.liekf import check_velocity
 from . import gaps
 from .config import SessionConfig
 
@@ -46,6 +47,13 @@ COUNTERS = (
     "gnss_invalid", "gnss_no_fix", "gnss_frame", "gnss_duplicate", "gnss_stale", "gnss_future", "gnss_before_init", "gnss_filter_rejected",
     "gnss_unused", "truth_received", "truth_invalid", "time_resets", "core_faults", "zupt_accepted",
     "watchdog_trips", "inputs_dropped", "gnss_gated", "imu_spikes", "divergences")
+#: GNSS velocity (push_velocity): received, fused, rejected (total) and per reason
+VEL_COUNTERS = ("gnss_vel_received", "gnss_vel_accepted", "gnss_vel_rejected", "gnss_vel_invalid", "gnss_vel_duplicate",
+                "gnss_vel_stale", "gnss_vel_future", "gnss_vel_before_init", "gnss_vel_gated", "gnss_vel_filter_rejected",
+                "gnss_vel_unused")
+COUNTERS = COUNTERS + VEL_COUNTERS
+#: a GNSS velocity faster than this is not a vehicle's [m/s]
+MAX_GNSS_SPEED_M_S = 600.0
 
 
 @dataclass
@@ -86,6 +94,8 @@ class _Pending:
     fix: list = field(default_factory=list)
     truth: dict = field(default_factory=dict)  # stamp -> TruthSample
     truth_t: list = field(default_factory=list)  # sorted stamps of ``truth``
+    vel_t: list = field(default_factory=list)  # GNSS velocities in stamp order (push_velocity)
+    vel: list = field(default_factory=list)
 
 
 class AlignmentSession:
@@ -501,6 +511,7 @@ class AlignmentSession:
                 self.counters["gnss_before_init"] += 1
                 continue
             self._fuse_fix(fix)
+        self._apply_velocities_until(t)
 
     def _fuse_fix(self, fix: GnssFix) -> None:
         core = self.core
@@ -536,6 +547,69 @@ class AlignmentSession:
             self.counters["gnss_rejected"] += 1
             self.last_reject = f"gnss: core: {res.reason}"
             self.log("warn", "gnss_filter_rejected", f"fix rejected by the core: {res.reason}")
+        self.flag.on_update(self.processed_t, res.accepted, res.nis, len(res.innovation) or 3)
+
+    # ------------------------------------------------------------------ GNSS velocity (push_velocity)
+    def push_velocity(self, vel: GnssVelocity, wall_s: float | None = None) -> bool:
+        """Validate and buffer one GNSS velocity (ENU antenna velocity relative to Earth v_n [m/s], covariance R_n
+        [m^2/s^2]); fused at its own stamp like a fix (same buffer rule, same fusion delay). False if rejected."""
+        c = self.counters
+        c["gnss_vel_received"] += 1
+        self._touch(wall_s)
+        t = float(vel.stamp_s)
+        reason = _check_velocity(t, vel.v_n, vel.R_n)
+        if reason:
+            return self._reject("gnss_vel", "velocity", "gnss_vel_invalid", reason)
+        if self.processed_t is not None and t < self.processed_t:
+            return self._reject("gnss_vel", "velocity", "gnss_vel_stale",
+                                f"stamp {t:.6f} is {self.processed_t - t:.3f} s behind the filter time "
+                                f"(max_fix_lag_s {self.cfg.max_fix_lag_s:g} s)")
+        if t in self.buf.vel_t:
+            return self._reject("gnss_vel", "velocity", "gnss_vel_duplicate", f"duplicate stamp {t:.6f}")
+        if self.newest_imu_t is not None and t > self.newest_imu_t + self.cfg.max_fix_ahead_s:
+            return self._reject("gnss_vel", "velocity", "gnss_vel_future",
+                                f"stamp {t:.6f} is {t - self.newest_imu_t:.3f} s ahead of the IMU")
+        i = bisect.bisect(self.buf.vel_t, t)
+        self.buf.vel_t.insert(i, t)
+        self.buf.vel.insert(i, GnssVelocity(t, np.asarray(vel.v_n, float), np.asarray(vel.R_n, float)))
+        if len(self.buf.vel_t) > 1000:  # velocities with no IMU to reach them: keep the newest
+            del self.buf.vel_t[0], self.buf.vel[0]
+            c["inputs_dropped"] += 1
+        return True
+
+    def _apply_velocities_until(self, t: float) -> None:
+        b = self.buf
+        while b.vel_t and b.vel_t[0] <= t and self.core is not None:
+            b.vel_t.pop(0)
+            vel = b.vel.pop(0)
+            if vel.stamp_s < self.init_t:
+                self.counters["gnss_vel_before_init"] += 1
+                continue
+            self._fuse_velocity(vel)
+
+    def _fuse_velocity(self, vel: GnssVelocity) -> None:
+        """One GNSS velocity into the core: the NIS gate of the fixes (while the attitude is claimed), then the
+        core's update; the flag's NIS window sees its NIS like a fix's."""
+        core, c = self.core, self.counters
+        if not core.supports_gnss_velocity or self.bt is not None:
+            c["gnss_vel_unused"] += 1
+            return
+        gate = self.cfg.gnss_gate_nis
+        if gate > 0 and self._attitude_claimed():
+            pr = core.predict_gnss_velocity(vel)
+            if pr.S.size and pr.nis > gate:
+                self._reject("gnss_vel", "velocity", "gnss_vel_gated", f"NIS {pr.nis:.3g} above the gate {gate:g} "
+                             f"(|innovation| {np.linalg.norm(pr.innovation):.3g} m/s)")
+                self._lower_flag("a GNSS velocity failed the NIS gate")
+                return
+        res = core.update_gnss_velocity(vel)
+        if res.accepted:
+            c["gnss_vel_accepted"] += 1
+        else:
+            c["gnss_vel_filter_rejected"] += 1
+            c["gnss_vel_rejected"] += 1
+            self.last_reject = f"gnss_vel: core: {res.reason}"
+            self.log("warn", "gnss_vel_filter_rejected", f"GNSS velocity rejected by the core: {res.reason}")
         self.flag.on_update(self.processed_t, res.accepted, res.nis, len(res.innovation) or 3)
 
     def _attitude_claimed(self) -> bool:
@@ -919,6 +993,16 @@ class AlignmentSession:
             except Exception as exc:  # noqa: BLE001 - diagnostics never take the pipeline down
                 d["core.diagnostics_error"] = f"{type(exc).__name__}: {exc}"
         return d
+
+
+def _check_velocity(t: float, v_n, R_n) -> str:
+    """Checks of one GNSS velocity: finite stamp, the core's checks (filters/liekf.check_velocity), plausible speed."""
+    if not math.isfinite(t) or t < 0.0:
+        return f"stamp {t!r} is not a finite number >= 0"
+    reason = check_velocity(v_n, R_n)
+    if not reason and float(np.linalg.norm(v_n)) > MAX_GNSS_SPEED_M_S:
+        reason = f"speed {np.linalg.norm(v_n):.3g} m/s > {MAX_GNSS_SPEED_M_S:g} m/s"
+    return reason
 
 
 def _check_imu(t: float, w, f, max_rate: float, max_acc: float) -> str:
