@@ -18,6 +18,7 @@ from insalign_ros.filters.imu_grade import (
 )
 from insalign_ros.session.config import SessionConfig
 from insalign_ros.session.session import AlignmentSession
+from test_node_params import node_factory  # noqa: F401  (fixture)
 
 ROOT = Path(__file__).resolve().parents[1]
 G0 = 9.80665
@@ -170,3 +171,24 @@ def test_default_grade_is_consistent_on_a_mems_car_where_the_ship_grade_is_over_
     print(out)
     assert out["unknown_mems"][0] >= 0.99 and out["unknown_mems"][1] < 3.0, out  # measured 1.000, 0.62
     assert out["paper_ship"][0] < 0.8 and out["paper_ship"][1] > 7.81, out  # measured 0.47, 13.2 (chi2 3 dof 95 %)
+
+
+@pytest.mark.ros
+@pytest.mark.timeout(60)
+def test_node_imu_grade_parameter(node_factory):
+    """alignment_node: imu_grade sets the defaults of the core's noise and bias parameters (ros2 param get shows the
+    values used), an explicit -p wins, the descriptor lists the choices and is read-only; an unknown grade at
+    start-up is a one-line error."""
+    g = GRADES["tactical"]
+    node = node_factory(["-p", "core:=iekf", "-p", "imu_grade:=tactical", "-p", "init_sigma_acc_bias_mg:=3"])
+    assert node.get_parameter("init_sigma_gyro_bias_deg_h").value == g.gyro_bias_deg_h
+    assert node.get_parameter("gyro_arw_deg_sqrt_h").value == g.gyro_arw_deg_sqrt_h
+    assert node.get_parameter("init_sigma_acc_bias_mg").value == 3.0  # explicit (an int for a double) wins
+    assert node.session.core_params["init_sigma_gyro_bias_deg_h"] == g.gyro_bias_deg_h
+    assert node.session.core_params["init_sigma_acc_bias_mg"] == 3.0 and node.session.cfg.imu_grade == "tactical"
+    d = node.describe_parameter("imu_grade")
+    assert d.read_only and all(name in d.description for name in GRADES)
+    assert "imu_grade" in node.describe_parameter("gyro_arw_deg_sqrt_h").description
+    with pytest.raises(ValueError) as e:
+        node_factory(["-p", "imu_grade:=mems"])
+    assert "\n" not in str(e.value) and "unknown IMU grade 'mems'" in str(e.value)
