@@ -36,7 +36,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=4)
     args = ap.parse_args(argv)
     print("| scenario (IMU) | grade | flag first up [s] | final yaw error [deg] | final yaw 3-sigma [deg] "
-          "| 3-sigma covers (2nd half) | mean NEES (2nd half) | flag up with |yaw err| > 3 deg |")
+          "| 3-sigma covers (2nd half) | mean NEES (2nd half) | flag up with \\|yaw err\\| > 3 deg |")
     print("|---|---|---|---|---|---|---|---|")
     for name, overrides, extra in RUNS:
         d = make_scenario(name, seed=args.seed, duration_s=args.duration, rate_hz=100.0, **overrides)
