@@ -69,6 +69,7 @@ def test_launch_defaults_are_the_node_defaults():
     assert d["core"] == NODE_PARAMS["core"][0]
     assert d["init_from_ground_truth"] == str(NODE_PARAMS["init_from_ground_truth"][0]).lower() == "false"
     assert [float(x) for x in d["init_rpy_error_deg"].split(",")] == SessionConfig().init_rpy_error_deg
+    assert d["imu_grade"] == NODE_PARAMS["imu_grade"][0] == SessionConfig().imu_grade
 
 
 def test_env_sh_refuses_python_3_10_with_the_reason(tmp_path):

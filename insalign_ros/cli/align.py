@@ -1,7 +1,7 @@
 """insalign-align: offline alignment of a contract bag or a simulated scenario with any registered core.
 
     insalign-align BAG --core iekf [--rpy-error 10 10 60 | --initial-rpy R P Y] [--duration 300] [--out-dir out]
-    insalign-align --scenario ship --seed 0 --core pi_liekf --rpy-error 10 10 60
+    insalign-align --scenario ship --seed 0 --core pi_liekf --rpy-error 10 10 60 --imu-grade paper_ship
     insalign-align --scenario static --core pkf --param zupt_rate_hz=10
     insalign-align BAGS_DIR --core iekf [--workers 4 | --scheduler tcp://host:8786 | --serial] --out-dir out
 
@@ -52,6 +52,9 @@ def main(argv=None) -> int:
     ap.add_argument("--initial-rpy", nargs=3, type=float, metavar=("R", "P", "Y"),
                     help="initial attitude guess [deg] (yaw from East, CCW); used whether or not the data have truth")
     ap.add_argument("--duration", type=float, default=None, help="seconds of data to use")
+    ap.add_argument("--imu-grade", default=None, metavar="GRADE",
+                    help="IMU noise model (docs/imu_grades.md): consumer_mems, industrial_mems, tactical, navigation, "
+                         "paper_ship, ...; default unknown_mems (conservative MEMS); --param overrides its fields")
     ap.add_argument("--param", action="append", default=[], metavar="KEY=VALUE", help="core parameter")
     ap.add_argument("--session-param", action="append", default=[], metavar="KEY=VALUE",
                     help="session parameter (insalign_ros.session.config.SessionConfig)")
@@ -127,6 +130,8 @@ def _run(args) -> int:
 
     core_params = _kv(args.param, "--param")
     sp = _kv(args.session_param, "--session-param")
+    if args.imu_grade is not None:
+        sp["imu_grade"] = args.imu_grade
     SessionConfig.from_dict({"core": args.core, **sp})  # user errors before any work
     make_config(args.core, core_params)
     reader = {k: v for k, v in (("imu_topic", args.imu_topic), ("gps_topic", args.gps_topic), ("vel_topic", args.vel_topic),
@@ -169,7 +174,8 @@ def _run(args) -> int:
             w.writerow([f"{r.t_s[i]:.3f}", *(f"{x:.6f}" for x in r.rpy_deg[i]), *(f"{x:.6f}" for x in r.rpy_err_deg[i]),
                         *(f"{x:.6f}" for x in r.sigma3_deg[i]), f"{r.nees[i]:.4f}", int(r.aligned[i])])
     summ = dict(r.metrics)
-    summ.update(data=name, init_mode=sp["init_mode"], counters=r.counters,
+    summ.update(data=name, init_mode=sp["init_mode"], imu_grade=sp.get("imu_grade", SessionConfig().imu_grade),
+                counters=r.counters,
                 diagnostics={k: v for k, v in r.diagnostics.items() if k.startswith("core.")})
     if rpy_error is not None:
         summ["rpy_error_deg"] = rpy_error

@@ -22,7 +22,7 @@ Topics (relative names, remappable as usual):
 
 The callbacks only convert a message to a sample and push it into the session; a timer (``process_rate_hz``)
 lets the session process the buffered inputs in stamp order and publishes what comes out. The node decides
-nothing the session could (docs/session.md, docs/nodes.md). ``core`` is read-only after start: a different core
+nothing the session could (docs/session.md, docs/nodes.md). ``core`` and ``imu_grade`` are read-only after start: a different core
 means a different parameter set (restart the node, or call the reset with a new configuration file).
 """
 
@@ -47,6 +47,7 @@ from std_srvs.srv import Trigger
 from ..core.types import GnssVelocity
 from ..eval.aligned import AlignedCriteria
 from ..filters import registry
+from ..filters.imu_grade import GRADES, grade_params
 from ..filters.liekf import Liekf
 from ..session.config import SessionConfig
 from ..session.session import AlignmentSession, TruthSample
@@ -87,6 +88,9 @@ _CORE_DOC = {"gnss_lever_arm_b_m": "GNSS antenna position in the body frame FLU 
 #: node parameters: name -> (default, description, read_only)
 NODE_PARAMS = {
     "core": ("iekf", "alignment core (filters/registry.py); read-only after start", True),
+    "imu_grade": (SessionConfig().imu_grade, "IMU noise model, one of " + ", ".join(GRADES) + " (docs/imu_grades.md): "
+                  "the defaults of the core's noise and bias parameters; an explicit core parameter overrides it. "
+                  "Read-only after start", True),
     "init_from_ground_truth": (False, "initialise from ground_truth/pose plus init_rpy_error_deg (tests, demos; "
                                       "overrides init_mode)", False),
     "pose_rate_hz": (10.0, "~/pose, ~/euler_error and aligned-flag evaluation rate [Hz data time] (0: every Imu)", False),
@@ -163,8 +167,13 @@ class AlignmentNode(Node):
             raise ValueError(f"core: unknown core {core!r}; choose one of {sorted(registry.core_names())}")
         self.core_name = core
         self.core_param_names = list(registry.CORES[core][1]().to_dict())
+        grade = self.get_parameter("imu_grade").value
+        from_grade = grade_params(grade, registry.CORES[core][1])  # ValueError: unknown grade, exit 2
         for name, default in registry.CORES[core][1]().to_dict().items():
-            if name not in self.defaults:
+            if name in from_grade:
+                self._declare(name, from_grade[name], f"{core} core parameter, default from imu_grade {grade} "
+                                                      "(docs/imu_grades.md)", False)
+            elif name not in self.defaults:
                 self._declare(name, default, _CORE_DOC.get(name, f"{core} core parameter (config/{core}.yaml)"), False)
         p = {n: self._coerced(n) for n in self.defaults}
         self.session = AlignmentSession(*self._session_args(p), log=self._log)  # ValueError: bad value, exit 2
@@ -216,7 +225,7 @@ class AlignmentNode(Node):
 
     def _session_args(self, p: dict):
         sp = {k: p[k] for k in _SESSION_DOC}
-        sp["core"] = p["core"]
+        sp["core"], sp["imu_grade"] = p["core"], p["imu_grade"]
         if p["init_from_ground_truth"]:
             sp["init_mode"] = "truth"
         sp["output_period_s"] = 1.0 / p["pose_rate_hz"] if p["pose_rate_hz"] > 0 else 0.0

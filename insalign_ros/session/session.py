@@ -36,6 +36,7 @@ from ..eval.aligned import AlignedCriteria, AlignedFlag, euler_3sigma_deg
 from ..filters import registry
 from ..filters.base import AlignmentCore, AlignmentEstimate, AlignmentStatus
 from ..filters.liekf import check_velocity
+from ..filters.imu_grade import resolve_core_params
 from . import gaps
 from .config import SessionConfig
 
@@ -108,7 +109,8 @@ class AlignmentSession:
                  criteria: AlignedCriteria | None = None, log=None) -> None:
         self.cfg = config if isinstance(config, SessionConfig) else SessionConfig.from_dict(config)
         self.cfg.validate()
-        self.core_params = dict(core_params or {})
+        # the IMU grade's noise and bias fields under the explicit core parameters (filters/imu_grade.py)
+        self.core_params = resolve_core_params(self.cfg.imu_grade, self.cfg.core, core_params)
         registry.make_config(self.cfg.core, self.core_params)  # validate now (ValueError with the reason)
         self.flag = AlignedFlag(criteria or AlignedCriteria())
         self.log = log or (lambda level, key, text: None)
@@ -125,6 +127,7 @@ class AlignmentSession:
     def reconfigure(self, config: SessionConfig, core_params: dict, criteria: AlignedCriteria) -> bool:
         """Apply new parameters. Returns True when the alignment was restarted (core or core parameters changed)."""
         config.validate()
+        core_params = resolve_core_params(config.imu_grade, config.core, core_params)
         registry.make_config(config.core, core_params)
         restart = (config.core != self.cfg.core or core_params != self.core_params
                    or config.init_mode != self.cfg.init_mode or config.backtrack_passes != self.cfg.backtrack_passes)
