@@ -6,8 +6,9 @@ flag up while |yaw error| > the flag's bound (``AlignedCriteria.yaw_3sigma_deg``
 drive-off to the flag (navgrade: the flag may rise while parked), level and yaw error at the end of the park against
 2x the b_acc/g and the azimuth floors, and the status at the end of the park.
 
-KITTI (``--kitti``): ``core auto`` from the sensors (no truth init, no guess), the states over time and the yaw
-error against the RT3003.
+The simulated runs use the IMU grade matching the simulated IMU (``SCENARIO_IMU_GRADE``: industrial_mems,
+navigation). KITTI (``--kitti``): ``core auto`` from the sensors (no truth init, no guess) with the default grade
+(unknown_mems), the states over time and the yaw error against the RT3003.
 
     python benchmarks/auto_mode_mc.py --runs 25 --workers 2
     python benchmarks/auto_mode_mc.py --runs 0 --kitti 2011_09_26_drive_0057_oxts 2011_09_30_drive_0018_oxts
@@ -30,20 +31,20 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import sweep  # noqa: E402
 
 D2R = math.pi / 180.0
-NAV = dict(gyro_bias_deg_h=0.01, acc_bias_mg=0.025, gyro_arw_deg_sqrt_h=0.002, acc_vrw_m_s_sqrt_h=0.0058839900)
 FLAG_YAW_DEG = 2.5  # AlignedCriteria().yaw_3sigma_deg (the flag's bound)
 
 
 def one_run(name: str, seed: int, heading_deg: float, park_s: float, drive_s: float) -> dict:
     import insalign_ros as ia
     from insalign_ros.core import earth
+    from insalign_ros.filters.imu_grade import SCENARIO_IMU_GRADE, resolve_core_params
     from insalign_ros.session.auto import AutoConfig
     from insalign_ros.sim.scenarios import make_scenario
 
-    cp = NAV if name.endswith("navgrade") else {}
+    grade = SCENARIO_IMU_GRADE[name]  # the preset matching the simulated IMU
     d = make_scenario(name, seed=seed, duration_s=park_s + drive_s, park_s=park_s, heading_deg=heading_deg)
-    r = ia.align(d, core="auto", core_params=cp)
-    acfg = AutoConfig(**cp)
+    r = ia.align(d, core="auto", imu_grade=grade)
+    acfg = AutoConfig.from_dict(resolve_core_params(grade, "auto"))
     t = r.t_s
     k = int(np.flatnonzero(t < park_s - 0.3)[-1])
     up = np.flatnonzero(r.aligned)
@@ -143,11 +144,12 @@ def drive_stop_drive(seeds: list[int]) -> None:
     """The full drive_stop_drive (a 60-s stop at 70-130 s, a person getting in at 90 s): no reset, the yaw error
     against its 3-sigma and the flag from 5 s before the stop to 20 s after it."""
     import insalign_ros as ia
+    from insalign_ros.filters.imu_grade import SCENARIO_IMU_GRADE
     from insalign_ros.sim.scenarios import make_scenario
 
     for seed in seeds:
         d = make_scenario("drive_stop_drive", seed=seed)
-        r = ia.align(d, core="auto")
+        r = ia.align(d, core="auto", imu_grade=SCENARIO_IMU_GRADE["drive_stop_drive"])
         a, b = float(d.params["stop_start_s"]), float(d.params["stop_end_s"])
         w = (r.t_s > a - 5) & (r.t_s < b + 20)
         ratio = np.abs(r.rpy_err_deg[w, 2]) / r.sigma3_deg[w, 2]

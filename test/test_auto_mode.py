@@ -10,13 +10,11 @@ import pytest
 import insalign_ros as ia
 from insalign_ros.core import earth
 from insalign_ros.filters.base import AlignmentStatus
+from insalign_ros.filters.imu_grade import GRADES, SCENARIO_IMU_GRADE
 from insalign_ros.session.auto import AutoConfig
-from insalign_ros.sim import error_model
 from insalign_ros.sim.scenarios import make_scenario
 
 D2R = math.pi / 180.0
-NAV = dict(gyro_bias_deg_h=0.01, acc_bias_mg=0.025, gyro_arw_deg_sqrt_h=0.002,
-           acc_vrw_m_s_sqrt_h=error_model.NAVGRADE.vrw_m_s_sqrt_h)
 PARK_S = 26.0  # the static core's azimuth bootstrap takes the first 20 s
 
 
@@ -24,9 +22,16 @@ def _state(o) -> str:
     return o.estimate.reason.split(":")[0]
 
 
-def _run(name, seed, cp=None, **kw):
+def _run(name, seed, **kw):
+    """core auto on a scenario, with the IMU grade that matches the scenario's IMU (filters/imu_grade.py)."""
     d = make_scenario(name, seed=seed, **kw)
-    return d, ia.align(d, core="auto", core_params=cp or {})
+    return d, ia.align(d, core="auto", imu_grade=SCENARIO_IMU_GRADE[name])
+
+
+def _auto_config(name) -> AutoConfig:
+    g = GRADES[SCENARIO_IMU_GRADE[name]]
+    return AutoConfig(gyro_bias_deg_h=g.gyro_bias_deg_h, acc_bias_mg=g.acc_bias_mg,
+                      gyro_arw_deg_sqrt_h=g.gyro_arw_deg_sqrt_h)
 
 
 @pytest.fixture(scope="module")
@@ -38,10 +43,11 @@ def test_park_drive_mems_levels_says_heading_needs_motion_then_aligns(mems):
     d, r = mems
     t = r.t_s
     lat = float(d.lat_rad[0])
-    floor_lvl_deg = 1e-3 / D2R  # b_acc/g, 1 mg
-    floor_az_deg = AutoConfig().azimuth_floor_rad(lat) / D2R
-    # physics: 5 deg/h over the horizontal Earth rate 15.04 deg/h cos(lat)
-    assert floor_az_deg == pytest.approx(math.degrees(5.0 / (15.0411 * math.cos(lat))), rel=1e-3)
+    floor_lvl_deg = 1e-3 / D2R  # b_acc/g of the simulated IMU, 1 mg (the grade's 1 mg too)
+    cfg = _auto_config("park_drive")
+    floor_az_deg = cfg.azimuth_floor_rad(lat) / D2R
+    # physics: the grade's gyro bias (10 deg/h) over the horizontal Earth rate 15.04 deg/h cos(lat)
+    assert floor_az_deg == pytest.approx(math.degrees(cfg.gyro_bias_deg_h / (15.0411 * math.cos(lat))), rel=1e-3)
     states = [_state(o) for o in r.outputs]
     order = [s for i, s in enumerate(states) if i == 0 or s != states[i - 1]]
     assert order == ["static, levelling", "static, fine", "in motion"], order
@@ -92,14 +98,15 @@ def test_handover_continuity_and_flag(mems):
 
 def test_park_drive_navgrade_heading_while_parked_and_flag_before_motion():
     park = 74.0
-    d, r = _run("park_drive_navgrade", 2, NAV, duration_s=park + 3.0, park_s=park, door_at_s=5.0, heading_deg=75.0)
+    d, r = _run("park_drive_navgrade", 2, duration_s=park + 3.0, park_s=park, door_at_s=5.0, heading_deg=75.0)
     t = r.t_s
-    floor_az_deg = AutoConfig(**NAV).azimuth_floor_rad(float(d.lat_rad[0])) / D2R
+    cfg = _auto_config("park_drive_navgrade")
+    floor_az_deg = cfg.azimuth_floor_rad(float(d.lat_rad[0])) / D2R
     k = int(np.flatnonzero(t < park - 0.3)[-1])
     yaw = abs(r.rpy_err_deg[k, 2])
     # a shortened park is still ARW-limited: ARW / (omega_ie cos lat sqrt(T)) after T s of gyrocompassing (0.08 deg
     # at 74 s, 0.07 at 90 s); the bound is 2x the floor and that limit combined
-    arw_deg = math.degrees(NAV["gyro_arw_deg_sqrt_h"] * D2R / 60.0 / (earth.OMEGA_IE_RAD_S * math.cos(d.lat_rad[0])
+    arw_deg = math.degrees(cfg.gyro_arw_deg_sqrt_h * D2R / 60.0 / (earth.OMEGA_IE_RAD_S * math.cos(d.lat_rad[0])
                                                                      * math.sqrt(park)))
     bound = 2.0 * math.hypot(floor_az_deg, arw_deg)
     first_up = t[np.flatnonzero(r.aligned)[0]] if r.aligned.any() else math.inf

@@ -33,7 +33,7 @@ import numpy as np
 
 from ..core import earth
 from ..core.types import GnssFix, ImuSample
-from ..filters import registry
+from ..filters import imu_grade, registry
 from ..filters.base import AlignmentCore, AlignmentEstimate, AlignmentStatus, UpdateResult
 from ..filters.config import ConfigDict
 from ..filters.hypotheses import YawHypothesisBank
@@ -56,13 +56,16 @@ class AutoConfig(ConfigDict):
     #: zero-velocity core for the parked states (pkf, ekf10, ...) and the in-motion core for driving
     static_core: str = "ekf10"
     motion_core: str = "iekf"
-    #: IMU grade: gyro and accelerometer bias 1-sigma, angle and velocity random walks
-    gyro_bias_deg_h: float = 5.0
+    #: IMU grade (the session fills these from ``imu_grade``, filters/imu_grade.py; defaults: industrial_mems):
+    #: gyro and accelerometer bias 1-sigma, angle and velocity random walks, bias random walks
+    gyro_bias_deg_h: float = 10.0
     acc_bias_mg: float = 1.0
-    gyro_arw_deg_sqrt_h: float = 0.26
-    acc_vrw_m_s_sqrt_h: float = 0.029
+    gyro_arw_deg_sqrt_h: float = 0.4
+    acc_vrw_m_s_sqrt_h: float = 0.1
+    gyro_bias_rw_deg_h_sqrt_h: float = 10.0
+    acc_bias_rw_mg_sqrt_h: float = 0.03
     #: in-motion core: floor of the fix sigma [m] (its ``gnss_sigma_floor_m``; e.g. 1 m for KITTI's RT3003, which
-    #: reports centimetres); the in-motion core keeps its own defaults otherwise
+    #: reports centimetres)
     gnss_sigma_floor_m: float = 0.0
     #: gyrocompassing is trusted for the heading only where the azimuth floor eps/(omega_ie cos lat) is below this
     heading_floor_max_deg: float = 1.0
@@ -93,13 +96,19 @@ class AutoConfig(ConfigDict):
             if not values[name] > 0:
                 raise ValueError(f"{name}: must be > 0, got {values[name]}")
 
-    def static_params(self) -> dict:
-        """The static core's parameters that the IMU grade sets (only the fields its config has)."""
+    def grade_params(self, core: str) -> dict:
+        """The parameters of ``core`` (the static or the in-motion one) that the IMU grade sets (only the fields its
+        config has): noise, bias priors, bias random walks, consider floors."""
         grade = {"gyro_arw_deg_sqrt_h": self.gyro_arw_deg_sqrt_h, "acc_vrw_m_s_sqrt_h": self.acc_vrw_m_s_sqrt_h,
                  "consider_gyro_bias_deg_h": self.gyro_bias_deg_h, "consider_acc_bias_mg": self.acc_bias_mg,
-                 "init_sigma_gyro_bias_deg_h": self.gyro_bias_deg_h, "init_sigma_acc_bias_mg": self.acc_bias_mg}
-        known = {f.name for f in fields(registry.CORES[self.static_core][1])}
+                 "init_sigma_gyro_bias_deg_h": self.gyro_bias_deg_h, "init_sigma_acc_bias_mg": self.acc_bias_mg,
+                 "gyro_bias_rw_deg_h_sqrt_h": self.gyro_bias_rw_deg_h_sqrt_h,
+                 "acc_bias_rw_mg_sqrt_h": self.acc_bias_rw_mg_sqrt_h, "gnss_sigma_floor_m": self.gnss_sigma_floor_m}
+        known = {f.name for f in fields(registry.CORES[core][1])}
         return {k: v for k, v in grade.items() if k in known}
+
+    def static_params(self) -> dict:
+        return self.grade_params(self.static_core)
 
     def level_floor_rad(self) -> float:
         """Level floor b_acc/g [rad]."""
@@ -295,8 +304,7 @@ class AutoCore(AlignmentCore):
                 P[i, i] = max(P[i, i], (NO_REST_LEVEL_SIGMA_DEG * D2R) ** 2)
         yaw_sigma = math.sqrt(max(P[2, 2], 0.0))
         self.heading_trusted = self.grade_allows_heading and yaw_sigma <= cfg.heading_trust_sigma_deg * D2R
-        params = {k: v for k, v in {"gnss_sigma_floor_m": cfg.gnss_sigma_floor_m}.items()
-                  if k in {f.name for f in fields(registry.CORES[cfg.motion_core][1])}}
+        params = cfg.grade_params(cfg.motion_core)
         if not self.heading_trusted:
             params["yaw_hypotheses"] = cfg.unknown_heading_hypotheses
             P[2, :] = P[:, 2] = 0.0
@@ -358,3 +366,4 @@ class AutoCore(AlignmentCore):
 
 
 registry.register("auto", AutoCore, AutoConfig)
+imu_grade.CORE_DEFAULT_GRADE["auto"] = "industrial_mems"  # the grade AutoConfig's defaults are (test_imu_grade)
