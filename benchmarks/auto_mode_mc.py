@@ -106,7 +106,7 @@ def summary(rows: list[dict]) -> None:
               f"{sum(r['resets'] for r in rs)}")
 
 
-def kitti(drives: list[str], data_dir: Path) -> None:
+def kitti(drives: list[str], data_dir: Path, grade: str) -> None:
     import insalign_ros as ia
     from insalign_ros.io.kitti import convert_drive
 
@@ -116,10 +116,10 @@ def kitti(drives: list[str], data_dir: Path) -> None:
             print(f"SKIP: {drive} not found")
             continue
         data, _ = convert_drive(drive, gnss_rate_hz=1.0)
-        res = ia.align(data, core="auto", output_period_s=0.5, core_params={"gnss_sigma_floor_m": 1.0})
+        res = ia.align(data, core="auto", output_period_s=0.5, imu_grade=grade, core_params={"gnss_sigma_floor_m": 1.0})
         t0 = float(data.t_s[0])
         speed = np.linalg.norm(data.v_n, axis=1) if data.v_n is not None else None
-        print(f"\n{data.name}: {data.n} IMU samples over {data.t_s[-1] - t0:.1f} s, {len(data.gnss_t_s)} fixes; "
+        print(f"\n{data.name} (imu_grade {grade}): {data.n} IMU samples over {data.t_s[-1] - t0:.1f} s, {len(data.gnss_t_s)} fixes; "
               f"initialised at {res.init_t_s - t0:.1f} s")
         states = [o.estimate.reason.split(":")[0] for o in res.outputs]
         prev = None
@@ -170,6 +170,7 @@ def main(argv=None) -> int:
     ap.add_argument("--drive", type=float, default=45.0, help="driving after the park [s]")
     ap.add_argument("--grades", nargs="+", default=["park_drive", "park_drive_navgrade"])
     ap.add_argument("--kitti", nargs="*", default=[])
+    ap.add_argument("--kitti-grade", default="unknown_mems", help="imu_grade of the KITTI runs (default: the session's)")
     ap.add_argument("--dsd-seeds", nargs="*", type=int, default=[], help="full drive_stop_drive runs (seeds)")
     ap.add_argument("--data", default=str(ROOT.parent / "shared" / "data" / "kitti_raw_oxts_sync"))
     sweep.add_arguments(ap)
@@ -186,7 +187,7 @@ def main(argv=None) -> int:
             print({k: (round(v, 4) if isinstance(v, float) else v) for k, v in r.items()})
         summary(rows)
     if args.kitti:
-        kitti(args.kitti, Path(args.data))
+        kitti(args.kitti, Path(args.data), args.kitti_grade)
     if args.dsd_seeds:
         drive_stop_drive(args.dsd_seeds)
     return 0
