@@ -192,3 +192,13 @@ def test_node_imu_grade_parameter(node_factory):
     with pytest.raises(ValueError) as e:
         node_factory(["-p", "imu_grade:=mems"])
     assert "\n" not in str(e.value) and "unknown IMU grade 'mems'" in str(e.value)
+
+
+def test_status_says_when_the_conservative_default_grade_holds_the_flag_down():
+    """A user with the default grade and a 3-sigma above the flag's bounds is told what to do (the message)."""
+    import insalign_ros as ia
+
+    r = ia.align("car", duration_s=30.0, seed=4)
+    assert not r.aligned[-1] and "imu_grade is the conservative default 'unknown_mems'" in r.diagnostics["message"]
+    r = ia.align("car", duration_s=30.0, seed=4, imu_grade="industrial_mems")
+    assert "imu_grade" not in r.diagnostics["message"]

@@ -36,7 +36,7 @@ from ..eval.aligned import AlignedCriteria, AlignedFlag, euler_3sigma_deg
 from ..filters import registry
 from ..filters.base import AlignmentCore, AlignmentEstimate, AlignmentStatus
 from ..filters.liekf import check_velocity
-from ..filters.imu_grade import resolve_core_params
+from ..filters.imu_grade import DEFAULT_IMU_GRADE, resolve_core_params
 from . import gaps
 from .config import SessionConfig
 
@@ -957,6 +957,10 @@ class AlignmentSession:
         g = self._gnss_age_warning()
         if g:
             parts.append(g)
+        if not self.aligned and "3-sigma" in self.flag.reason and self.cfg.imu_grade == DEFAULT_IMU_GRADE:
+            # the conservative default prior is often why the 3-sigma stays up: say what the user can do
+            parts.append(f"imu_grade is the conservative default {DEFAULT_IMU_GRADE!r}: give your IMU's grade "
+                         "(docs/imu_grades.md) for a tighter, still honest, covariance")
         return "; ".join(parts)
 
     def diagnostics(self) -> dict:
