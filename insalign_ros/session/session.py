@@ -160,6 +160,7 @@ class AlignmentSession:
         self._hold_since: float | None = None  # divergence guard: holding the filter through a GNSS jump since
         self._fix_seq: deque = deque(maxlen=3)  # divergence guard: the last fixes seen (stamp, p_e, sigma_m)
         self._nis_win: deque = deque(maxlen=max(self.cfg.divergence_nis_window, 1))  # divergence guard
+        self._level_bound_deg: float | None = None  # divergence guard: level 3-sigma bound of this filter
         self.pre_init: deque = deque(maxlen=4000)  # IMU samples before the initialisation (level from sensors)
         self.hist_t: deque = deque(maxlen=1000)  # recent processed samples (gap bridging statistics)
         self.hist_w: deque = deque(maxlen=1000)
@@ -547,12 +548,11 @@ class AlignmentSession:
         (within 3 s each) by more than ``gnss_jump_accel_m_s2`` allows, plus 5 sigma of the fixes' noise (the
         extrapolation error of three independent fixes: sqrt(1 + (1 + r)^2 + r^2) sigma, r = dt2/dt1). Filter-free:
         a fix block hundreds of metres off starts (and ends) with a jump; a lost filter leaves the fixes smooth."""
-        p = np.asarray(fix.p_e, float)
-        sig = math.sqrt(max(float(np.trace(fix.R_e)) / 3.0, 0.0))
         seq = self._fix_seq
-        err = _extrapolation_excess((seq[-2], seq[-1]), fix.stamp_s, p, sig, self.cfg.gnss_jump_accel_m_s2) \
+        point = _fix_point(fix)
+        err = _extrapolation_excess((seq[-2], seq[-1]), point, self.cfg.gnss_jump_accel_m_s2) \
             if len(seq) >= 2 else -math.inf
-        seq.append((float(fix.stamp_s), p, sig))
+        seq.append(point)
         if err <= 0:
             return False
         self.counters["gnss_jumps"] += 1
@@ -593,7 +593,11 @@ class AlignmentSession:
                 reason, key = (f"mean NIS {mean:.3g} of the last {len(self._nis_win)} fixes above "
                                f"{cfg.divergence_nis_mean:g} (chi-square(3) mean 3)"), "divergences_nis"
         if not reason:
-            reason = _covariance_problem(self.core.estimate().P_att_n, cfg.divergence_level_3sigma_deg)
+            P = self.core.estimate().P_att_n
+            if self._level_bound_deg is None:  # an initialisation from sensors may start near the bound (a_est / g)
+                d = np.clip(np.diag(P)[:2], 0.0, None)
+                self._level_bound_deg = max(cfg.divergence_level_3sigma_deg, 2.0 * 3.0 * math.degrees(math.sqrt(max(d))))
+            reason = _covariance_problem(P, self._level_bound_deg)
             key = "divergences_covariance"
         if not reason:
             return False
@@ -766,6 +770,21 @@ class AlignmentSession:
                 self.status = AlignmentStatus.WAITING_FOR_GNSS
                 self.reason = f"waiting for a second GNSS fix (initial velocity; {len(recent)} of 2 within 3 s)"
                 return
+            # -- divergence guard: a re-initialisation waits for three fixes consistent with each other (the
+            # fixes that made the filter diverge may be the bad ones); any initialisation refuses three that are not
+            if len(recent) < 3 and self._sensors_reinit:
+                self.status = AlignmentStatus.WAITING_FOR_GNSS
+                self.reason = f"re-initialising: waiting for three consistent GNSS fixes ({len(recent)} of 3 within 3 s)"
+                return
+            if len(recent) >= 3:
+                excess = _extrapolation_excess([_fix_point(fx) for fx in recent[-3:-1]], _fix_point(recent[-1]),
+                                               cfg.gnss_jump_accel_m_s2)
+                if excess > 0:
+                    self.status = AlignmentStatus.WAITING_FOR_GNSS
+                    self.reason = (f"waiting for consistent GNSS fixes (the newest is {excess:.1f} m beyond the "
+                                   "extrapolation of the two before it)")
+                    return
+            # -- end divergence guard
             f1, f2 = recent[-2], recent[-1]
             dt = f2.stamp_s - f1.stamp_s
             C_en = earth.C_e_n(pos[0], pos[1])
@@ -988,11 +1007,17 @@ class AlignmentSession:
         return d
 
 
-def _extrapolation_excess(prev, t: float, p: np.ndarray, sigma_m: float, accel_m_s2: float) -> float:
-    """How far [m] a fix at (t, p) lies beyond what the straight-line extrapolation of ``prev`` (two (stamp, p_e,
-    sigma_m) fixes, each within 3 s of the next) allows: acceleration up to ``accel_m_s2`` plus 5 sigma of the
-    three fixes' noise. -inf when the fixes are too far apart in time to tell."""
+def _fix_point(fix: GnssFix) -> tuple[float, np.ndarray, float]:
+    """(stamp [s], p_e [m], 1-sigma [m] per axis: the RMS of R_e's diagonal) of a fix: the jump detection's input."""
+    return float(fix.stamp_s), np.asarray(fix.p_e, float), math.sqrt(max(float(np.trace(fix.R_e)) / 3.0, 0.0))
+
+
+def _extrapolation_excess(prev, point, accel_m_s2: float) -> float:
+    """How far [m] a fix ``point`` lies beyond what the straight-line extrapolation of ``prev`` (two earlier
+    points, each within 3 s of the next; points from :func:`_fix_point`) allows: acceleration up to ``accel_m_s2``
+    plus 5 sigma of the three fixes' noise. -inf when the fixes are too far apart in time to tell."""
     (t0, p0, s0), (t1, p1, s1) = prev
+    t, p, sigma_m = point
     d1, d2 = t1 - t0, t - t1
     if not (0 < d1 <= 3.0 and 0 < d2 <= 3.0):
         return -math.inf
