@@ -3,58 +3,22 @@ before it claims its attitude is found by the windowed NIS test or the covarianc
 gaps. docs/session.md "Outliers and divergence"."""
 
 import math
+import sys
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
-from insalign_ros.core import earth
-from insalign_ros.session.config import SessionConfig
-from insalign_ros.session.offline import events_in_arrival_order
-from insalign_ros.session.session import AlignmentSession
 from insalign_ros.sim.scenarios import make_scenario
 
-YAW_BOUND_DEG = 2.5  # the aligned flag's yaw 3-sigma bound (eval/aligned.py default)
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from divergence_mc import TRUTH, YAW_BOUND_DEG, offset_fixes, run, yaw_kick  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def ship():
     return make_scenario("ship", seed=3, duration_s=85.0)
-
-
-def offset_fixes(d, t0_s: float, t1_s: float, east_north_m) -> object:
-    """``d`` with the fixes stamped in [t0_s, t1_s) moved by ``east_north_m`` (ENU [m]); reported R unchanged."""
-    p = d.gnss_p_e.copy()
-    for j in np.flatnonzero((d.gnss_t_s >= t0_s) & (d.gnss_t_s < t1_s)):
-        lat, lon, _ = earth.ecef_to_geodetic(p[j])
-        p[j] = p[j] + earth.C_n_e(lat, lon) @ np.array([east_north_m[0], east_north_m[1], 0.0])
-    return replace(d, gnss_p_e=p)
-
-
-def run(d, cfg: dict, params: dict | None = None, at_s: float | None = None, action=None):
-    """Push ``d`` through a session in arrival order (processing every 0.1 s of data); ``action(session)`` once the
-    filter time reaches ``at_s``. Returns (session, t, aligned, yaw error [deg], log lines (key, text, filter time))."""
-    logs = []
-    s = AlignmentSession(SessionConfig.from_dict(cfg), params,
-                         log=lambda level, key, text: logs.append((key, text, s.processed_t)))
-    outs, done = [], action is None
-    for kind, item in events_in_arrival_order(d):
-        {"imu": s.push_imu, "fix": s.push_fix, "truth": s.push_truth}[kind](item)
-        if kind == "imu" and int(round(item.stamp_s * 100)) % 10 == 0:
-            outs += s.process()
-            if not done and s.processed_t is not None and s.processed_t >= at_s:
-                action(s)
-                done = True
-    outs += s.finish()
-    s.close()
-    t = np.array([o.stamp_s for o in outs])
-    aligned = np.array([o.aligned for o in outs])
-    yaw_err = np.array([o.euler_error_deg[2] if o.euler_error_deg is not None else np.nan for o in outs])
-    return s, t, aligned, yaw_err, logs
-
-
-TRUTH = {"init_mode": "truth", "init_rpy_error_deg": [2.0, -2.0, 10.0]}
 
 
 @pytest.mark.parametrize("core", ["iekf", "liekf", "ekf", "pi_liekf"])
@@ -76,21 +40,12 @@ def test_a_block_of_wrong_fixes_is_held_through_not_reinitialised_from(ship, cor
     assert again.size and again[0] < 50.0 + 60.0
 
 
-def _yaw_kick(deg: float):
-    def kick(s):
-        c = s.core
-        c.flush()
-        up_i = c.p / np.linalg.norm(c.p)
-        c.C = Rotation.from_rotvec(math.radians(deg) * up_i).as_matrix() @ c.C
-    return kick
-
-
 @pytest.mark.parametrize("core", ["iekf", "liekf"])
 def test_a_filter_lost_before_it_claims_its_attitude_is_found_by_the_windowed_nis(ship, core):
     """A 170-deg yaw kick at 3 s, before the filter claims its attitude (the NIS gate is not armed yet): unguarded,
     a single iekf/liekf on this ship tumbles for good. The windowed NIS test (mean of 10 fixes > 1000) declares the
     divergence: FAULT with the reason, re-initialised from the sensors, aligned again within 60 s."""
-    s, t, aligned, yaw_err, logs = run(ship, {"core": core, **TRUTH}, at_s=3.0, action=_yaw_kick(170.0))
+    s, t, aligned, yaw_err, logs = run(ship, {"core": core, **TRUTH}, at_s=3.0, action=yaw_kick(170.0))
     c = s.counters
     assert c["divergences"] == 1 and c["divergences_nis"] == 1, dict(c)
     fault = [(text, tf) for k, text, tf in logs if k == "divergence"]
