@@ -119,3 +119,17 @@ def test_fill_rows_in_a_turn_are_gaps_not_data(car_with_fill_block, core):
     assert lo < np.mean(handled.nees[m_h]) < hi
     assert np.mean(as_data.nees[m_d]) > 3.0 * hi
     assert not np.any(handled.aligned & (np.abs(handled.rpy_err_deg[:, 2]) > YAW_BOUND_DEG))
+
+
+def test_after_a_divergence_the_status_is_fault_with_the_reason_until_three_consistent_fixes():
+    """Right after the divergence (an indefinite covariance at 3 s, caught at the 4-s fix): status FAULT, the
+    reason in the status message, diagnostic level ERROR, the counters in the diagnostics; no new filter before
+    three consistent fixes after the fault (5 s, 6 s: still waiting at 5.5 s)."""
+    from insalign_ros.filters.base import AlignmentStatus
+
+    d = make_scenario("ship", seed=3, duration_s=5.5)
+    s, t, aligned, _, logs = run(d, {"core": "iekf", **TRUTH}, at_s=3.0, action=_indefinite_attitude_covariance)
+    assert s.core is None and s.status == AlignmentStatus.FAULT and s.level() == 2
+    assert "not positive definite" in s.message() and "re-initialising" in s.message()
+    diag = s.diagnostics()
+    assert diag["divergences"] == "1" and diag["divergences_covariance"] == "1" and diag["aligned"] == "false"

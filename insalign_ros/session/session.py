@@ -606,6 +606,14 @@ class AlignmentSession:
         self._diverged(reason)
         return True
 
+    def _still_faulted(self) -> None:
+        """While re-initialising after a fault or a divergence: status FAULT with its reason, and what the
+        initialisation waits for (instead of the plain waiting status)."""
+        if self.core is None and self.fault_reason:
+            waiting = self.reason if not self.reason.startswith("fault (") else ""
+            self.status = AlignmentStatus.FAULT
+            self.reason = f"fault ({self.fault_reason}); re-initialising" + (f": {waiting}" if waiting else "")
+
     def _attitude_claimed(self) -> bool:
         """The core claims to know its attitude: 3-sigma within twice the flag's bounds at the last output."""
         s = self.flag.sigma3_deg
@@ -678,7 +686,8 @@ class AlignmentSession:
     def _try_initialize(self, t: float) -> None:
         cfg = self.cfg
         if cfg.init_mode == "sensors" or self._sensors_reinit:
-            return self._try_initialize_from_sensors(t)
+            self._try_initialize_from_sensors(t)
+            return self._still_faulted()  # divergence guard: FAULT stays until a new filter runs
         tr = self.buf.truth.get(t) if cfg.init_mode == "truth" else None
         gnss_core, (sig_rpy, sig_v, sig_p) = self._capabilities()
         static = not gnss_core
