@@ -78,6 +78,9 @@ class SessionConfig:
     #: the longest such hold [s data time]: fixes that still disagree with the held filter after it are believed
     #: (divergence, re-initialisation from the new fixes)
     gnss_hold_max_s: float = 30.0
+    #: ... or sooner, when the held filter drifts away from fixes consistent with each other: |innovation| changed by
+    #: more than this since the hold began without a jump [m] (a filter that absorbed a slowly walking bias)
+    gnss_hold_drift_m: float = 20.0
     #: windowed NIS test of every filter (claimed or not): the mean NIS of the last ``divergence_nis_window``
     #: fused fixes above ``divergence_nis_mean`` (chi-square(3) mean: 3) is a divergence; window 0: off. 1000
     #: (innovations ~30 sigma for 10 s): measured at most 446 while a core converges from 179 deg and 1e3-1e10 for
@@ -151,7 +154,7 @@ class SessionConfig:
         if not (isinstance(self.divergence_nis_window, int) and 0 <= self.divergence_nis_window <= 1000):
             raise ValueError(f"divergence_nis_window: must be an integer in [0, 1000], got "
                              f"{self.divergence_nis_window!r}")
-        for name, lo in (("gnss_jump_accel_m_s2", 0.0), ("gnss_hold_max_s", 0.0), ("divergence_nis_mean", 10.0),
+        for name, lo in (("gnss_jump_accel_m_s2", 0.0), ("gnss_hold_max_s", 0.0), ("gnss_hold_drift_m", 0.0), ("divergence_nis_mean", 10.0),
                          ("divergence_level_3sigma_deg", 5.0)):
             v = values[name]
             if not (_is_num(v) and math.isfinite(v) and v > lo):

@@ -158,6 +158,7 @@ class AlignmentSession:
         self._spread = None
         self.gated_run = 0
         self._hold_since: float | None = None  # divergence guard: holding the filter through a GNSS jump since
+        self._hold_innovation_m = 0.0  # divergence guard: |innovation| when the hold began (or the fixes last jumped)
         self._fix_seq: deque = deque(maxlen=3)  # divergence guard: the last fixes seen (stamp, p_e, sigma_m)
         self._nis_win: deque = deque(maxlen=max(self.cfg.divergence_nis_window, 1))  # divergence guard
         self._level_bound_deg: float | None = None  # divergence guard: level 3-sigma bound of this filter
@@ -514,7 +515,7 @@ class AlignmentSession:
                                                f"gnss_gated={self.counters['gnss_gated']})")
                 # an implausible fix while the core claims its attitude: the claim cannot be trusted now
                 self._lower_flag(f"a fix failed the NIS gate ({self.gated_run} in a row)")
-                if self._hold(fix, jump, pr.nis):
+                if self._hold(fix, jump, pr.nis, float(np.linalg.norm(pr.innovation))):
                     return
                 if self.gated_run >= self.cfg.gnss_gate_max_consecutive:
                     self._diverged(f"{self.gated_run} consecutive fixes beyond the NIS gate (last NIS {pr.nis:.3g}), "
@@ -560,12 +561,16 @@ class AlignmentSession:
                                        f"beyond the extrapolation of the two before it (gnss_jumps={self.counters['gnss_jumps']})")
         return True
 
-    def _hold(self, fix: GnssFix, jump: bool, nis: float) -> bool:
+    def _hold(self, fix: GnssFix, jump: bool, nis: float, innovation_m: float) -> bool:
         """A gated fix: True when the session holds the filter through bad fixes (a gated run that began with a
         GNSS jump: the fixes are bad, not the filter). The filter runs on the IMU, the flag stays down; after
-        ``gnss_hold_max_s`` of fixes that still disagree, the fixes are believed (divergence, re-initialisation)."""
+        ``gnss_hold_max_s`` of fixes that still disagree, the fixes are believed (divergence, re-initialisation).
+        Sooner when the held filter drifts away from fixes that are consistent with each other: |innovation|
+        changed by more than ``gnss_hold_drift_m`` since the hold began, with no jump in between (a constant offset
+        keeps it; a filter that absorbed a walking bias before the jump back drifts at the walk's rate)."""
         if self.gated_run == 1 and jump and self._hold_since is None:
             self._hold_since = float(fix.stamp_s)
+            self._hold_innovation_m = innovation_m
             self.counters["gnss_holds"] += 1
             self.log("warn", "gnss_holds", f"GNSS jumped and the filter gates the new fixes (NIS {nis:.3g}): bad fixes, not a "
                                            f"lost filter; holding the filter on the IMU for up to {self.cfg.gnss_hold_max_s:g} s")
@@ -573,11 +578,16 @@ class AlignmentSession:
             return False
         held = float(fix.stamp_s) - self._hold_since
         self.last_reject = f"gnss: holding the filter through bad fixes ({held:.0f} s); {self.last_reject[6:]}"
-        if held <= self.cfg.gnss_hold_max_s:
+        if jump:  # the fixes jumped again while held: a new reference for the drift
+            self._hold_innovation_m = innovation_m
+        drift = abs(innovation_m - self._hold_innovation_m)
+        if held <= self.cfg.gnss_hold_max_s and drift <= self.cfg.gnss_hold_drift_m:
             return True
         self._hold_since = None
-        self._diverged(f"fixes disagree with the held filter for {held:.0f} s after a GNSS jump (last NIS {nis:.3g}): "
-                       "believing the fixes")
+        why = (f"fixes disagree with the held filter for {held:.0f} s after a GNSS jump" if drift <= self.cfg.gnss_hold_drift_m
+               else f"the held filter drifts away from consistent fixes (|innovation| changed by {drift:.0f} m in "
+                    f"{held:.0f} s without a jump)")
+        self._diverged(f"{why} (last NIS {nis:.3g}): believing the fixes")
         return True
 
     def _nis_diverged(self, nis: float) -> bool:
