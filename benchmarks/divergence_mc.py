@@ -95,7 +95,7 @@ def one(scenario: str, seed: int, core: str, case: str, t_ev: float = 60.0, bloc
         t_end = t_ev + block_s
         det = [tf for k, _, tf in logs if k == "gnss_gated" and tf >= t_ev]
     t_det = det[0] if det else t_ev
-    again = t[(t >= max(t_end, t_det)) & al & (np.abs(ye) < 2.0)]
+    again = t[(t > max(t_end, t_det)) & al & (np.abs(ye) < 2.0)]
     wrong = al & (np.abs(ye) > YAW_BOUND_DEG)
     return {"aligned_at_event": bool(np.any(al[(t > t_ev - 1.0) & (t < t_ev)])),
             "latency_s": det[0] - t_ev if det else math.nan,
