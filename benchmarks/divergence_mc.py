@@ -27,6 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from insalign_ros.core import earth  # noqa: E402
+from insalign_ros.filters.imu_grade import SCENARIO_IMU_GRADE  # noqa: E402
 from insalign_ros.session.config import SessionConfig  # noqa: E402
 from insalign_ros.session.offline import events_in_arrival_order  # noqa: E402
 from insalign_ros.session.session import AlignmentSession  # noqa: E402
@@ -34,6 +35,7 @@ from insalign_ros.sim.scenarios import make_scenario  # noqa: E402
 
 YAW_BOUND_DEG = 2.5  # the aligned flag's yaw 3-sigma bound (eval/aligned.py default)
 TRUTH = {"init_mode": "truth", "init_rpy_error_deg": [2.0, -2.0, 10.0]}
+SHIP = {"imu_grade": SCENARIO_IMU_GRADE["ship"], **TRUTH}  # the scenario's own IMU noise (docs/imu_grades.md)
 
 
 def offset_fixes(d, t0_s: float, t1_s: float, east_north_m, walk: bool = False):
@@ -85,13 +87,13 @@ def run(d, cfg: dict, params: dict | None = None, at_s: float | None = None, act
 def one(scenario: str, seed: int, core: str, case: str, t_ev: float = 60.0, block_s: float = 10.0) -> dict:
     d = make_scenario(scenario, seed=seed, duration_s=t_ev + 90.0)
     if case == "kick":
-        s, t, al, ye, logs = run(d, {"core": core, **TRUTH}, at_s=t_ev, action=yaw_kick(60.0))
+        s, t, al, ye, logs = run(d, {"core": core, "imu_grade": SCENARIO_IMU_GRADE[scenario], **TRUTH}, at_s=t_ev, action=yaw_kick(60.0))
         t_end = t_ev
         det = [tf for k, _, tf in logs if k == "divergence"]
     else:
         bad = offset_fixes(d, t_ev, t_ev + block_s, (300.0, 180.0)) if case == "block" else \
             offset_fixes(d, t_ev, t_ev + block_s, (3.0, 1.8), walk=True)
-        s, t, al, ye, logs = run(bad, {"core": core, **TRUTH})
+        s, t, al, ye, logs = run(bad, {"core": core, "imu_grade": SCENARIO_IMU_GRADE[scenario], **TRUTH})
         t_end = t_ev + block_s
         det = [tf for k, _, tf in logs if k == "gnss_gated" and tf >= t_ev]
     t_det = det[0] if det else t_ev

@@ -10,10 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from insalign_ros.filters.imu_grade import SCENARIO_IMU_GRADE
 from insalign_ros.sim.scenarios import make_scenario
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from divergence_mc import TRUTH, YAW_BOUND_DEG, offset_fixes, run, yaw_kick  # noqa: E402
+from divergence_mc import SHIP, YAW_BOUND_DEG, offset_fixes, run, yaw_kick  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -28,7 +29,7 @@ def test_a_block_of_wrong_fixes_is_held_through_not_reinitialised_from(ship, cor
     the filter coasts on the IMU (flag down) and fuses again when the fixes come back; no re-initialisation from the
     bad fixes (which used to diverge again at the jump back)."""
     d = offset_fixes(ship, 40.0, 50.0, (300.0, 180.0))
-    s, t, aligned, yaw_err, logs = run(d, {"core": core, **TRUTH})
+    s, t, aligned, yaw_err, logs = run(d, {"core": core, **SHIP})
     c = s.counters
     assert c["gnss_holds"] == 1 and c["gnss_gated"] == 10 and c["divergences"] == 0, dict(c)
     assert c["gnss_jumps"] >= 2  # at least the first bad fix and the first good one after the block
@@ -45,7 +46,7 @@ def test_a_filter_lost_before_it_claims_its_attitude_is_found_by_the_windowed_ni
     """A 170-deg yaw kick at 3 s, before the filter claims its attitude (the NIS gate is not armed yet): unguarded,
     a single iekf/liekf on this ship tumbles for good. The windowed NIS test (mean of 10 fixes > 1000) declares the
     divergence: FAULT with the reason, re-initialised from the sensors, aligned again within 60 s."""
-    s, t, aligned, yaw_err, logs = run(ship, {"core": core, **TRUTH}, at_s=3.0, action=yaw_kick(170.0))
+    s, t, aligned, yaw_err, logs = run(ship, {"core": core, **SHIP}, at_s=3.0, action=yaw_kick(170.0))
     c = s.counters
     assert c["divergences"] == 1 and c["divergences_nis"] == 1, dict(c)
     fault = [(text, tf) for k, text, tf in logs if k == "divergence"]
@@ -71,7 +72,7 @@ def test_an_impossible_attitude_covariance_is_a_divergence(core):
     """An attitude covariance that is not positive definite (injected at 3 s, before the claim) is caught at the
     next fix: FAULT with the reason and a re-initialisation; the counters say which check fired."""
     d = make_scenario("ship", seed=3, duration_s=25.0)
-    s, t, aligned, _, logs = run(d, {"core": core, **TRUTH}, at_s=3.0, action=_indefinite_attitude_covariance)
+    s, t, aligned, _, logs = run(d, {"core": core, **SHIP}, at_s=3.0, action=_indefinite_attitude_covariance)
     c = s.counters
     assert c["divergences"] == 1 and c["divergences_covariance"] == 1 and c["core_faults"] == 0, dict(c)
     fault = [(text, tf) for k, text, tf in logs if k == "divergence"]
@@ -108,7 +109,9 @@ def test_fill_rows_in_a_turn_are_gaps_not_data(car_with_fill_block, core):
     assert heading_loss_deg > 5.0  # the interpolation loses that much heading in this turn (KITTI: up to 11.7 deg)
     lo, hi = nees_band(1)
     # max_gap_s above the 2-s block: the default (2 s) would make it a time jump (a reset), not a gap
-    kw = dict(core=core, init_mode="truth", init_rpy_error_deg=[2.0, -2.0, 10.0], max_gap_s=3.0)
+    # the scenario's IMU grade; the LIEKF (no bias states) keeps the paper's ship noise, as in test_session.py
+    grade = "paper_ship" if core == "liekf" else SCENARIO_IMU_GRADE["car"]
+    kw = dict(core=core, init_mode="truth", init_rpy_error_deg=[2.0, -2.0, 10.0], max_gap_s=3.0, imu_grade=grade)
     import insalign_ros as ia
 
     handled = ia.align(replace(filled, imu_valid=valid), **kw)
@@ -128,7 +131,7 @@ def test_after_a_divergence_the_status_is_fault_with_the_reason_until_three_cons
     from insalign_ros.filters.base import AlignmentStatus
 
     d = make_scenario("ship", seed=3, duration_s=5.5)
-    s, t, aligned, _, logs = run(d, {"core": "iekf", **TRUTH}, at_s=3.0, action=_indefinite_attitude_covariance)
+    s, t, aligned, _, logs = run(d, {"core": "iekf", **SHIP}, at_s=3.0, action=_indefinite_attitude_covariance)
     assert s.core is None and s.status == AlignmentStatus.FAULT and s.level() == 2
     assert "not positive definite" in s.message() and "re-initialising" in s.message()
     diag = s.diagnostics()

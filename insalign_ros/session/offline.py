@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core import earth
-from ..core.types import GnssFix, ImuSample
+from ..core.types import GnssFix, GnssVelocity, ImuSample
 from ..eval.aligned import AlignedCriteria
 from ..sim.types import ScenarioData
 from .config import SessionConfig
@@ -89,11 +89,12 @@ def truth_samples(data: ScenarioData):
 
 
 def events_in_arrival_order(data: ScenarioData, fix_delay_s: float = 0.0):
-    """(kind, item) in the order a live system would receive them: IMU in stamp order, a fix once the IMU has
-    reached ``stamp + fix_delay_s``, truth with its IMU sample. Samples and fixes the source flags invalid are
-    left out (the session sees a gap)."""
+    """(kind, item) in the order a live system would receive them: IMU in stamp order, a fix (and a GNSS velocity,
+    kind "vel", where the source has them) once the IMU has reached ``stamp + fix_delay_s``, truth with its IMU
+    sample. Samples and fixes the source flags invalid are left out (the session sees a gap)."""
     truth = truth_samples(data)
-    j = 0
+    j = jv = 0
+    v_t = data.gnss_vel_t_s if data.gnss_vel_t_s is not None else np.zeros(0)
     g_t = data.gnss_t_s
     imu_ok, gnss_ok = data.imu_valid_mask, data.gnss_valid_mask
     for k in range(data.n):
@@ -106,6 +107,11 @@ def events_in_arrival_order(data: ScenarioData, fix_delay_s: float = 0.0):
             if gnss_ok[j]:
                 yield "fix", GnssFix(float(g_t[j]), data.gnss_p_e[j], data.gnss_R_e[j])
             j += 1
+        while jv < v_t.shape[0] and v_t[jv] + fix_delay_s <= t:
+            yield "vel", GnssVelocity(float(v_t[jv]), data.gnss_vel_n[jv], data.gnss_vel_R_n[jv])
+            jv += 1
+    for jv in range(jv, v_t.shape[0]):
+        yield "vel", GnssVelocity(float(v_t[jv]), data.gnss_vel_n[jv], data.gnss_vel_R_n[jv])
     for j in range(j, g_t.shape[0]):  # delayed fixes still on their way when the IMU stream ended
         if gnss_ok[j]:
             yield "fix", GnssFix(float(g_t[j]), data.gnss_p_e[j], data.gnss_R_e[j])
@@ -126,6 +132,8 @@ def run_session(session: AlignmentSession, data: ScenarioData, fix_delay_s: floa
                     progress.update(chunk)
         elif kind == "fix":
             session.push_fix(item)
+        elif kind == "vel":
+            session.push_velocity(item)
         else:
             session.push_truth(item)
     out += session.finish()
