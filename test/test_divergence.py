@@ -102,7 +102,7 @@ def car_with_fill_block():
 def test_fill_rows_in_a_turn_are_gaps_not_data(car_with_fill_block, core):
     """The same interpolated block, marked invalid (the session leaves it out: a gap, bridged, covariance inflated)
     or fed as data: over the 30 s after it, the mean attitude NEES is inside its 95 % band with the fills handled
-    and far above it without (measured, iekf/liekf/ekf: 4.4/4.9/3.9 handled, 60/77/64 as data)."""
+    and far above it without (measured, iekf/liekf/ekf: 1.4/2.4/2.4 handled, 174/77/178 as data)."""
     from insalign_ros.eval.metrics import nees_band
 
     filled, valid, t_end, heading_loss_deg = car_with_fill_block
