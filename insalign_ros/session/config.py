@@ -73,6 +73,28 @@ class SessionConfig:
     gnss_gate_nis: float = 100.0
     #: that many consecutive gated fixes: the filter is lost (or the GNSS is): FAULT and re-initialisation
     gnss_gate_max_consecutive: int = 5
+    # -- divergence guard (issue 15; docs/session.md "Outliers and divergence") --
+    #: a fix off the straight-line extrapolation of the two fixes before it by more than this acceleration allows
+    #: (plus 5 sigma of the fix noise) is a GNSS jump [m/s^2]; gated fixes that start with a jump are bad fixes,
+    #: not a lost filter: the session holds the filter (IMU only, flag down) instead of re-initialising
+    gnss_jump_accel_m_s2: float = 10.0
+    #: the longest such hold [s data time]: fixes that still disagree with the held filter after it are believed
+    #: (divergence, re-initialisation from the new fixes)
+    gnss_hold_max_s: float = 30.0
+    #: ... or sooner, when the held filter drifts away from fixes consistent with each other: |innovation| changed by
+    #: more than this since the hold began without a jump [m] (a filter that absorbed a slowly walking bias)
+    gnss_hold_drift_m: float = 20.0
+    #: windowed NIS test of every filter (claimed or not): the mean NIS of the last ``divergence_nis_window``
+    #: fused fixes above ``divergence_nis_mean`` (chi-square(3) mean: 3) is a divergence; window 0: off. 1000
+    #: (innovations ~30 sigma for 10 s): measured at most 446 while a core converges from 179 deg and 1e3-1e10 for
+    #: one that has lost its attitude (docs/session.md)
+    divergence_nis_window: int = 10
+    divergence_nis_mean: float = 1000.0
+    #: attitude-covariance sanity: roll or pitch 3-sigma above this is a divergence (up is not known any more; the
+    #: initialisation from sensors on a rolling ship starts near 45 deg) [deg]; P not symmetric positive definite
+    #: or not finite is one too
+    divergence_level_3sigma_deg: float = 90.0
+    # -- end divergence guard --
     #: an IMU sample off both of its neighbours by more than this (and 20 times the recent spread) is a
     #: spike: dropped (a gap, bridged); 0: off [rad/s, m/s^2]
     imu_spike_rad_s: float = 3.0
@@ -134,6 +156,16 @@ class SessionConfig:
         if not (isinstance(self.gnss_gate_max_consecutive, int) and 1 <= self.gnss_gate_max_consecutive <= 1000):
             raise ValueError(f"gnss_gate_max_consecutive: must be an integer in [1, 1000], got "
                              f"{self.gnss_gate_max_consecutive!r}")
+        # -- divergence guard --
+        if not (isinstance(self.divergence_nis_window, int) and 0 <= self.divergence_nis_window <= 1000):
+            raise ValueError(f"divergence_nis_window: must be an integer in [0, 1000], got "
+                             f"{self.divergence_nis_window!r}")
+        for name, lo in (("gnss_jump_accel_m_s2", 0.0), ("gnss_hold_max_s", 0.0), ("gnss_hold_drift_m", 0.0), ("divergence_nis_mean", 10.0),
+                         ("divergence_level_3sigma_deg", 5.0)):
+            v = values[name]
+            if not (_is_num(v) and math.isfinite(v) and v > lo):
+                raise ValueError(f"{name}: must be a finite number > {lo:g}, got {v!r}")
+        # -- end divergence guard --
         if 0 < self.gnss_gate_nis < 16.3:  # chi-square(3) at p = 1e-3: a tighter gate rejects good fixes
             raise ValueError(f"gnss_gate_nis: {self.gnss_gate_nis} would reject good fixes (0 = off, or >= 16.3)")
         for name in ("max_fix_lag_s", "output_period_s", "zupt_rate_hz", "imu_timeout_s", "gnss_gate_nis",

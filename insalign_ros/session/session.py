@@ -48,6 +48,7 @@ COUNTERS = (
     "gnss_invalid", "gnss_no_fix", "gnss_frame", "gnss_duplicate", "gnss_stale", "gnss_future", "gnss_before_init", "gnss_filter_rejected",
     "gnss_unused", "truth_received", "truth_invalid", "time_resets", "core_faults", "zupt_accepted",
     "watchdog_trips", "inputs_dropped", "gnss_gated", "imu_spikes", "divergences")
+COUNTERS += ("gnss_jumps", "gnss_holds", "divergences_nis", "divergences_covariance")  # divergence guard
 #: GNSS velocity (push_velocity): received, fused, rejected (total) and per reason
 VEL_COUNTERS = ("gnss_vel_received", "gnss_vel_accepted", "gnss_vel_rejected", "gnss_vel_invalid", "gnss_vel_duplicate",
                 "gnss_vel_stale", "gnss_vel_future", "gnss_vel_before_init", "gnss_vel_gated", "gnss_vel_filter_rejected",
@@ -170,6 +171,11 @@ class AlignmentSession:
         self._sensors_reinit = False
         self._spread = None
         self.gated_run = 0
+        self._hold_since: float | None = None  # divergence guard: holding the filter through a GNSS jump since
+        self._hold_innovation_m = 0.0  # divergence guard: |innovation| when the hold began (or the fixes last jumped)
+        self._fix_seq: deque = deque(maxlen=3)  # divergence guard: the last fixes seen (stamp, p_e, sigma_m)
+        self._nis_win: deque = deque(maxlen=max(self.cfg.divergence_nis_window, 1))  # divergence guard
+        self._level_bound_deg: float | None = None  # divergence guard: level 3-sigma bound of this filter
         self.pre_init: deque = deque(maxlen=4000)  # IMU samples before the initialisation (level from sensors)
         self.hist_t: deque = deque(maxlen=1000)  # recent processed samples (gap bridging statistics)
         self.hist_w: deque = deque(maxlen=1000)
@@ -522,7 +528,9 @@ class AlignmentSession:
             self.counters["gnss_unused"] += 1
             return
         gate = self.cfg.gnss_gate_nis
-        if gate > 0 and self._attitude_claimed():
+        jump = self._fix_jump(fix)
+        # a jump in the fix sequence is suspect by itself: gated even while the core does not claim its attitude
+        if gate > 0 and (self._attitude_claimed() or jump or self._hold_since is not None):
             pr = core.predict_gnss(fix)
             if pr.S.size and pr.nis > gate:
                 self.counters["gnss_gated"] += 1
@@ -533,15 +541,23 @@ class AlignmentSession:
                                                f"gnss_gated={self.counters['gnss_gated']})")
                 # an implausible fix while the core claims its attitude: the claim cannot be trusted now
                 self._lower_flag(f"a fix failed the NIS gate ({self.gated_run} in a row)")
+                if self._hold(fix, jump, pr.nis, float(np.linalg.norm(pr.innovation))):
+                    return
                 if self.gated_run >= self.cfg.gnss_gate_max_consecutive:
-                    self._diverged(f"{self.gated_run} consecutive fixes beyond the NIS gate (last NIS {pr.nis:.3g}): "
-                                   "the filter (or the GNSS) is lost")
+                    self._diverged(f"{self.gated_run} consecutive fixes beyond the NIS gate (last NIS {pr.nis:.3g}), "
+                                   "continuous with the fixes before them: the filter is lost")
                 return
         self.gated_run = 0
+        if self._hold_since is not None:
+            self.log("info", "gnss_hold", f"GNSS agrees with the held filter again after "
+                                          f"{fix.stamp_s - self._hold_since:.1f} s: fusing fixes")
+            self._hold_since = None
         res = self.bt.feed(fix) if self.bt is not None else core.update_gnss(fix)
         if res is None:
             return
         self.last_nis = res.nis
+        if res.accepted and self._nis_diverged(res.nis):
+            return
         if res.accepted:
             self.counters["gnss_accepted"] += 1
             self.last_accepted_fix_t = fix.stamp_s
@@ -551,6 +567,88 @@ class AlignmentSession:
             self.last_reject = f"gnss: core: {res.reason}"
             self.log("warn", "gnss_filter_rejected", f"fix rejected by the core: {res.reason}")
         self.flag.on_update(self.processed_t, res.accepted, res.nis, len(res.innovation) or 3)
+
+    # -- divergence guard (issue 15): fix-sequence jumps, the hold through bad fixes, the windowed NIS test and the
+    # attitude-covariance sanity checks; docs/session.md "Outliers and divergence"
+    def _fix_jump(self, fix: GnssFix) -> bool:
+        """Whether ``fix`` breaks the fix sequence: off the straight-line extrapolation of the two fixes before it
+        (within 3 s each) by more than ``gnss_jump_accel_m_s2`` allows, plus 5 sigma of the fixes' noise (the
+        extrapolation error of three independent fixes: sqrt(1 + (1 + r)^2 + r^2) sigma, r = dt2/dt1). Filter-free:
+        a fix block hundreds of metres off starts (and ends) with a jump; a lost filter leaves the fixes smooth."""
+        seq = self._fix_seq
+        point = _fix_point(fix)
+        err = _extrapolation_excess((seq[-2], seq[-1]), point, self.cfg.gnss_jump_accel_m_s2) \
+            if len(seq) >= 2 else -math.inf
+        seq.append(point)
+        if err <= 0:
+            return False
+        self.counters["gnss_jumps"] += 1
+        self.log("warn", "gnss_jumps", f"GNSS jump at t={fix.stamp_s + self.stamp_offset_s:.3f} s: the fix is {err:.1f} m "
+                                       f"beyond the extrapolation of the two before it (gnss_jumps={self.counters['gnss_jumps']})")
+        return True
+
+    def _hold(self, fix: GnssFix, jump: bool, nis: float, innovation_m: float) -> bool:
+        """A gated fix: True when the session holds the filter through bad fixes (a gated run that began with a
+        GNSS jump: the fixes are bad, not the filter). The filter runs on the IMU, the flag stays down; after
+        ``gnss_hold_max_s`` of fixes that still disagree, the fixes are believed (divergence, re-initialisation).
+        Sooner when the held filter drifts away from fixes that are consistent with each other: |innovation|
+        changed by more than ``gnss_hold_drift_m`` since the hold began, with no jump in between (a constant offset
+        keeps it; a filter that absorbed a walking bias before the jump back drifts at the walk's rate)."""
+        if self.gated_run == 1 and jump and self._hold_since is None:
+            self._hold_since = float(fix.stamp_s)
+            self._hold_innovation_m = innovation_m
+            self.counters["gnss_holds"] += 1
+            self.log("warn", "gnss_holds", f"GNSS jumped and the filter gates the new fixes (NIS {nis:.3g}): bad fixes, not a "
+                                           f"lost filter; holding the filter on the IMU for up to {self.cfg.gnss_hold_max_s:g} s")
+        if self._hold_since is None:
+            return False
+        held = float(fix.stamp_s) - self._hold_since
+        self.last_reject = f"gnss: holding the filter through bad fixes ({held:.0f} s); {self.last_reject[6:]}"
+        if jump:  # the fixes jumped again while held: a new reference for the drift
+            self._hold_innovation_m = innovation_m
+        drift = abs(innovation_m - self._hold_innovation_m)
+        if held <= self.cfg.gnss_hold_max_s and drift <= self.cfg.gnss_hold_drift_m:
+            return True
+        self._hold_since = None
+        why = (f"fixes disagree with the held filter for {held:.0f} s after a GNSS jump" if drift <= self.cfg.gnss_hold_drift_m
+               else f"the held filter drifts away from consistent fixes (|innovation| changed by {drift:.0f} m in "
+                    f"{held:.0f} s without a jump)")
+        self._diverged(f"{why} (last NIS {nis:.3g}): believing the fixes")
+        return True
+
+    def _nis_diverged(self, nis: float) -> bool:
+        """Windowed NIS test of every filter, also before it claims its attitude: the mean NIS of the last
+        ``divergence_nis_window`` fused fixes above ``divergence_nis_mean`` -> divergence. Then the attitude
+        covariance sanity (:func:`_covariance_problem`). True when the session restarted."""
+        cfg = self.cfg
+        reason, key = "", ""
+        if cfg.divergence_nis_window > 0 and math.isfinite(nis):
+            self._nis_win.append(float(nis))
+            mean = sum(self._nis_win) / len(self._nis_win)
+            if len(self._nis_win) >= cfg.divergence_nis_window and mean > cfg.divergence_nis_mean:
+                reason, key = (f"mean NIS {mean:.3g} of the last {len(self._nis_win)} fixes above "
+                               f"{cfg.divergence_nis_mean:g} (chi-square(3) mean 3)"), "divergences_nis"
+        if not reason:
+            P = self.core.estimate().P_att_n
+            if self._level_bound_deg is None:  # an initialisation from sensors may start near the bound (a_est / g)
+                d = np.clip(np.diag(P)[:2], 0.0, None)
+                self._level_bound_deg = max(cfg.divergence_level_3sigma_deg, 2.0 * 3.0 * math.degrees(math.sqrt(max(d))))
+            reason = _covariance_problem(P, self._level_bound_deg)
+            key = "divergences_covariance"
+        if not reason:
+            return False
+        self.counters[key] += 1
+        self._lower_flag(reason)
+        self._diverged(reason)
+        return True
+
+    def _still_faulted(self) -> None:
+        """While re-initialising after a fault or a divergence: status FAULT with its reason, and what the
+        initialisation waits for (instead of the plain waiting status)."""
+        if self.core is None and self.fault_reason:
+            waiting = self.reason if not self.reason.startswith("fault (") else ""
+            self.status = AlignmentStatus.FAULT
+            self.reason = f"fault ({self.fault_reason}); re-initialising" + (f": {waiting}" if waiting else "")
 
     # ------------------------------------------------------------------ GNSS velocity (push_velocity)
     def push_velocity(self, vel: GnssVelocity, wall_s: float | None = None) -> bool:
@@ -636,8 +734,11 @@ class AlignmentSession:
         """Divergence: FAULT with the reason, the flag down at once, re-initialisation from the data that follow."""
         self.counters["divergences"] += 1
         self.log("error", "divergence", f"divergence: {reason}; re-initialising from the sensors (yaw bank)")
+        seq = self._fix_seq
         self._restart(f"divergence: {reason}")
+        self._fix_seq = seq  # jump detection continues across the re-initialisation
         self._sensors_reinit = True  # whatever the first initialisation was: a guess or the truth no longer holds
+    # -- end divergence guard
 
     def _zupt_due(self, t: float) -> bool:
         c = self.core
@@ -684,7 +785,8 @@ class AlignmentSession:
     def _try_initialize(self, t: float) -> None:
         cfg = self.cfg
         if cfg.init_mode == "sensors" or self._sensors_reinit:
-            return self._try_initialize_from_sensors(t)
+            self._try_initialize_from_sensors(t)
+            return self._still_faulted()  # divergence guard: FAULT stays until a new filter runs
         tr = self.buf.truth.get(t) if cfg.init_mode == "truth" else None
         gnss_core, (sig_rpy, sig_v, sig_p) = self._capabilities()
         static = not gnss_core
@@ -776,6 +878,21 @@ class AlignmentSession:
                 self.status = AlignmentStatus.WAITING_FOR_GNSS
                 self.reason = f"waiting for a second GNSS fix (initial velocity; {len(recent)} of 2 within 3 s)"
                 return
+            # -- divergence guard: a re-initialisation waits for three fixes consistent with each other (the
+            # fixes that made the filter diverge may be the bad ones); any initialisation refuses three that are not
+            if len(recent) < 3 and self._sensors_reinit:
+                self.status = AlignmentStatus.WAITING_FOR_GNSS
+                self.reason = f"re-initialising: waiting for three consistent GNSS fixes ({len(recent)} of 3 within 3 s)"
+                return
+            if len(recent) >= 3:
+                excess = _extrapolation_excess([_fix_point(fx) for fx in recent[-3:-1]], _fix_point(recent[-1]),
+                                               cfg.gnss_jump_accel_m_s2)
+                if excess > 0:
+                    self.status = AlignmentStatus.WAITING_FOR_GNSS
+                    self.reason = (f"waiting for consistent GNSS fixes (the newest is {excess:.1f} m beyond the "
+                                   "extrapolation of the two before it)")
+                    return
+            # -- end divergence guard
             f1, f2 = recent[-2], recent[-1]
             dt = f2.stamp_s - f1.stamp_s
             C_en = earth.C_e_n(pos[0], pos[1])
@@ -1002,6 +1119,48 @@ class AlignmentSession:
             except Exception as exc:  # noqa: BLE001 - diagnostics never take the pipeline down
                 d["core.diagnostics_error"] = f"{type(exc).__name__}: {exc}"
         return d
+
+
+def _fix_point(fix: GnssFix) -> tuple[float, np.ndarray, float]:
+    """(stamp [s], p_e [m], 1-sigma [m] per axis: the RMS of R_e's diagonal) of a fix: the jump detection's input."""
+    return float(fix.stamp_s), np.asarray(fix.p_e, float), math.sqrt(max(float(np.trace(fix.R_e)) / 3.0, 0.0))
+
+
+def _extrapolation_excess(prev, point, accel_m_s2: float) -> float:
+    """How far [m] a fix ``point`` lies beyond what the straight-line extrapolation of ``prev`` (two earlier
+    points, each within 3 s of the next; points from :func:`_fix_point`) allows: acceleration up to ``accel_m_s2``
+    plus 5 sigma of the three fixes' noise. -inf when the fixes are too far apart in time to tell."""
+    (t0, p0, s0), (t1, p1, s1) = prev
+    t, p, sigma_m = point
+    d1, d2 = t1 - t0, t - t1
+    if not (0 < d1 <= 3.0 and 0 < d2 <= 3.0):
+        return -math.inf
+    r = d2 / d1
+    pred = p1 + (p1 - p0) * r
+    noise = math.sqrt(s0 * s0 * r * r + s1 * s1 * (1 + r) ** 2 + sigma_m * sigma_m)
+    return float(np.linalg.norm(p - pred)) - (0.5 * accel_m_s2 * d2 * (d1 + d2) + 5.0 * noise)
+
+
+def _covariance_problem(P_att: np.ndarray, level_3sigma_deg: float) -> str:
+    """Why an attitude covariance [rad^2, ENU] cannot be a filter's honest belief ("" when it can): not finite,
+    not symmetric, not positive definite, or a roll/pitch (East/North) 3-sigma beyond ``level_3sigma_deg``."""
+    P = np.asarray(P_att, float)
+    if not np.all(np.isfinite(P)):
+        return "attitude covariance is not finite"
+    d = np.diag(P)
+    if np.any(d <= 0):
+        return f"attitude covariance is not positive definite (diagonal {np.array2string(d, precision=3)} rad^2)"
+    # in correlation form: a yaw variance of 1e8 rad^2 (unknown heading) next to 1e-8 rad^2 of level is no problem
+    C = P / np.sqrt(np.outer(d, d))
+    if float(np.max(np.abs(C - C.T))) > 1e-6:
+        return f"attitude covariance is not symmetric (correlation asymmetry {float(np.max(np.abs(C - C.T))):.3g})"
+    ev = np.linalg.eigvalsh(0.5 * (C + C.T))
+    if ev[0] < -1e-9:
+        return f"attitude covariance is not positive definite (correlation eigenvalue {ev[0]:.3g})"
+    s_level = 3.0 * math.degrees(math.sqrt(max(P[0, 0], P[1, 1])))
+    if s_level > level_3sigma_deg:
+        return f"level 3-sigma {s_level:.0f} deg beyond the physical bound {level_3sigma_deg:g} deg"
+    return ""
 
 
 def _check_velocity(t: float, v_n, R_n) -> str:
