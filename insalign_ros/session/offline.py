@@ -113,7 +113,13 @@ def events_in_arrival_order(data: ScenarioData, fix_delay_s: float = 0.0):
 
 def run_session(session: AlignmentSession, data: ScenarioData, fix_delay_s: float = 0.0, chunk: int = 1000,
                 progress=None) -> list[Output]:
-    """Push ``data`` into ``session`` in arrival order, processing every ``chunk`` IMU samples; drain at the end."""
+    """Push ``data`` into ``session`` in arrival order, processing every ``chunk`` IMU samples; drain at the end.
+
+    With the session's fast path on, the IMU goes in as arrays between the points where something else arrives
+    (a fix) or the loop processes (every ``chunk`` samples): the same arrival order and processing points as one
+    push per sample, so the same numbers (test/test_speed_paths.py)."""
+    if session.fast_path and data.n > 0 and bool(np.all(np.diff(data.t_s) > 0)):
+        return _run_session_arrays(session, data, fix_delay_s, chunk, progress)
     out: list[Output] = []
     n_imu = 0
     for kind, item in events_in_arrival_order(data, fix_delay_s):
@@ -131,6 +137,47 @@ def run_session(session: AlignmentSession, data: ScenarioData, fix_delay_s: floa
     out += session.finish()
     if progress is not None:
         progress.update(n_imu % chunk)
+    return out
+
+
+def _run_session_arrays(session: AlignmentSession, data: ScenarioData, fix_delay_s: float, chunk: int,
+                        progress) -> list[Output]:
+    """``run_session`` with array pushes (``push_imu_arrays``); events in the order of ``events_in_arrival_order``."""
+    out: list[Output] = []
+    truth = truth_samples(data)
+    t = data.t_s
+    imu_ok, gnss_ok = data.imu_valid_mask, data.gnss_valid_mask
+    n_valid = np.cumsum(imu_ok)  # valid IMU samples pushed up to and including index k
+    # a fix arrives after the IMU sample at which its stamp + delay is reached (in order: a late one holds the next)
+    g = np.asarray(data.gnss_t_s, float)
+    arrive = np.maximum.accumulate(np.searchsorted(t, g + fix_delay_s, side="left")) if g.size else np.zeros(0, int)
+    stops = set(arrive[arrive < data.n].tolist())
+    stops.update(np.flatnonzero(imu_ok & (n_valid % chunk == 0)).tolist())
+    stops.add(data.n - 1)
+    j = 0
+    a = 0
+    for b in sorted(stops):
+        for k in range(a, b + 1):
+            if truth:
+                session.push_truth(truth[k])
+        sel = np.flatnonzero(imu_ok[a:b + 1]) + a
+        if sel.size:
+            session.push_imu_arrays(t[sel], data.omega_ib_b[sel], data.f_ib_b[sel])
+        if imu_ok[b] and n_valid[b] % chunk == 0:
+            out += session.process()
+            if progress is not None:
+                progress.update(chunk)
+        while j < g.shape[0] and arrive[j] == b:
+            if gnss_ok[j]:
+                session.push_fix(GnssFix(float(g[j]), data.gnss_p_e[j], data.gnss_R_e[j]))
+            j += 1
+        a = b + 1
+    for j in range(j, g.shape[0]):  # delayed fixes still on their way when the IMU stream ended
+        if gnss_ok[j]:
+            session.push_fix(GnssFix(float(g[j]), data.gnss_p_e[j], data.gnss_R_e[j]))
+    out += session.finish()
+    if progress is not None:
+        progress.update(int(n_valid[-1]) % chunk)
     return out
 
 
