@@ -75,11 +75,9 @@ def truth_samples(data: ScenarioData):
     """TruthSample per IMU stamp of ``data`` (empty without truth): attitude, geodetic position, ENU velocity."""
     if not data.has_truth:
         return []
-    out = []
-    for k in range(data.n):
-        v = None if data.v_n is None else data.v_n[k]
-        out.append(TruthSample(float(data.t_s[k]), data.C_b_n[k], None, v,
-                               (float(data.lat_rad[k]), float(data.lon_rad[k]), float(data.h_m[k]))))
+    vs = [None] * data.n if data.v_n is None else list(data.v_n)
+    out = [TruthSample(t, C, None, v, llh) for t, C, v, llh in zip(
+        data.t_s.tolist(), list(data.C_b_n), vs, zip(data.lat_rad.tolist(), data.lon_rad.tolist(), data.h_m.tolist()))]
     if data.v_n is None:  # velocity by differences of the truth positions (same rule as the node)
         p_e = np.array([earth.geodetic_to_ecef(s.llh[0], s.llh[1], s.llh[2]) for s in out])
         p_n = np.array([earth.ecef_to_enu(p, *out[0].llh) for p in p_e])
@@ -157,9 +155,8 @@ def _run_session_arrays(session: AlignmentSession, data: ScenarioData, fix_delay
     j = 0
     a = 0
     for b in sorted(stops):
-        for k in range(a, b + 1):
-            if truth:
-                session.push_truth(truth[k])
+        if truth:
+            session.push_truths(truth[a:b + 1])
         sel = np.flatnonzero(imu_ok[a:b + 1]) + a
         if sel.size:
             session.push_imu_arrays(t[sel], data.omega_ib_b[sel], data.f_ib_b[sel])

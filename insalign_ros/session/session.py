@@ -310,6 +310,30 @@ class AlignmentSession:
         while len(self.buf.truth_t) > 5000:
             del self.buf.truth[self.buf.truth_t.pop(0)]
 
+    def push_truths(self, truths: list) -> None:
+        """``push_truth`` for a list of poses in stamp order (the offline path): one vectorised check; poses that
+        are not all valid, new and after the buffered ones go through ``push_truth`` one by one."""
+        b = self.buf
+        ts = [float(tr.stamp_s) for tr in truths]
+        m = len(ts)
+        if m == 0:
+            return
+        C = np.array([tr.C_b_n for tr in truths], dtype=float)
+        T = np.array(ts)
+        if C.shape != (m, 3, 3) or not (np.isfinite(C).all() and np.isfinite(T).all()) \
+                or (m > 1 and not bool(np.all(np.diff(T) > 0))) or (b.truth_t and not ts[0] > b.truth_t[-1]):
+            for tr in truths:
+                self.push_truth(tr)
+            return
+        self.counters["truth_received"] += m
+        b.truth.update(zip(ts, truths))
+        b.truth_t.extend(ts)
+        k = len(b.truth_t) - 5000
+        if k > 0:
+            for x in b.truth_t[:k]:
+                del b.truth[x]
+            del b.truth_t[:k]
+
     def reject_input(self, topic: str, counter: str, reason: str, wall_s: float | None = None) -> None:
         """Count an input the caller rejected before it became a sample (a message's frame, covariance, status)."""
         self.counters[f"{topic}_received"] += 1
@@ -514,11 +538,14 @@ class AlignmentSession:
         if self._dt_count % 100 == 1 or self._spread is None:
             self._spread = (float(np.linalg.norm(np.std(np.asarray(self.hist_w), axis=0))),
                             float(np.linalg.norm(np.std(np.asarray(self.hist_f), axis=0))))
-        elif isinstance(self._spread, _LazySpread):  # due inside a fast run (_fast_run): computed when needed
-            self._spread = self._spread.value()
         # off BOTH neighbours (the sample before a spike is off only one of them)
         dw = min(float(np.linalg.norm(w - self.hist_w[-1])), float(np.linalg.norm(w - nxt[1])))
         df = min(float(np.linalg.norm(f - self.hist_f[-1])), float(np.linalg.norm(f - nxt[2])))
+        if isinstance(self._spread, _LazySpread):  # fell due inside a fast run (_fast_run): computed when it matters
+            if not ((cfg.imu_spike_rad_s > 0 and dw > cfg.imu_spike_rad_s)
+                    or (cfg.imu_spike_m_s2 > 0 and df > cfg.imu_spike_m_s2)):
+                return False  # within the configured bounds: not a spike whatever the spread
+            self._spread = self._spread.value()
         bad_w = cfg.imu_spike_rad_s > 0 and dw > max(cfg.imu_spike_rad_s, 20.0 * self._spread[0])
         bad_f = cfg.imu_spike_m_s2 > 0 and df > max(cfg.imu_spike_m_s2, 20.0 * self._spread[1])
         if not (bad_w or bad_f):
