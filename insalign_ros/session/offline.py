@@ -17,7 +17,7 @@ from ..core.types import GnssFix, ImuSample
 from ..eval.aligned import AlignedCriteria
 from ..sim.types import ScenarioData
 from .config import SessionConfig
-from .session import AlignmentSession, Output, TruthSample
+from .session import AlignmentSession, Output, TruthSample, TruthTable  # noqa: F401  (TruthSample re-exported)
 
 
 @dataclass
@@ -71,19 +71,18 @@ def truncate(data: ScenarioData, duration_s: float) -> ScenarioData:
     return data.until(float(data.t_s[0]) + duration_s)
 
 
+def truth_table(data: ScenarioData) -> TruthTable | None:
+    """The truth of ``data`` as a :class:`TruthTable` (None without truth): attitude, geodetic position, ENU velocity
+    (or, without it, the ENU position relative to the first sample, differentiated by the session)."""
+    if not data.has_truth:
+        return None
+    return TruthTable(data.t_s, data.C_b_n, np.stack([data.lat_rad, data.lon_rad, data.h_m], axis=1), data.v_n)
+
+
 def truth_samples(data: ScenarioData):
     """TruthSample per IMU stamp of ``data`` (empty without truth): attitude, geodetic position, ENU velocity."""
-    if not data.has_truth:
-        return []
-    vs = [None] * data.n if data.v_n is None else list(data.v_n)
-    out = [TruthSample(t, C, None, v, llh) for t, C, v, llh in zip(
-        data.t_s.tolist(), list(data.C_b_n), vs, zip(data.lat_rad.tolist(), data.lon_rad.tolist(), data.h_m.tolist()))]
-    if data.v_n is None:  # velocity by differences of the truth positions (same rule as the node)
-        p_e = np.array([earth.geodetic_to_ecef(s.llh[0], s.llh[1], s.llh[2]) for s in out])
-        p_n = np.array([earth.ecef_to_enu(p, *out[0].llh) for p in p_e])
-        for s, p in zip(out, p_n):
-            s.p_n = p
-    return out
+    table = truth_table(data)
+    return [] if table is None else [table.sample(k) for k in range(data.n)]
 
 
 def events_in_arrival_order(data: ScenarioData, fix_delay_s: float = 0.0):
@@ -142,7 +141,7 @@ def _run_session_arrays(session: AlignmentSession, data: ScenarioData, fix_delay
                         progress) -> list[Output]:
     """``run_session`` with array pushes (``push_imu_arrays``); events in the order of ``events_in_arrival_order``."""
     out: list[Output] = []
-    truth = truth_samples(data)
+    truth = truth_table(data)
     t = data.t_s
     imu_ok, gnss_ok = data.imu_valid_mask, data.gnss_valid_mask
     n_valid = np.cumsum(imu_ok)  # valid IMU samples pushed up to and including index k
@@ -155,8 +154,8 @@ def _run_session_arrays(session: AlignmentSession, data: ScenarioData, fix_delay
     j = 0
     a = 0
     for b in sorted(stops):
-        if truth:
-            session.push_truths(truth[a:b + 1])
+        if truth is not None:
+            session.push_truth_table(truth, a, b + 1)
         sel = np.flatnonzero(imu_ok[a:b + 1]) + a
         if sel.size:
             session.push_imu_arrays(t[sel], data.omega_ib_b[sel], data.f_ib_b[sel])

@@ -62,6 +62,54 @@ class TruthSample:
 
 
 @dataclass
+class TruthTable:
+    """Truth poses as arrays (offline sources): ``t_s`` (N,) [s], ``C_b_n`` (N, 3, 3), ``llh`` (N, 3) (lat_rad,
+    lon_rad, h_m) or None, ``v_n`` (N, 3) ENU [m/s] or None. :meth:`sample` builds the :class:`TruthSample` of a row;
+    without ``v_n`` it carries ``p_n``, the ENU position relative to row 0 (the session differentiates it)."""
+
+    t_s: np.ndarray
+    C_b_n: np.ndarray
+    llh: np.ndarray | None = None
+    v_n: np.ndarray | None = None
+
+    def sample(self, k: int) -> TruthSample:
+        llh = None if self.llh is None else tuple(self.llh[k].tolist())
+        tr = TruthSample(float(self.t_s[k]), self.C_b_n[k], None, None if self.v_n is None else self.v_n[k], llh)
+        if self.v_n is None and llh is not None:
+            o = self.llh[0].tolist()
+            tr.p_n = earth.ecef_to_enu(earth.geodetic_to_ecef(llh[0], llh[1], llh[2]), o[0], o[1], o[2])
+        return tr
+
+
+class _TruthDict(dict):
+    """stamp -> TruthSample; rows pushed from a :class:`TruthTable` are held as an integer reference and built on
+    first read (``[]``, ``get``)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.tables: list = []
+
+    def add_rows(self, stamps: list, table: TruthTable, start: int) -> None:
+        if not self.tables or self.tables[-1] is not table:
+            self.tables.append(table)
+        base = (len(self.tables) - 1) << 32
+        self.update(zip(stamps, range(base + start, base + start + len(stamps))))
+
+    def _build(self, t: float, ref: int) -> TruthSample:
+        tr = self.tables[ref >> 32].sample(ref & 0xFFFFFFFF)
+        dict.__setitem__(self, t, tr)
+        return tr
+
+    def __getitem__(self, t):
+        v = dict.__getitem__(self, t)
+        return self._build(t, v) if type(v) is int else v
+
+    def get(self, t, default=None):
+        v = dict.get(self, t, default)
+        return self._build(t, v) if type(v) is int else v
+
+
+@dataclass
 class Output:
     """One estimate output (every ``output_period_s`` of data time)."""
 
@@ -83,7 +131,7 @@ class _Pending:
     imu: list = field(default_factory=list)  # (t, omega (3,), f (3,))
     fix_t: list = field(default_factory=list)
     fix: list = field(default_factory=list)
-    truth: dict = field(default_factory=dict)  # stamp -> TruthSample
+    truth: dict = field(default_factory=lambda: _TruthDict())  # stamp -> TruthSample
     truth_t: list = field(default_factory=list)  # sorted stamps of ``truth``
 
 
@@ -310,23 +358,25 @@ class AlignmentSession:
         while len(self.buf.truth_t) > 5000:
             del self.buf.truth[self.buf.truth_t.pop(0)]
 
-    def push_truths(self, truths: list) -> None:
-        """``push_truth`` for a list of poses in stamp order (the offline path): one vectorised check; poses that
-        are not all valid, new and after the buffered ones go through ``push_truth`` one by one."""
+    def push_truth_table(self, table: "TruthTable", start: int = 0, stop: int | None = None) -> None:
+        """``push_truth`` for rows ``start:stop`` of a :class:`TruthTable` (the offline path): one vectorised check,
+        and a :class:`TruthSample` is built only for the stamps the session reads (initialisation, outputs). Rows that
+        are not all valid, new and after the buffered poses go through ``push_truth`` one by one."""
         b = self.buf
-        ts = [float(tr.stamp_s) for tr in truths]
-        m = len(ts)
-        if m == 0:
+        stop = len(table.t_s) if stop is None else stop
+        m = stop - start
+        if m <= 0:
             return
-        C = np.array([tr.C_b_n for tr in truths], dtype=float)
-        T = np.array(ts)
-        if C.shape != (m, 3, 3) or not (np.isfinite(C).all() and np.isfinite(T).all()) \
-                or (m > 1 and not bool(np.all(np.diff(T) > 0))) or (b.truth_t and not ts[0] > b.truth_t[-1]):
-            for tr in truths:
-                self.push_truth(tr)
+        T = table.t_s[start:stop]
+        if not isinstance(b.truth, _TruthDict) or not (np.isfinite(table.C_b_n[start:stop]).all()
+                                                       and np.isfinite(T).all()) \
+                or (m > 1 and not bool(np.all(np.diff(T) > 0))) or (b.truth_t and not T[0] > b.truth_t[-1]):
+            for k in range(start, stop):
+                self.push_truth(table.sample(k))
             return
         self.counters["truth_received"] += m
-        b.truth.update(zip(ts, truths))
+        ts = T.tolist()
+        b.truth.add_rows(ts, table, start)
         b.truth_t.extend(ts)
         k = len(b.truth_t) - 5000
         if k > 0:
