@@ -202,7 +202,7 @@ def result_from_outputs(core: str, outs: list[Output], session: AlignmentSession
 
     n = len(outs)
     t = np.array([o.stamp_s for o in outs])
-    rpy = np.array([np.degrees(earth.rpy_from_C_b_n(o.estimate.C_b_n)) for o in outs]).reshape(n, 3)
+    rpy = np.degrees(earth.rpy_from_C_b_n(np.array([o.estimate.C_b_n for o in outs]).reshape(n, 3, 3)))
     s3 = np.array([o.euler_3sigma_deg for o in outs]).reshape(n, 3)
     err = np.full((n, 3), np.nan)
     nees = np.full(n, np.nan)
