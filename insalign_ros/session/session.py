@@ -529,19 +529,24 @@ class AlignmentSession:
         d[0] = T[i] - prev
         d[1:] = plan.dT[i:j - 1]
         old = list(self.dts)
-        alld = np.concatenate((old, d))
-        lb = float(alld.min()) if len(old) < self.dts.maxlen else float(np.partition(alld, 50)[50])
-        lb = min(lb, self._median_dt)  # the median now may come from a window partly older than ``old``
-        thr = min(3.0, cfg.gap_factor) * lb
-        over = np.flatnonzero(d > thr)
-        if over.size:
-            j = i + int(over[0]) - 1  # the sample before the long interval is the last whose next one is short
-            d = d[:j - i]
-        elif plan.dnext[j - 1] > thr:
-            j -= 1
-            d = d[:j - i]
-        if j - i < 2:
-            return i
+        fac = min(3.0, cfg.gap_factor)
+        # cheap bound first (the smallest interval anywhere; the median now may come from a window partly older than
+        # ``old``), the 51st smallest of the old window and the run when jitter makes the cheap one too tight
+        lb = min(min(old), float(d.min()), self._median_dt)
+        if float(d.max()) > fac * lb or plan.dnext[j - 1] > fac * lb:
+            alld = np.concatenate((old, d))
+            lb = float(alld.min()) if len(old) < self.dts.maxlen else float(np.partition(alld, 50)[50])
+            lb = min(lb, self._median_dt)
+            thr = fac * lb
+            over = np.flatnonzero(d > thr)
+            if over.size:
+                j = i + int(over[0]) - 1  # the sample before the long interval is the last whose next one is short
+                d = d[:max(j - i, 0)]
+            elif plan.dnext[j - 1] > thr:
+                j -= 1
+                d = d[:j - i]
+            if j - i < 2:
+                return i
         m = j - i
         # period tracking as _track_period per sample: the median at the last multiple of 20 intervals in the run
         c0 = self._dt_count
@@ -549,8 +554,7 @@ class AlignmentSession:
         self._dt_count = c0 + m
         p = (c0 + m) // 20 * 20
         if p > c0:
-            win = np.concatenate((old, d[:p - c0]))[-self.dts.maxlen:]
-            self._median_dt = float(np.median(win))
+            self._median_dt = _median((old + d[:p - c0].tolist())[-self.dts.maxlen:])
         # the spike check's spread statistic, due at sample k when its interval count % 100 == 1: lazily
         if cfg.imu_spike_rad_s > 0 or cfg.imu_spike_m_s2 > 0:
             due = None if self._spread is not None else 0
@@ -642,7 +646,7 @@ class AlignmentSession:
         self.dts.append(dt)
         self._dt_count += 1
         if self._median_dt is None or self._dt_count % 20 == 0:
-            self._median_dt = float(np.median(self.dts))
+            self._median_dt = _median(list(self.dts))
 
     def _on_gap(self, t_a: float, t_b: float, w_b: np.ndarray, f_b: np.ndarray) -> None:
         """An IMU gap (t_a, t_b): bridge it and inflate the covariance by what the bridge may have got wrong.
@@ -1202,8 +1206,8 @@ class _FastPlan:
 
     def candidate_at(self, k: int, w_prev, f_prev) -> bool:
         """Could sample ``k`` be a spike, with ``w_prev``, ``f_prev`` the last processed sample before it?"""
-        dw = min(float(np.linalg.norm(self.W[k] - w_prev)), float(self.dn_w[k]))
-        df = min(float(np.linalg.norm(self.F[k] - f_prev)), float(self.dn_f[k]))
+        dw = min(math.dist(self.W[k].tolist(), np.asarray(w_prev, float).tolist()), float(self.dn_w[k]))
+        df = min(math.dist(self.F[k].tolist(), np.asarray(f_prev, float).tolist()), float(self.dn_f[k]))
         return bool((self.bound_w > 0 and dw > self.bound_w * (1.0 - 1e-9))
                     or (self.bound_f > 0 and df > self.bound_f * (1.0 - 1e-9)))
 
@@ -1220,6 +1224,14 @@ class _LazySpread:
         W = np.vstack([np.asarray(hw, float).reshape(-1, 3), rw])[-maxlen:]
         F = np.vstack([np.asarray(hf, float).reshape(-1, 3), rf])[-maxlen:]
         return (float(np.linalg.norm(np.std(W, axis=0))), float(np.linalg.norm(np.std(F, axis=0))))
+
+
+def _median(x: list) -> float:
+    """``float(np.median(x))`` for a list of floats, bit for bit (the middle value, or the mean of the two middle
+    ones), without numpy's per-call overhead."""
+    s = sorted(x)
+    h = len(s) // 2
+    return float(s[h]) if len(s) % 2 else float((s[h - 1] + s[h]) / 2.0)
 
 
 def _row_norms(X: np.ndarray) -> np.ndarray:
