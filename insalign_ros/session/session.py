@@ -516,10 +516,12 @@ class AlignmentSession:
             t_end = min(t_end, self.buf.fix_t[0])
         if self._zupt_due(math.inf):  # the session schedules zero-velocity updates for this core
             t_end = min(t_end, self.next_zupt_t)
+        if not T[i] < t_end:  # an event at this very sample (the usual case right after a run)
+            return i
         j = min(plan.n_fast, int(np.searchsorted(T, t_end, side="left")))
         if plan.cand is not None:  # spike candidates after the first sample; the first against the history
             j = min(j, plan.next_candidate(i + 1))
-            if plan.candidate_at(i, self.hist_w[-1], self.hist_f[-1]):
+            if j - i < 2 or plan.candidate_at(i, self.hist_w[-1], self.hist_f[-1]):
                 return i
         if j - i < 2:
             return i
