@@ -33,6 +33,7 @@ def one_run(seed: int, core_name: str, duration_s: float, criteria: AlignedCrite
     """One seeded run through the session path users take (``ia.align``): truth init plus the random error, the
     session's aligned flag at ``rate_s`` of data time (a Dask task: the scenario is cached per worker)."""
     import insalign_ros as ia
+    from insalign_ros.filters.imu_grade import SCENARIO_IMU_GRADE
     import sweep
 
     data = sweep.scenario("ship", seed, duration_s)
@@ -40,7 +41,7 @@ def one_run(seed: int, core_name: str, duration_s: float, criteria: AlignedCrite
     err0 = np.array([rng.uniform(-5, 5), rng.uniform(-5, 5), rng.uniform(-yaw_range_deg, yaw_range_deg)])
     r = ia.align(data, core=core_name, core_params={"yaw_hypotheses": yaw_hypotheses} if yaw_hypotheses > 1 else {},
                  init_mode="truth", init_rpy_error_deg=err0.tolist(), output_period_s=rate_s,
-                 criteria=criteria.to_dict())
+                 criteria=criteria.to_dict(), imu_grade=SCENARIO_IMU_GRADE["ship"])
     keep = r.t_s > data.t_s[0]  # the initial estimate is not judged
     ts, yaw_err, up, s3 = r.t_s[keep], r.rpy_err_deg[keep, 2], r.aligned[keep], r.sigma3_deg[keep, 2]
     ts, yaw_err, up = np.array(ts), np.abs(np.array(yaw_err)), np.array(up)

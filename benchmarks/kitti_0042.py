@@ -50,7 +50,8 @@ def main(argv=None):
         init = ({"init_mode": "truth", "init_rpy_error_deg": args.rpy_error} if args.init == "truth"
                 else {"init_mode": "sensors"})
         res = ia.align(data, core=c, output_period_s=1.0, core_params={
-            "gnss_sigma_floor_m": args.gnss_sigma_floor_m, "yaw_hypotheses": args.yaw_hypotheses}, **init)
+            "gnss_sigma_floor_m": args.gnss_sigma_floor_m, "yaw_hypotheses": args.yaw_hypotheses},
+            imu_grade="paper_ship", **init)  # the grade docs/results.md's KITTI rows were produced with
         r = MT.evaluate(c, res.estimates, data.t_s, data.C_b_n, float(data.t_s[0]))
         flag_bad = int(np.sum(res.aligned & (np.abs(res.rpy_err_deg[:, 2]) > 3.0)))
         t_flag = res.metrics.get("aligned_first_raised_at_s")

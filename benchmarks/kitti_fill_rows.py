@@ -44,7 +44,8 @@ def main(argv=None) -> int:
             for core in args.cores:
                 for K in (1, 8):
                     r = ia.align(data, core=core, core_params={"yaw_hypotheses": K, "gnss_sigma_floor_m": 1.0},
-                                 init_mode="truth", init_rpy_error_deg=[10.0, 10.0, 60.0], output_period_s=1.0)
+                                 init_mode="truth", init_rpy_error_deg=[10.0, 10.0, 60.0], output_period_s=1.0,
+                                 imu_grade="paper_ship")  # the grade docs/results.md's rows were produced with
                     m = r.t_s - r.t_s[0] >= 60.0
                     frac = float(np.mean(np.abs(r.rpy_err_deg[m, 2]) <= r.sigma3_deg[m, 2]))
                     print(f"| {drive[:21]} | {rep.get('fill_rows')} | {'gap' if policy == 'mark' else 'data'} | {core} | "

@@ -101,7 +101,7 @@ def offline_outside(core, rate_hz, duration_s, settle_s):
     from insalign_ros.sim.scenarios import make_scenario
 
     r = ia.align(make_scenario("ship", seed=3, duration_s=duration_s, rate_hz=rate_hz), core=core,
-                 init_mode="truth", init_rpy_error_deg=[3.0, -3.0, 30.0], output_period_s=0.1)
+                 init_mode="truth", init_rpy_error_deg=[3.0, -3.0, 30.0], output_period_s=0.1, imu_grade="paper_ship")
     m = r.t_s - r.t_s[0] >= settle_s
     return int(np.sum(np.any(np.abs(r.rpy_err_deg[m]) > r.sigma3_deg[m], axis=1))), int(np.sum(m))
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import functools
 import os
-import sys
 import time
 from collections import defaultdict
 from pathlib import Path
@@ -40,56 +39,12 @@ def scenario(name: str, seed: int, duration_s: float):
 
 
 def run_tasks(fn, tasks: list[tuple], args, desc: str = "runs") -> list:
-    """``[fn(*t) for t in tasks]``, as Dask tasks unless ``args.serial``; a tqdm bar on stderr; results in task order.
+    """``[fn(*t) for t in tasks]`` with the execution options of :func:`add_arguments` (insalign_ros.eval.parallel;
+    this module is uploaded to the workers: they import it by name for the scenario cache and the stage timer)."""
+    from insalign_ros.eval.parallel import run_tasks as run
 
-    ``fn`` must be a module-level function (pickled by reference or, from ``__main__``, by value)."""
-    from tqdm import tqdm
-
-    bar = tqdm(total=len(tasks), desc=desc, file=sys.stderr, mininterval=2)
-    t0 = time.perf_counter()
-    if args.serial:
-        out = []
-        for t in tasks:
-            out.append(fn(*t))
-            bar.update(1)
-        bar.close()
-        return out
-    client, cluster = make_client(args)
-    try:
-        from distributed import as_completed
-
-        futures = client.map(fn, *zip(*tasks), pure=False) if tasks else []
-        index = {f.key: i for i, f in enumerate(futures)}
-        out = [None] * len(tasks)
-        for fut in as_completed(futures):
-            out[index[fut.key]] = fut.result()
-            bar.update(1)
-        bar.close()
-        return out
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
-        print(f"[sweep] {len(tasks)} tasks on {args.scheduler or f'{args.workers} local workers'}: "
-              f"{time.perf_counter() - t0:.1f} s wall", file=sys.stderr)
-
-
-def make_client(args):
-    """A distributed Client on ``args.scheduler`` or on a new LocalCluster of ``args.workers`` processes."""
-    from distributed import Client, LocalCluster
-
-    # one BLAS thread per worker process: the runs are the parallelism (2 workers x N threads would oversubscribe)
-    for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(k, "1")
-    cluster = None
-    if args.scheduler:
-        client = Client(args.scheduler)
-    else:
-        cluster = LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=40)
-        client = Client(cluster)
-    client.upload_file(__file__)  # workers import this module by name (scenario cache, stage timer)
-    return client, cluster
+    return run(fn, tasks, workers=getattr(args, "workers", 0), scheduler=getattr(args, "scheduler", ""),
+               serial=args.serial, desc=desc, upload=(__file__,))
 
 
 # ------------------------------------------------------------------------------------- per-stage timing

@@ -54,6 +54,7 @@ def run_one(core_label, data, yaw, params=None, period=1.0):
     """One run through the session path users take (``ia.align``): truth init plus (10, 10, yaw) deg; returns the
     AlignResult and its summary (eval/metrics.summary, wall time, samples, LMI and bank diagnostics)."""
     import insalign_ros as ia
+    from insalign_ros.filters.imu_grade import SCENARIO_IMU_GRADE
     from insalign_ros.filters.registry import make_config
 
     core_name, bank = parse_core(core_label)
@@ -61,7 +62,8 @@ def run_one(core_label, data, yaw, params=None, period=1.0):
     fields = make_config(core_name).to_dict()
     t0 = time.perf_counter()
     r = ia.align(data, core=core_name, core_params={k: v for k, v in p.items() if k in fields}, init_mode="truth",
-                 init_rpy_error_deg=[10.0, 10.0, yaw], output_period_s=period)
+                 init_rpy_error_deg=[10.0, 10.0, yaw], output_period_s=period,
+                 imu_grade=SCENARIO_IMU_GRADE.get(data.name, "paper_ship"))
     s = dict(r.metrics)
     s["wall_s"] = time.perf_counter() - t0
     s["samples"] = int(r.counters.get("imu_processed", data.n))
@@ -96,13 +98,15 @@ def sweep_task(scenario, seed, duration, core_label, yaw, default_noise, stage_t
 def throughput(scenario, cores=("liekf", "iekf"), duration=120.0, reps=3):
     """Samples/s per core through ``ia.align``, interleaved on the same data (the machine is shared and noisy)."""
     import insalign_ros as ia
+    from insalign_ros.filters.imu_grade import SCENARIO_IMU_GRADE
 
     d = make_scenario(scenario, seed=0, duration_s=duration)
     rates = {c: [] for c in cores}
     for _ in range(reps):
         for c in cores:
             t0 = time.perf_counter()
-            ia.align(d, core=c, init_mode="truth", init_rpy_error_deg=[10.0, 10.0, 60.0], output_period_s=1.0)
+            ia.align(d, core=c, init_mode="truth", init_rpy_error_deg=[10.0, 10.0, 60.0], output_period_s=1.0,
+                     imu_grade=SCENARIO_IMU_GRADE[scenario])
             rates[c].append(d.n / (time.perf_counter() - t0))
     return {c: (float(np.median(v)), float(np.max(v))) for c, v in rates.items()}
 

@@ -2,6 +2,7 @@
 
     ros2 launch insalign_ros insalign.launch.py [core:=iekf] [scenario:=ship] [rate_factor:=1.0]
         [source:=scenario|bag] [bag_path:=/path/to/bag] [init_from_ground_truth:=true] [init_rpy_error_deg:=...]
+        [imu_grade:=unknown_mems|paper_ship|industrial_mems|...]
 
 The alignment node starts with its own defaults (core iekf, no ground-truth initialisation: what works on a real
 recording without truth); ``init_from_ground_truth:=true`` (a simulated scenario or a bag with truth) initialises from
@@ -39,7 +40,7 @@ def _nodes(context):
         Node(
             package="insalign_ros", executable="alignment_node", name="alignment_node", output="screen",
             parameters=[os.path.join(config, "alignment_node.yaml"), os.path.join(config, f"{core}.yaml"),
-                        {"core": core, "use_sim_time": use_sim_time,
+                        {"core": core, "imu_grade": arg("imu_grade"), "use_sim_time": use_sim_time,
                          "init_from_ground_truth": arg("init_from_ground_truth").lower() == "true",
                          "init_rpy_error_deg": err}],
         ),
@@ -59,5 +60,7 @@ def generate_launch_description():
                               description="initialise from ground_truth/pose plus init_rpy_error_deg (needs truth)"),
         DeclareLaunchArgument("init_rpy_error_deg", default_value="0.0,0.0,0.0",
                               description="roll,pitch,yaw error added to the truth [deg]"),
+        DeclareLaunchArgument("imu_grade", default_value="unknown_mems",
+                              description="IMU noise model (docs/imu_grades.md); the simulated ship: paper_ship"),
         OpaqueFunction(function=_nodes),
     ])

@@ -1,8 +1,11 @@
-"""Shared fixtures of the DDS tests."""
+"""Shared fixtures of the DDS tests; the full core registry for every test module."""
 
 import json
 
 import pytest
+
+import insalign_ros.session  # noqa: F401  registers the session-level core 'auto' (filters/registry.LAZY_CORES), so
+#                              tests parametrised over the registry see the same cores whatever is imported first
 
 
 @pytest.fixture

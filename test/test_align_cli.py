@@ -10,9 +10,10 @@ from insalign_ros.cli.align import main
 
 def test_align_scenario_writes_csv_metrics_png(tmp_path):
     rc = main(["--scenario", "ship", "--duration", "40", "--core", "iekf", "--rpy-error", "10", "10", "60",
-               "--out-dir", str(tmp_path), "--no-progress"])
+               "--imu-grade", "paper_ship", "--out-dir", str(tmp_path), "--no-progress"])
     assert rc == 0
     m = json.loads((tmp_path / "ship_s0_iekf_metrics.json").read_text())
+    assert m["imu_grade"] == "paper_ship"
     assert abs(m["final_err_rpy_deg"][2]) < 2.0  # from 60 deg to within 2 deg in 40 s
     assert m["time_yaw_below_deg_s"] < 40.0
     rows = list(csv.DictReader(open(tmp_path / "ship_s0_iekf.csv")))

@@ -94,7 +94,8 @@ def test_offline_runner_backtrack_option(tmp_path, capsys):
     from insalign_ros.cli.align import main
 
     rc = main(["--scenario", "two_position", "--duration", "30", "--core", "earth_iekf", "--rpy-error", "0.5", "-0.5",
-               "5", "--backtrack", "1", "--backtrack-window", "20", "--out-dir", str(tmp_path), "--no-progress"])
+               "5", "--backtrack", "1", "--backtrack-window", "20", "--imu-grade", "paper_two_position",
+               "--out-dir", str(tmp_path), "--no-progress"])
     assert rc == 0
     err = capsys.readouterr().err
     assert "backtracking: 2000 samples x 1 passes" in err

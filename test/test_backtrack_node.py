@@ -33,7 +33,8 @@ def test_node_backtracking_two_position_keeps_publishing_and_ends_aligned(monkey
     rpy0 = np.degrees(earth.rpy_from_C_b_n(d.C_b_n[0])) + np.array([0.5, -0.5, 5.0])
     pos = [math.degrees(d.lat_rad[0]), math.degrees(d.lon_rad[0]), float(d.h_m[0])]
     ctx = rclpy.Context()
-    rclpy.init(args=["--ros-args", "-p", "core:=earth_iekf", "-p", f"static_position_deg_m:={pos}",
+    rclpy.init(args=["--ros-args", "-p", "core:=earth_iekf", "-p", "imu_grade:=paper_two_position",
+                     "-p", f"static_position_deg_m:={pos}",
                      "-p", "init_mode:=guess", "-p", f"initial_rpy_deg:={rpy0.tolist()}", "-p", "pose_rate_hz:=0.0",
                      "-p", "backtrack_passes:=1", "-p", "backtrack_window_s:=25.0",
                      "-p", "backtrack_budget_s:=0.02", "-p", "imu_timeout_s:=0.0"], context=ctx)

@@ -21,6 +21,8 @@ ROSDEP = {
     "matplotlib": "python3-matplotlib", "tqdm": "python3-tqdm", "numba": "python3-numba", "yaml": "python3-yaml",
     "cvxpy": "python3-cvxpy-pip", "rosbags": "python3-rosbags-pip",
 }
+#: optional runtime imports (lazy, an ImportError says how to install): no rosdep key; package.xml says so
+OPTIONAL = {"distributed"}
 ROS_PACKAGES = {"rclpy", "rcl_interfaces", "sensor_msgs", "geometry_msgs", "std_msgs", "std_srvs", "diagnostic_msgs",
                 "rosgraph_msgs"}
 
@@ -39,9 +41,11 @@ def _runtime_imports() -> set:
 def test_package_xml_lists_every_runtime_import():
     deps = {e.text for e in ET.parse(ROOT / "package.xml").getroot().findall("exec_depend")}
     imports = _runtime_imports()
-    unknown = imports - set(ROSDEP) - ROS_PACKAGES
+    unknown = imports - set(ROSDEP) - ROS_PACKAGES - OPTIONAL
+    xml = (ROOT / "package.xml").read_text()
+    assert all(f"optional runtime import: {m}" in xml for m in OPTIONAL & imports)
     assert not unknown, f"new runtime import(s) {sorted(unknown)}: add the rosdep key to package.xml and ROSDEP here"
-    missing = sorted(m for m in imports if (ROSDEP.get(m) or m) not in deps)
+    missing = sorted(m for m in imports - OPTIONAL if (ROSDEP.get(m) or m) not in deps)
     assert not missing, f"package.xml lacks exec_depend for {missing}"
     assert {"pymap3d", "rcl_interfaces", "std_srvs", "diagnostic_msgs", "cvxpy", "rosbags", "numba"} <= imports
 
@@ -65,6 +69,7 @@ def test_launch_defaults_are_the_node_defaults():
     assert d["core"] == NODE_PARAMS["core"][0]
     assert d["init_from_ground_truth"] == str(NODE_PARAMS["init_from_ground_truth"][0]).lower() == "false"
     assert [float(x) for x in d["init_rpy_error_deg"].split(",")] == SessionConfig().init_rpy_error_deg
+    assert d["imu_grade"] == NODE_PARAMS["imu_grade"][0] == SessionConfig().imu_grade
 
 
 def test_env_sh_refuses_python_3_10_with_the_reason(tmp_path):

@@ -144,7 +144,7 @@ def test_bad_input_is_rejected_counted_and_the_node_keeps_aligning(tmp_path, ros
     data = make_scenario("ship", seed=5, duration_s=260.0, rate_hz=rate)
     node = start_node(ALIGN, ros_env, log_dir=tmp_path, params={
         "core": "liekf", "init_from_ground_truth": True, "init_rpy_error_deg": "[3.0, -3.0, 30.0]",
-        "gnss_frame_id": "gps_link", "imu_frame_id": "imu_link", "imu_qos": "reliable", "imu_qos_depth": 20000, "gnss_qos": "reliable",
+        "imu_grade": "paper_ship", "gnss_frame_id": "gps_link", "imu_frame_id": "imu_link", "imu_qos": "reliable", "imu_qos_depth": 20000, "gnss_qos": "reliable",
         "gnss_qos_depth": 5000, "log_throttle_s": 5.0, "pose_rate_hz": 10.0,
         "imu_timeout_s": 0.0})  # the feed pauses between segments; the watchdog has its own test
     mon = AlignmentMonitor()

@@ -34,7 +34,8 @@ def _ship_bag_and_monitor(tmp_path, monkeypatch, seed, duration_s):
 
 def _start_align(env, tmp_path, **params):
     return start_node("insalign_ros.nodes.alignment_node", env, log_dir=tmp_path, params={"imu_timeout_s": 0.0, 
-        "core": "iekf", "init_from_ground_truth": True, "init_rpy_error_deg": "[3.0, -3.0, 30.0]", **params})
+        "core": "iekf", "init_from_ground_truth": True, "init_rpy_error_deg": "[3.0, -3.0, 30.0]",
+        "imu_grade": "paper_ship", **params})
 
 
 @pytest.mark.timeout(120)

@@ -102,17 +102,24 @@ def _flag_intervals(log: str):
 
 
 @pytest.mark.timeout(240)
-@pytest.mark.parametrize("scenario,overrides,bound_deg", [
-    ("car", {"heading_deg": -120.0}, 1.0),  # (a) already moving at 15 m/s when the node starts
-    ("ship", {}, 2.0),  # (b)
-    ("park_drive", {"heading_deg": 150.0, "park_s": 40.0}, 1.0),  # (c) parked, then driving
+@pytest.mark.parametrize("scenario,duration_s,overrides,bound_deg,imu_grade", [
+    ("car", 150.0, {"heading_deg": -120.0}, 1.0, None),  # (a) already moving at 15 m/s at start-up; defaults only
+    ("ship", 105.0, {}, 2.0, "paper_ship"),  # (b) with the matching imu_grade
+    ("park_drive", 105.0, {"heading_deg": 150.0, "park_s": 40.0}, 1.0, "industrial_mems"),  # (c) parked, then driving
 ])
-def test_driver_style_stream_with_default_parameters(tmp_path, ros_env, scenario, overrides, bound_deg):
+def test_driver_style_stream_with_default_parameters(tmp_path, ros_env, scenario, duration_s, overrides, bound_deg,
+                                                     imu_grade):
+    """(a) with the default parameters (imu_grade unknown_mems: a MEMS prior of 360 deg/h and 5 mg on the car's
+    10 deg/h, 1 mg IMU): the honest yaw 3-sigma needs longer to fall under the flag's 2.5 deg (offline: flag at
+    118 s of this 150-s drive), then flag up and the bounds. (b) and (c) with the matching imu_grade: flag up and the
+    bounds (with the default grade they stay honest without a flag in 105 s: benchmarks/imu_grade.py,
+    docs/imu_grades.md)."""
     from insalign_ros.nodes.monitor import AlignmentMonitor
     from insalign_ros.sim.scenarios import make_scenario
 
-    d = make_scenario(scenario, seed=4, duration_s=105.0, rate_hz=100.0, **overrides)
-    node = start_node(ALIGN, ros_env, log_dir=tmp_path, remaps={"imu/data": "/imu/data_raw", "gps/fix": "/fix"})
+    d = make_scenario(scenario, seed=4, duration_s=duration_s, rate_hz=100.0, **overrides)
+    node = start_node(ALIGN, ros_env, log_dir=tmp_path, remaps={"imu/data": "/imu/data_raw", "gps/fix": "/fix"},
+                      params={"imu_grade": imu_grade} if imu_grade else None)
     mon = AlignmentMonitor(keep_poses=100000)
     drv = Driver(d)
     try:
@@ -138,11 +145,13 @@ def test_driver_style_stream_with_default_parameters(tmp_path, ros_env, scenario
         flag = np.zeros(len(t), bool)
         for a, b in _flag_intervals(log):
             flag |= (t >= a - 1e-6) & (t < b - 1e-6)
-        print(f"{scenario}: {len(t)} poses, flag intervals {_flag_intervals(log)}, final yaw error {yaw_err[-1]:+.3f} "
+        print(f"{scenario} (imu_grade {imu_grade or 'default'}): {len(t)} poses, flag intervals {_flag_intervals(log)}, final yaw error {yaw_err[-1]:+.3f} "
               f"deg, received {diag.get('imu_received')}/{d.n} Imu, gaps {diag.get('imu_gaps')}, "
               f"gnss accepted {diag.get('gnss_accepted')}/{len(d.gnss_t_s)}, stale {diag.get('gnss_stale')}")
         assert "from sensors" in log and "Imu frame_id 'imu' seen" in log, log[-2000:]
         assert flag.any(), (diag.get("aligned_reason"), log[-1500:])
+        yaw_3sigma = 3.0 * math.degrees(math.sqrt(poses[-1].pose.covariance[35]))  # REP 145 yaw variance [rad^2]
+        assert abs(yaw_err[-1]) < yaw_3sigma, (yaw_err[-1], yaw_3sigma)
         assert not np.any(flag & (np.abs(yaw_err) > 3.0)), yaw_err[flag & (np.abs(yaw_err) > 3.0)]
         assert abs(yaw_err[-1]) < bound_deg, yaw_err[-1]
         assert int(diag["gnss_stale"]) == 0 and int(diag["imu_rejected"]) == 0, diag

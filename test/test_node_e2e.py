@@ -13,6 +13,7 @@ import pytest
 from conftest import sim_summary
 
 from insalign_ros.cli.bringup import start_node, stop_nodes, wait_for_exit
+from insalign_ros.filters.imu_grade import SCENARIO_IMU_GRADE
 
 pytestmark = pytest.mark.ros
 
@@ -52,7 +53,7 @@ def test_ship_run_reaches_aligned_with_yaw_error_below_1_deg(tmp_path, ros_env):
     try:
         nodes.append(start_node(ALIGN, ros_env, log_dir=tmp_path, params={"imu_timeout_s": 0.0, 
             "core": "liekf", "init_from_ground_truth": True, "init_rpy_error_deg": "[3.0, -3.0, 30.0]",
-            "imu_qos": "reliable", "imu_qos_depth": 9000}))
+            "imu_qos": "reliable", "imu_qos_depth": 9000, "imu_grade": "paper_ship"}))
         # reliable with deep histories on both ends: nothing is lost on a loaded machine, so the run is the offline
         # one (seed 3: final yaw error 0.78 deg, 3-sigma 1.54 deg); with best effort a few drops moved it to 1.0 deg
         sim, summary = _run_lossless_ship(nodes, ros_env, tmp_path, seed=3, duration_s=80.0)
@@ -90,7 +91,8 @@ def test_unknown_heading_179_deg_off_aligns_with_the_yaw_hypothesis_bank(tmp_pat
     try:
         nodes.append(start_node(ALIGN, ros_env, log_dir=tmp_path, params={"imu_timeout_s": 0.0, 
             "core": "iekf", "yaw_hypotheses": 8, "init_from_ground_truth": True,
-            "init_rpy_error_deg": "[3.0, -3.0, 179.0]", "imu_qos": "reliable", "imu_qos_depth": 9000}))
+            "init_rpy_error_deg": "[3.0, -3.0, 179.0]", "imu_qos": "reliable", "imu_qos_depth": 9000,
+            "imu_grade": "paper_ship"}))
         # reliable with deep histories on both ends: no sample is lost even on a loaded machine, so the run is the
         # offline one (seed 1: final yaw error -0.16 deg, 3-sigma 1.87 deg)
         sim, summary = _run_lossless_ship(nodes, ros_env, tmp_path, seed=1, duration_s=60.0)
@@ -118,7 +120,8 @@ def _run_group(cores, scenario, tmp_path, ros_env):
         for c in cores:
             nodes.append(start_node(ALIGN, ros_env, log_dir=tmp_path, name=f"align_{c}",
                                     params={"core": c, "init_from_ground_truth": True,
-                                            "init_rpy_error_deg": "[2.0, 2.0, 10.0]"},
+                                            "init_rpy_error_deg": "[2.0, 2.0, 10.0]",
+                                            "imu_grade": SCENARIO_IMU_GRADE[scenario]},
                                     remaps={"__node": f"align_{c}"}))
         sim = start_node(SIM, ros_env, log_dir=tmp_path, name=f"sim_{scenario}", params={
             "source": "scenario", "scenario": scenario, "duration_s": 10.0, "rate_hz": 100.0, "rate_factor": 2.5,

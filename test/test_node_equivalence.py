@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation
 import insalign_ros as ia
 from insalign_ros.cli.bringup import start_node, stop_nodes, wait_for_exit
 from insalign_ros.core import earth
+from insalign_ros.filters.imu_grade import SCENARIO_IMU_GRADE
 
 pytestmark = pytest.mark.ros
 
@@ -76,12 +77,13 @@ def test_node_over_dds_equals_the_offline_api(tmp_path, ros_env, core, scenario)
     bag = write_bag(d, tmp_path / "bag")
     rpy0 = (np.degrees(earth.rpy_from_C_b_n(d.C_b_n[0])) + [2.0, -2.0, 10.0]).tolist()
     v0 = d.v_n[0].tolist()
-    session = {"init_mode": "guess", "initial_rpy_deg": rpy0, "initial_velocity_enu_m_s": v0, "output_period_s": 0.1}
+    session = {"init_mode": "guess", "initial_rpy_deg": rpy0, "initial_velocity_enu_m_s": v0, "output_period_s": 0.1,
+               "imu_grade": SCENARIO_IMU_GRADE[scenario]}
     ref = ia.align(str(bag), core=core, **session)
     assert ref.counters["imu_processed"] >= d.n - 2
     mon, nodes, summary = _run(tmp_path, ros_env, bag, {
         "core": core, "init_mode": "guess", "initial_rpy_deg": str(rpy0), "initial_velocity_enu_m_s": str(v0), "pose_rate_hz": 10.0,
-        "imu_timeout_s": 0.0})
+        "imu_timeout_s": 0.0, "imu_grade": SCENARIO_IMU_GRADE[scenario]})
     try:
         diffs, n_pub, n_off = _compare(mon, summary, ref, float(d.t_s[0]))
         print(f"{core}: {len(diffs)} common stamps of {n_pub} published / {n_off} offline; max difference "
@@ -102,12 +104,12 @@ def test_lagged_fixes_over_dds_give_the_on_time_result_and_the_watchdog_drops_th
     bag = write_bag(d, tmp_path / "bag")
     rpy0 = (np.degrees(earth.rpy_from_C_b_n(d.C_b_n[0])) + [1.0, -1.0, 3.0]).tolist()
     session = {"init_mode": "guess", "initial_rpy_deg": rpy0, "initial_velocity_enu_m_s": d.v_n[0].tolist(),
-               "output_period_s": 0.1}
+               "output_period_s": 0.1, "imu_grade": "paper_ship"}
     on_time = ia.align(str(bag), core="iekf", **session)
     # every fix published 0.3 s of data time after its stamp (the node's default fusion delay is 0.5 s)
     mon, nodes, summary = _run(tmp_path, ros_env, bag, {
         "core": "iekf", "init_mode": "guess", "initial_rpy_deg": str(rpy0), "initial_velocity_enu_m_s": str(d.v_n[0].tolist()),
-        "imu_timeout_s": 1.0}, fix_delay_s=0.3)
+        "imu_timeout_s": 1.0, "imu_grade": "paper_ship"}, fix_delay_s=0.3)
     try:
         diffs, _, n_off = _compare(mon, summary, on_time, float(d.t_s[0]))
         assert len(diffs) >= 0.9 * n_off and diffs.max() < 1e-6, (len(diffs), n_off, diffs.max())

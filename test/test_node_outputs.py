@@ -96,7 +96,7 @@ def test_imu_datum_and_reset_over_dds(tmp_path, monkeypatch):
         nodes.append(start_node(ALIGN, env, log_dir=tmp_path, params={
             "core": "iekf", "init_mode": "guess", "initial_rpy_deg": str(rpy0), "initial_velocity_enu_m_s": str(ship.v_n[0].tolist()),
             "imu_axes": "frd", "imu_mount_rpy_deg": str(mount), "imu_timeout_s": 0.0, "imu_qos": "reliable",
-            "imu_qos_depth": 5000, "gnss_qos": "reliable"}))
+            "imu_qos_depth": 5000, "gnss_qos": "reliable", "imu_grade": "paper_ship"}))
         assert mon.wait_for(lambda m: m.diag_count > 0 and n.count_publishers("/alignment_node/imu") > 0, 30.0)
         sim = _play(bag_ship, env, tmp_path, "sim_ship")
         t0_ns = _sim_first_stamp_ns(sim)

@@ -96,13 +96,16 @@ def test_run_time_changes_are_validated_and_bad_values_refused(node_factory):
     assert all(r.successful for r in res)
     assert node.criteria.yaw_3sigma_deg == 1.5 and node.flag.criteria.yaw_3sigma_deg == 1.5
     assert node.pose_period_s == pytest.approx(0.05)
-    # a core parameter change restarts the alignment with the new value (and the core keeps its own defaults)
+    # a core parameter change restarts the alignment with the new value (and the core keeps its own defaults: the
+    # dataclass's, the noise and bias fields from the default imu_grade)
     from insalign_ros.filters.config import IekfConfig
+    from insalign_ros.filters.imu_grade import DEFAULT_IMU_GRADE, grade_params
 
     assert node.set_parameters([Parameter("gnss_sigma_floor_m", value=2)])[0].successful  # int for a double
     assert node.session.core_params["gnss_sigma_floor_m"] == 2.0 and node.state == "waiting for data"
     cfg = node.session.core_params
-    want = IekfConfig().to_dict()
+    want = {**IekfConfig().to_dict(), **grade_params(DEFAULT_IMU_GRADE, IekfConfig)}
+    assert not node.set_parameters([Parameter("imu_grade", value="tactical")])[0].successful  # read-only
     assert {k: v for k, v in cfg.items() if k != "gnss_sigma_floor_m"} == \
         {k: v for k, v in want.items() if k != "gnss_sigma_floor_m"}
 

@@ -11,6 +11,7 @@ import pytest
 
 import insalign_ros as ia
 from insalign_ros.core.types import GnssFix, ImuSample
+from insalign_ros.filters.imu_grade import SCENARIO_IMU_GRADE
 from insalign_ros.session.config import SessionConfig
 from insalign_ros.session.offline import events_in_arrival_order
 from insalign_ros.session.session import AlignmentSession
@@ -36,7 +37,9 @@ def test_session_equals_the_per_event_runner(ship60, core):
     from insalign_ros.filters.registry import make_core
     from insalign_ros.filters.runner import run_offline
 
-    r = ia.align(ship60, core=core, init_mode="truth", init_rpy_error_deg=[10, 10, 60], output_period_s=0.0)
+    # the runner's core has the dataclass defaults: the paper's ship IMU (imu_grade paper_ship)
+    r = ia.align(ship60, core=core, init_mode="truth", init_rpy_error_deg=[10, 10, 60], output_period_s=0.0,
+                 imu_grade="paper_ship")
     ests, _ = run_offline(make_core(core), ship60, [10, 10, 60], output_period_s=0.0)
     ref = {round(e.stamp_s, 6): e for e in ests}
     common = [(o, ref[round(o.stamp_s, 6)]) for o in r.outputs if round(o.stamp_s, 6) in ref]
@@ -84,20 +87,24 @@ def _drop(d, t0, T):
                    lat_rad=d.lat_rad[keep], lon_rad=d.lon_rad[keep], h_m=d.h_m[keep], v_n=d.v_n[keep])
 
 
-@pytest.mark.parametrize("scenario,core,T,t0,bound", [("ship", "iekf", 0.3, 40.0, 1.0), ("car", "liekf", 0.3, 40.0, 1.0),
-                                                      ("car", "iekf", 1.5, 52.3, 1.0), ("car", "iekf", 1.5, 30.0, 1.1)])
-def test_gap_is_bridged_and_counted_and_the_error_stays_inside_3_sigma(scenario, core, T, t0, bound):
-    """An IMU dropout: bridged by interpolation, covariance inflated by the bridge error measured on the recent
-    data; the Euler errors stay inside the published 3-sigma afterwards (docs/session.md, "Gaps"). Measured short
-    of it: after 1.5 s gaps the re-convergence overshoots slightly (car seed 2 at 30 s: 1.02 x the 3-sigma in roll
-    18 s later; the ship with 7 deg/s roll rates: up to 1.3 x), so that case has a bound of 1.1."""
+@pytest.mark.parametrize("scenario,core,T,t0", [("ship", "iekf", 0.3, 40.0), ("car", "liekf", 0.3, 40.0),
+                                                ("ship", "iekf", 1.5, 85.7), ("car", "iekf", 1.5, 30.0)])
+def test_gap_is_bridged_and_counted_and_the_error_stays_inside_3_sigma(scenario, core, T, t0):
+    """An IMU dropout: bridged by the candidate (linear, or a polynomial fitted on both sides) that does best on the
+    recent data, the covariance inflated by that candidate's worst error there; the Euler errors stay inside the
+    published 3-sigma afterwards (docs/session.md, "Gaps"; the ship at 85.7 s was 1.46 x with linear bridging and
+    the whole inflation added at the end of the gap)."""
     d = make_scenario(scenario, seed=5 if scenario == "ship" else 2, duration_s=t0 + 30.0,
                       **({"rate_hz": 50.0} if scenario == "ship" else {}))
-    r = ia.align(_drop(d, t0, T), core=core, init_mode="truth", init_rpy_error_deg=[3, -3, 30])
+    # the scenario's grade; the LIEKF (no bias states) keeps the paper's ship noise (ARW 2 deg/sqrt(h), 6x the car
+    # IMU's): with the car's own grade it is over-confident on the 10 deg/h, 1 mg car IMU, gap or not (1.98 x the
+    # 3-sigma; docs/imu_grades.md)
+    grade = "paper_ship" if core == "liekf" else SCENARIO_IMU_GRADE[scenario]
+    r = ia.align(_drop(d, t0, T), core=core, init_mode="truth", init_rpy_error_deg=[3, -3, 30], imu_grade=grade)
     assert r.counters["imu_gaps"] == 1
     m = r.t_s > t0
     ratio = np.abs(r.rpy_err_deg[m]) / r.sigma3_deg[m]
-    assert ratio.max() < bound, ratio.max(axis=0)
+    assert ratio.max() < 1.0, ratio.max(axis=0)
 
 
 def test_session_refuses_values_that_would_disable_it():
@@ -132,7 +139,7 @@ def test_time_jump_resets_and_a_fix_ahead_waits(ship60):
 
 def test_watchdog_drops_the_flag_when_the_imu_goes_silent(ship60):
     s = AlignmentSession(SessionConfig.from_dict({"core": "iekf", "init_mode": "truth", "imu_timeout_s": 1.0,
-                                                  "init_rpy_error_deg": [1.0, 1.0, 2.0]}))
+                                                  "init_rpy_error_deg": [1.0, 1.0, 2.0], "imu_grade": "paper_ship"}))
     wall = 0.0
     for kind, item in events_in_arrival_order(ship60):
         if kind == "imu":
@@ -227,7 +234,7 @@ def test_initialisation_from_sensors_no_guess_any_heading(scenario, overrides, c
     accelerometers, the unknown heading by a bank of 8 hypotheses. The flag rises, is never up with |yaw error| >
     3 deg, and the final yaw error is within the bound (issue 13 acceptance (a)-(c), offline)."""
     d = make_scenario(scenario, seed=4, duration_s=150.0, **overrides)
-    r = ia.align(d, core=core)  # default init_mode: sensors
+    r = ia.align(d, core=core, imu_grade=SCENARIO_IMU_GRADE[scenario])  # default init_mode: sensors
     assert r.diagnostics["core.yaw_hypotheses_alive"] >= 1
     assert r.aligned.any(), r.diagnostics["aligned_reason"]
     assert not np.any(r.aligned & (np.abs(r.rpy_err_deg[:, 2]) > 3.0))
@@ -242,7 +249,7 @@ def test_host_stamp_jitter_is_not_a_gap(ship60):
     t = ship60.t_s + rng.uniform(-0.5e-3, 0.5e-3, ship60.n)
     t[0] = ship60.t_s[0]
     jit = replace(ship60, t_s=t)
-    kw = dict(core="iekf", init_mode="truth", init_rpy_error_deg=[2, -2, 10])
+    kw = dict(core="iekf", init_mode="truth", init_rpy_error_deg=[2, -2, 10], imu_grade="paper_ship")
     r = ia.align(jit, **kw)
     ref = ia.align(ship60, **kw)
     assert r.counters["imu_gaps"] == 0
@@ -300,7 +307,7 @@ def test_outliers_change_nothing_and_are_counted(ship120, core, params, case):
     """One fix 1000 km or 200 m off (once the filter claims its attitude) is gated before it touches the core; a
     30 rad/s single-sample spike is dropped (a gap, bridged). The estimate equals (fixes) or stays near (spike)
     the clean run, inside its 3-sigma."""
-    kw = dict(core=core, core_params=params, init_mode="truth", init_rpy_error_deg=[2, -2, 10])
+    kw = dict(core=core, core_params=params, init_mode="truth", init_rpy_error_deg=[2, -2, 10], imu_grade="paper_ship")
     valid = np.ones(len(ship120.gnss_t_s), bool)
     valid[80] = False  # the reference: the same run without fix 80 at all
     clean = ia.align(replace(ship120, gnss_valid=valid), **kw)
@@ -330,7 +337,7 @@ def test_a_lost_filter_is_a_divergence_then_realigned(core):
     from scipy.spatial.transform import Rotation
 
     d = make_scenario("ship", seed=3, duration_s=180.0)
-    s = AlignmentSession(SessionConfig.from_dict({"core": core, "init_mode": "truth",
+    s = AlignmentSession(SessionConfig.from_dict({"core": core, "init_mode": "truth", "imu_grade": "paper_ship",
                                                   "init_rpy_error_deg": [2.0, -2.0, 10.0]}))
     outs, kicked = [], False
     for kind, item in events_in_arrival_order(d):

@@ -1,15 +1,19 @@
 """insalign-align: offline alignment of a contract bag or a simulated scenario with any registered core.
 
     insalign-align BAG --core iekf [--rpy-error 10 10 60 | --initial-rpy R P Y] [--duration 300] [--out-dir out]
-    insalign-align --scenario ship --seed 0 --core pi_liekf --rpy-error 10 10 60
+    insalign-align --scenario ship --seed 0 --core pi_liekf --rpy-error 10 10 60 --imu-grade paper_ship
     insalign-align --scenario static --core pkf --param zupt_rate_hz=10
+    insalign-align --scenario park_drive --core auto --session-param init_mode=sensors   (parked, then driving)
+    insalign-align BAGS_DIR --core iekf [--workers 4 | --scheduler tcp://host:8786 | --serial] --out-dir out
 
 A thin CLI over ``insalign_ros.align`` (the same AlignmentSession as alignment_node). Initialisation: with
 ``--initial-rpy`` from that guess; when the data have truth, from the truth plus ``--rpy-error``; otherwise (or with
 ``--session-param init_mode=sensors``) from the sensors alone (no guess: fixes, accelerometers, a yaw bank).
 Static cores get zero-velocity updates from the session (``--session-param zupt_rate_hz=10``). Writes
 <out>/<name>_<core>.csv (time, Euler estimate, error, 3-sigma, NEES, flag), a metrics JSON and a PNG like the
-PI-LIEKF paper's Fig. 3. Every user error is one line on stderr and exit status 2.
+PI-LIEKF paper's Fig. 3. Every user error is one line on stderr and exit status 2. Given a directory of bags, every
+bag is aligned with the same options as an independent Dask task (cli/fleet.py): per-bag outputs in
+<out>/<bag>/ and a summary table <out>/fleet_summary.csv (.md).
 """
 
 from __future__ import annotations
@@ -40,7 +44,7 @@ def _kv(items: list[str], what: str) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="insalign-align", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("bag", nargs="?", help="contract bag (insalign_ros.io.bag)")
+    ap.add_argument("bag", nargs="?", help="contract bag (insalign_ros.io.bag), or a directory of bags (a fleet)")
     ap.add_argument("--scenario", help="simulate instead: ship, car, static, ...")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--core", default="iekf", help="any registered core (insalign_ros.core_names())")
@@ -49,6 +53,9 @@ def main(argv=None) -> int:
     ap.add_argument("--initial-rpy", nargs=3, type=float, metavar=("R", "P", "Y"),
                     help="initial attitude guess [deg] (yaw from East, CCW); used whether or not the data have truth")
     ap.add_argument("--duration", type=float, default=None, help="seconds of data to use")
+    ap.add_argument("--imu-grade", default=None, metavar="GRADE",
+                    help="IMU noise model (docs/imu_grades.md): consumer_mems, industrial_mems, tactical, navigation, "
+                         "paper_ship, ...; default unknown_mems (conservative MEMS); --param overrides its fields")
     ap.add_argument("--param", action="append", default=[], metavar="KEY=VALUE", help="core parameter")
     ap.add_argument("--session-param", action="append", default=[], metavar="KEY=VALUE",
                     help="session parameter (insalign_ros.session.config.SessionConfig)")
@@ -56,6 +63,8 @@ def main(argv=None) -> int:
                     help="deliver each fix S seconds of data time after its stamp (receiver latency)")
     ap.add_argument("--imu-topic", default=None, help="Imu topic of the bag (default: the contract's /imu/data)")
     ap.add_argument("--gps-topic", default=None, help="NavSatFix topic (default /gps/fix)")
+    ap.add_argument("--vel-topic", default=None,
+                    help="GNSS velocity topic, TwistWithCovarianceStamped in ENU (default /gps/vel; read when present)")
     ap.add_argument("--truth-topic", default=None, help="reference pose topic, any rate (default /ground_truth/pose)")
     ap.add_argument("--unknown-fix-sigma", type=float, default=None, metavar="M",
                     help="1-sigma per axis [m] for fixes with UNKNOWN covariance (default 1 m, as the node's gnss_sigma_m)")
@@ -68,14 +77,48 @@ def main(argv=None) -> int:
                          "(filters/backtrack.py; earth_iekf, liekf)")
     ap.add_argument("--backtrack-window", type=float, default=60.0, metavar="S",
                     help="stored alignment window after initialisation [s] (with --backtrack)")
+    g = ap.add_argument_group("a directory of bags (Dask tasks; insalign_ros.eval.parallel)")
+    g.add_argument("--workers", type=int, default=0, help="LocalCluster worker processes (default: the CPU count)")
+    g.add_argument("--scheduler", default="", help="address of a running Dask scheduler, e.g. tcp://host:8786")
+    g.add_argument("--serial", action="store_true", help="no Dask: the bags one after the other, in this process")
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = ap.parse_args(argv)
     if bool(args.bag) == bool(args.scenario):
         ap.error("give exactly one of BAG or --scenario")
+    fleet = bool(args.bag) and Path(args.bag).is_dir() and not (Path(args.bag) / "metadata.yaml").exists()
+    if not fleet and (args.workers or args.scheduler or args.serial):
+        ap.error("--workers/--scheduler/--serial apply to a directory of bags")
     try:
+        if fleet:
+            return _run_fleet(args, argv)
         return _run(args)
     except (ValueError, FileNotFoundError, KeyError) as exc:
         print(f"insalign-align: {exc}", file=sys.stderr)
         return 2
+
+
+def _run_fleet(args, argv: list[str]) -> int:
+    """Every bag under the directory ``args.bag`` with the other options of ``argv``; the summary table."""
+    from .fleet import run_fleet
+
+    drop_value = {"--out-dir", "--workers", "--scheduler"}
+    rest, skip = [], False
+    for a in argv:
+        if skip:
+            skip = False
+        elif a in drop_value:
+            skip = True
+        elif a == "--serial" or a == args.bag or a.split("=", 1)[0] in drop_value:
+            continue
+        else:
+            rest.append(a)
+    rows = run_fleet(args.bag, rest, args.out_dir, args.workers, args.scheduler, args.serial,
+                     progress=not args.no_progress)
+    bad = [r for r in rows if r["rc"] != 0]
+    for r in bad:
+        print(f"insalign-align: {r['bag']}: {r.get('error', '')}", file=sys.stderr)
+    print(f"{len(rows) - len(bad)} of {len(rows)} bags aligned; wrote {Path(args.out_dir) / 'fleet_summary.csv'}")
+    return 0 if not bad else 1
 
 
 def _run(args) -> int:
@@ -88,13 +131,15 @@ def _run(args) -> int:
 
     core_params = _kv(args.param, "--param")
     sp = _kv(args.session_param, "--session-param")
+    if args.imu_grade is not None:
+        sp["imu_grade"] = args.imu_grade
     SessionConfig.from_dict({"core": args.core, **sp})  # user errors before any work
     make_config(args.core, core_params)
-    reader = {k: v for k, v in (("imu_topic", args.imu_topic), ("gps_topic", args.gps_topic),
+    reader = {k: v for k, v in (("imu_topic", args.imu_topic), ("gps_topic", args.gps_topic), ("vel_topic", args.vel_topic),
                                 ("truth_topic", args.truth_topic), ("unknown_fix_sigma_m", args.unknown_fix_sigma))
               if v is not None}
     if reader and not args.bag:
-        raise ValueError("--imu-topic/--gps-topic/--truth-topic/--unknown-fix-sigma apply to a bag")
+        raise ValueError("--imu-topic/--gps-topic/--vel-topic/--truth-topic/--unknown-fix-sigma apply to a bag")
     data = load_source(args.bag or args.scenario, args.duration, args.seed, **reader)
     name = Path(args.bag).stem if args.bag else f"{args.scenario}_s{args.seed}"
     if args.initial_rpy is not None:
@@ -130,7 +175,8 @@ def _run(args) -> int:
             w.writerow([f"{r.t_s[i]:.3f}", *(f"{x:.6f}" for x in r.rpy_deg[i]), *(f"{x:.6f}" for x in r.rpy_err_deg[i]),
                         *(f"{x:.6f}" for x in r.sigma3_deg[i]), f"{r.nees[i]:.4f}", int(r.aligned[i])])
     summ = dict(r.metrics)
-    summ.update(data=name, init_mode=sp["init_mode"], counters=r.counters,
+    summ.update(data=name, init_mode=sp["init_mode"], imu_grade=sp.get("imu_grade", SessionConfig().imu_grade),
+                counters=r.counters,
                 diagnostics={k: v for k, v in r.diagnostics.items() if k.startswith("core.")})
     if rpy_error is not None:
         summ["rpy_error_deg"] = rpy_error

@@ -166,6 +166,10 @@ def run_alignment(args, log_dir: Path, out=None) -> tuple[int, dict]:
                     "imu_qos": "reliable"}
     if args.yaw_hypotheses > 1:  # unknown heading: a bank of yaw hypotheses (filters/hypotheses.py)
         align_params["yaw_hypotheses"] = args.yaw_hypotheses
+    if args.imu_grade or not args.bag:  # a simulated scenario: its IMU's grade (docs/imu_grades.md)
+        from ..filters.imu_grade import SCENARIO_IMU_GRADE
+
+        align_params["imu_grade"] = args.imu_grade or SCENARIO_IMU_GRADE.get(args.scenario, "unknown_mems")
     if args.bag:
         align_params["init_mode"] = "guess"
         align_params["initial_rpy_deg"] = str([float(x) for x in args.initial_rpy_deg.split(",")])
@@ -290,6 +294,8 @@ def main(argv=None) -> int:
                     "truth (default 5,-5,30)")
     ap.add_argument("--yaw-hypotheses", type=int, default=1, help="in-motion cores: a bank of K yaw hypotheses for an "
                     "unknown heading (e.g. --yaw-hypotheses 8 --init-error-deg 5,-5,179; default 1 = one filter)")
+    ap.add_argument("--imu-grade", default=None, help="alignment_node imu_grade (docs/imu_grades.md; default: the "
+                    "scenario's IMU grade, unknown_mems for a bag)")
     ap.add_argument("--bag", type=Path, default=None, help="replay this contract rosbag2 instead of a scenario")
     ap.add_argument("--initial-rpy-deg", default="0,0,0", help="bag without truth: initial roll,pitch,yaw guess")
     ap.add_argument("--bag-truth-init", action="store_true", help="bag with truth: initialise from it + the error")

@@ -23,3 +23,14 @@ class GnssFix:
     stamp_s: float
     p_e: np.ndarray
     R_e: np.ndarray
+
+
+@dataclass(frozen=True)
+class GnssVelocity:
+    """A GNSS velocity: stamp [s], the antenna's velocity relative to Earth in local ENU v_n [m/s] (ENU at the
+    antenna: REP 103, what u-blox, NovAtel and MicroStrain drivers publish as TwistWithCovarianceStamped) and its
+    3x3 covariance R_n [m^2/s^2] in ENU."""
+
+    stamp_s: float
+    v_n: np.ndarray
+    R_n: np.ndarray

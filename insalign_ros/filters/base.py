@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core.types import GnssFix, ImuSample  # noqa: F401  (re-exported: the interface speaks these)
+from ..core.types import GnssFix, GnssVelocity, ImuSample  # noqa: F401  (re-exported: the interface speaks these)
 
 
 class AlignmentStatus(enum.Enum):
@@ -79,6 +79,8 @@ class AlignmentCore(ABC):
     #: capabilities a caller may rely on (declared here, never probed with hasattr)
     needs_motion: bool = False
     supports_gnss: bool = False
+    #: ``update_gnss_velocity`` / ``predict_gnss_velocity`` fuse a GNSS velocity (ENU, at the antenna)
+    supports_gnss_velocity: bool = False
     supports_zero_velocity: bool = False
     #: ``propagate_backward`` (and ``propagate_arrays(..., backward=True)``) work (filters/backtrack.py)
     supports_backtracking: bool = False
@@ -128,6 +130,16 @@ class AlignmentCore(ABC):
         """The innovation (``innovation``, ``S``, ``nis``) a fix would have now, with nothing changed (the session's
         outlier gate). Cores without it return a result with an empty ``S`` (no gate)."""
         return UpdateResult(False, reason=f"{self.name} has no GNSS prediction")
+
+    def update_gnss_velocity(self, vel: GnssVelocity) -> UpdateResult:
+        """Fuse a GNSS velocity (ENU antenna velocity relative to Earth, at the core's current time; the caller
+        propagates first). Cores with ``supports_gnss_velocity`` implement it."""
+        return UpdateResult(False, reason=f"{self.name} does not use GNSS velocity")
+
+    def predict_gnss_velocity(self, vel: GnssVelocity) -> UpdateResult:
+        """The innovation a velocity would have now, with nothing changed (the session's outlier gate); an empty
+        ``S`` where not implemented (no gate)."""
+        return UpdateResult(False, reason=f"{self.name} has no GNSS velocity prediction")
 
     def update_zero_velocity(self, stamp_s: float, sigma_v_m_s: float) -> UpdateResult:
         """Fuse the zero-velocity condition (vehicle at rest relative to Earth) with std sigma_v [m/s]."""

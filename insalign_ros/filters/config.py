@@ -2,7 +2,9 @@
 
 Units are in the field names. Defaults are the PI-LIEKF paper's Table 1 / Table 2 values (ship simulation):
 gyro ARW 2.0 deg/sqrt(h), VRW 0.2 m/s/sqrt(h), gyro bias 25.2 deg/h, accelerometer bias 0.2 mg, GPS 1 m,
-rho = 0.01. ``config/<core>.yaml`` holds the same defaults in ROS 2 parameter-file layout
+rho = 0.01: the noise and bias fields are the IMU grade ``paper_ship`` (filters/imu_grade.py). Sessions, the node and
+insalign-align set those fields from their ``imu_grade`` (default ``unknown_mems``, a conservative MEMS prior); an
+explicit field overrides the grade. ``config/<core>.yaml`` holds the other defaults in ROS 2 parameter-file layout
 (``alignment_node: ros__parameters: ...``); ``test/test_liekf_config.py`` checks that they agree.
 
 ``from_dict`` validates: unknown keys, wrong types and out-of-range values raise ``ValueError`` with the field
@@ -36,6 +38,8 @@ class ConfigDict:
                 raise ValueError(f"{k}: expected a string, got {v!r}")
             if ftype in ("float", float) and not isinstance(v, float):
                 raise ValueError(f"{k}: expected a number, got {v!r}")
+            if ftype in ("list", list) and isinstance(v, (list, tuple)):
+                v = [float(x) if isinstance(x, (int, float)) and not isinstance(x, bool) else x for x in v]
             kwargs[k] = v
         cfg = cls(**kwargs)
         cfg.validate()
@@ -51,6 +55,11 @@ class ConfigDict:
             if f.type in ("str", str):  # choices are checked by the class that adds the field
                 if not isinstance(v, str):
                     raise ValueError(f"{f.name}: expected a string, got {v!r}")
+                continue
+            if f.type in ("list", list):  # a 3-vector (gnss_lever_arm_b_m)
+                if not (isinstance(v, (list, tuple)) and len(v) == 3 and all(
+                        isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)):
+                    raise ValueError(f"{f.name}: expected 3 finite numbers, got {v!r}")
                 continue
             if f.type in ("int", int):
                 if not (isinstance(v, int) and not isinstance(v, bool)):
@@ -118,6 +127,10 @@ class InMotionGnssConfig(InMotionConfig):
     #: lower bound of the GNSS position sigma [m] (0 = trust the fix covariance; KITTI's 2 cm RT3003 accuracy is
     #: far below the model error of 10 Hz instantaneous IMU samples)
     gnss_sigma_floor_m: float = 0.0
+    #: GNSS antenna position in the body frame FLU [m] (lever arm from the IMU): the position and velocity
+    #: measurement models predict the antenna, p_ant = p + C_b_n l, v_ant = v + C_b_n (omega_ib_b x l)
+    #: (docs/inmotion_cores.md, "GNSS velocity and lever arm")
+    gnss_lever_arm_b_m: list = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
     #: yaw hypotheses (filters/hypotheses.py): 1 = a single filter; K >= 2 runs K copies of the core at yaw offsets
     #: 360/K deg apart, weighted by their GNSS likelihoods, for a heading that is unknown (docs/inmotion_cores.md)
     yaw_hypotheses: int = 1

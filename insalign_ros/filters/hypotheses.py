@@ -10,7 +10,7 @@ Model: the yaw prior N(0, sigma_yaw^2) about the initial guess (wrapped) is appr
 offsets ``2 pi k / K`` about the local Up axis, prior weights proportional to the wrapped normal density at the
 offset, each with its own yaw sigma ``min(sigma_yaw, pi / K)`` (half the spacing). Every component is a full
 core (LIEKF, PI-LIEKF, IEKF or EKF) run on the same data. Weights follow Bayes' rule with each component's
-GNSS innovation likelihood ``N(z; 0, S)``:
+GNSS innovation likelihood ``N(z; 0, S)`` (position fixes and, where the core fuses them, GNSS velocities):
 
     log w_k += -0.5 (z_k^T S_k^-1 z_k + log det S_k)      (normalised after every fix)
 
@@ -53,6 +53,7 @@ class YawHypothesisBank(AlignmentCore):
         self.name = proto.name
         self.needs_motion = proto.needs_motion
         self.supports_gnss = proto.supports_gnss
+        self.supports_gnss_velocity = proto.supports_gnss_velocity
         self.supports_zero_velocity = proto.supports_zero_velocity
         self.supports_backtracking = False
         self.att_index, self.vel_index, self.pos_index = proto.att_index, proto.vel_index, proto.pos_index
@@ -161,6 +162,17 @@ class YawHypothesisBank(AlignmentCore):
 
     def update_gnss(self, fix) -> UpdateResult:
         return self._update([h.update_gnss(fix) for h in self.hyps])
+
+    def predict_gnss_velocity(self, vel) -> UpdateResult:
+        """As predict_gnss: the last hypothesis' prediction, none while several live."""
+        if len(self.hyps) != 1:
+            return UpdateResult(False, reason="several yaw hypotheses alive")
+        return self.hyps[0].predict_gnss_velocity(vel)
+
+    def update_gnss_velocity(self, vel) -> UpdateResult:
+        """Every hypothesis fuses the velocity; its innovation likelihood weighs the hypotheses like a fix (the
+        velocity likelihood is what the PX4 EKF-GSF yaw estimator uses alone)."""
+        return self._update([h.update_gnss_velocity(vel) for h in self.hyps])
 
     def update_zero_velocity(self, stamp_s: float, sigma_v_m_s: float) -> UpdateResult:
         return self._update([h.update_zero_velocity(stamp_s, sigma_v_m_s) for h in self.hyps])

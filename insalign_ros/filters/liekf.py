@@ -14,7 +14,12 @@ Conventions (docs/inmotion_cores.md has the derivations):
   against a finite-difference linearisation of the true error dynamics. The gravity gradient is neglected
   (as in eq. (41)).
 * GNSS (eqs. (42), (43), (11)): ``z = C^T (p_gps_i - p_hat_i)`` (= X_hat^-1 Y - d), ``H = [0 0 I]``,
-  ``N = C^T R_i C``; Joseph form (eq. (13)); retraction ``X_hat exp(dxi)`` (eq. (14)).
+  ``N = C^T R_i C``; Joseph form (eq. (13)); retraction ``X_hat exp(dxi)`` (eq. (14)). With the antenna lever
+  arm ``l`` (body FLU, ``gnss_lever_arm_b_m``): ``z = C^T (p_gps_i - p_hat_i) - l``, ``H = [-l_x 0 I]``.
+* GNSS velocity (ENU, relative to Earth, at the antenna) -> ECI inertial antenna velocity
+  ``v_meas_i = C_e_i (C_n_e v_n + omega_ie x p_ant_e)``; model ``v_ant_i = v_i + C_b_i (omega_ib_b x l)`` (exact in
+  ECI: the inertial derivative of ``C_b_i l``); ``z = C^T (v_meas_i - v_hat_i) - a`` with ``a = omega_ib_b x l``,
+  ``H = [-a_x I 0]`` (docs/inmotion_cores.md, "GNSS velocity and lever arm").
 * Attitude output: ``C_b_n_true = C_b_n_hat exp(phi_x) = exp((C_b_n_hat phi)_x) C_b_n_hat`` so
   ``psi_n = C_b_n_hat phi`` and ``P_att_n = C_b_n P_phiphi C_b_n^T`` (a Monte-Carlo NEES test checks it).
 
@@ -36,7 +41,7 @@ from ..core import mechanization_numba as nb
 from ..core.lie import _A_SERIES, _B_SERIES, _C1_SERIES, _C2_SERIES, _coeff_batch
 from ..core.mechanization import NavStateEci, geodetic_from_state_eci, state_eci_from_geodetic
 from ..sim.error_model import deg_sqrt_h_to_rad_sqrt_s, m_s_sqrt_h_to_m_s_sqrt_s
-from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, GnssFix, ImuSample, UpdateResult
+from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, GnssFix, GnssVelocity, ImuSample, UpdateResult
 from .config import LiekfConfig
 
 _I3 = np.eye(3)
@@ -210,6 +215,21 @@ def _check_fix(fix: GnssFix) -> str:
     return ""
 
 
+def check_velocity(v_n, R_n) -> str:
+    """Why a GNSS velocity (v_n (3,) [m/s], R_n (3, 3) [m^2/s^2]) is unusable, or "" (shared with the session)."""
+    v = np.asarray(v_n, float)
+    R = np.asarray(R_n, float)
+    if v.shape != (3,) or R.shape != (3, 3):
+        return f"bad shapes v_n {v.shape}, R_n {R.shape}"
+    if not (np.all(np.isfinite(v)) and np.all(np.isfinite(R))):
+        return "non-finite velocity or covariance"
+    try:
+        np.linalg.cholesky(0.5 * (R + R.T))
+    except np.linalg.LinAlgError:
+        return "covariance not positive definite (unknown or zero covariance)"
+    return ""
+
+
 def _check_imu(imu: ImuSample) -> str:
     w = np.asarray(imu.omega_ib_b, float)
     f = np.asarray(imu.f_ib_b, float)
@@ -246,6 +266,7 @@ class BatchedEciCore(AlignmentCore):
 
     needs_motion = True
     supports_gnss = True
+    supports_gnss_velocity = True
     att_index = (0, 1, 2)
     vel_index = (3, 4, 5)
     pos_index = (6, 7, 8)
@@ -259,7 +280,9 @@ class BatchedEciCore(AlignmentCore):
         self._buf_t: list[float] = []
         self._buf_w: list[np.ndarray] = []
         self._buf_f: list[np.ndarray] = []
-        self.counters = {"imu": 0, "imu_rejected": 0, "gnss": 0, "gnss_rejected": 0}
+        self.counters = {"imu": 0, "imu_rejected": 0, "gnss": 0, "gnss_rejected": 0, "gnss_vel": 0,
+                         "gnss_vel_rejected": 0}
+        self.lever_b = np.asarray(getattr(self.cfg, "gnss_lever_arm_b_m", (0.0, 0.0, 0.0)), float)
         self.last_reject_reason = ""
         arw = deg_sqrt_h_to_rad_sqrt_s(self.cfg.gyro_arw_deg_sqrt_h)
         vrw = m_s_sqrt_h_to_m_s_sqrt_s(self.cfg.acc_vrw_m_s_sqrt_h)
@@ -281,6 +304,7 @@ class BatchedEciCore(AlignmentCore):
         self.C, self.v, self.p = s.C_b_i, s.v_i, s.p_i
         self.b_g = np.zeros(3)
         self.b_a = np.zeros(3)
+        self.omega_b = np.zeros(3)  # bias-corrected rate of the newest sample [rad/s] (lever-arm velocity)
         C_b_n = np.asarray(C_b_n, float)
         self.P = self._P0(C_b_n, np.asarray(P_att_n, float), float(sigma_v_m_s), float(sigma_p_m))
         self._P0_att = self.P[0:3, 0:3].copy()
@@ -375,6 +399,7 @@ class BatchedEciCore(AlignmentCore):
             Phi, Qd = self._transitions(dC, dv_b, dp_b, dt, C_prev, f)
             self.P, Phi_tot = covariance_batch(self.P, Phi, Qd)
         self._Phi_since_update = Phi_tot @ self._Phi_since_update
+        self.omega_b = w[-1].copy()
         self.C = orthonormalize(C)  # once per batch
         self.v, self.p = v, p
         self.t_s = float(t[-1])
@@ -406,11 +431,23 @@ class BatchedEciCore(AlignmentCore):
         return Phi, Qd
 
     def _gnss_model(self, p_gps_i: np.ndarray, R_i: np.ndarray):
-        """(z, H, N): left-invariant position innovation, eqs. (10), (11), (42), (43)."""
+        """(z, H, N): left-invariant position innovation, eqs. (10), (11), (42), (43), of the antenna at the lever
+        arm l: p_ant = p + C exp(phi) l, so z = C^T (p_gps - p) - l = rho - l_x phi."""
         H = np.zeros((3, self._n_states))
+        H[:, 0:3] = -lie.hat3(self.lever_b)
         H[:, 6:9] = _I3
         Ct = self.C.T
-        return Ct @ (p_gps_i - self.p), H, Ct @ R_i @ self.C
+        return Ct @ (p_gps_i - self.p) - self.lever_b, H, Ct @ R_i @ self.C
+
+    def _velocity_model(self, v_gps_i: np.ndarray, R_i: np.ndarray):
+        """(z, H, N): left-invariant velocity innovation of the antenna, v_ant = v + C exp(phi) a with
+        a = omega_ib_b x l: z = C^T (v_gps - v) - a = nu - a_x phi."""
+        a = np.cross(self.omega_b, self.lever_b)
+        H = np.zeros((3, self._n_states))
+        H[:, 0:3] = -lie.hat3(a)
+        H[:, 3:6] = _I3
+        Ct = self.C.T
+        return Ct @ (v_gps_i - self.v) - a, H, Ct @ R_i @ self.C
 
     def _inject(self, dx: np.ndarray) -> None:
         """Retraction X_hat exp(dxi) (eq. (14)); error reset (eq. (15)) is implicit."""
@@ -435,6 +472,25 @@ class BatchedEciCore(AlignmentCore):
                 R_i = R_i + (floor2 - lo) * np.eye(3)
         return self._gnss_model(p_i, R_i)
 
+    def _velocity_terms(self, vel: GnssVelocity):
+        """(z, H, N) of a GNSS velocity at the core's current time: the ENU antenna velocity relative to Earth
+        turned into the ECI inertial velocity at the estimated antenna position (the earth-rate term
+        omega_ie x p_ant uses the estimate: its error is omega_ie |dp| ~ 7e-5 m/s per metre, neglected in H)."""
+        self.flush()
+        Cei = earth.C_e_i(self.t_s, self.t0_s)
+        p_ant_e = Cei.T @ (self.p + self.C @ self.lever_b)
+        lat, lon, _ = earth.ecef_to_geodetic(p_ant_e)
+        Cne = earth.C_n_e(lat, lon)
+        v_i = Cei @ (Cne @ np.asarray(vel.v_n, float) + np.cross(earth.OMEGA_IE_E, p_ant_e))
+        M = Cei @ Cne
+        return self._velocity_model(v_i, M @ np.asarray(vel.R_n, float) @ M.T)
+
+    def _prediction(self, terms) -> UpdateResult:
+        z, H, N = terms
+        S = H @ self.P @ H.T + N
+        S = 0.5 * (S + S.T)
+        return UpdateResult(False, z, S, float(z @ np.linalg.solve(S, z)), "prediction only")
+
     def predict_gnss(self, fix: GnssFix) -> UpdateResult:
         """The innovation, its covariance and NIS a fix would have now; changes nothing (an outlier gate)."""
         if not self._init:
@@ -442,10 +498,28 @@ class BatchedEciCore(AlignmentCore):
         reason = _check_fix(fix)
         if reason:
             return UpdateResult(False, reason=reason)
-        z, H, N = self._gnss_terms(fix)
-        S = H @ self.P @ H.T + N
-        S = 0.5 * (S + S.T)
-        return UpdateResult(False, z, S, float(z @ np.linalg.solve(S, z)), "prediction only")
+        return self._prediction(self._gnss_terms(fix))
+
+    def predict_gnss_velocity(self, vel: GnssVelocity) -> UpdateResult:
+        """The innovation, its covariance and NIS a GNSS velocity would have now; changes nothing."""
+        if not self._init:
+            return UpdateResult(False, reason="not initialised")
+        reason = check_velocity(vel.v_n, vel.R_n)
+        if reason:
+            return UpdateResult(False, reason=reason)
+        return self._prediction(self._velocity_terms(vel))
+
+    def update_gnss_velocity(self, vel: GnssVelocity) -> UpdateResult:
+        """Fuse a GNSS velocity (Joseph form, the same fading memory and NIS gate as a fix; a plain Kalman
+        correction in every core, PI-LIEKF included: its PI loop and LMI are built on position innovations)."""
+        if not self._init:
+            return UpdateResult(False, reason="not initialised")
+        reason = check_velocity(vel.v_n, vel.R_n)
+        if reason:
+            self.counters["gnss_vel_rejected"] += 1
+            self.last_reject_reason = f"GNSS velocity: {reason}"
+            return UpdateResult(False, reason=reason)
+        return self._kalman_update(*self._velocity_terms(vel), kind="gnss_vel")
 
     def update_gnss(self, fix: GnssFix) -> UpdateResult:
         if not self._init:
@@ -455,7 +529,11 @@ class BatchedEciCore(AlignmentCore):
             self.counters["gnss_rejected"] += 1
             self.last_reject_reason = f"GNSS: {reason}"
             return UpdateResult(False, reason=reason)
-        z, H, N = self._gnss_terms(fix)
+        return self._kalman_update(*self._gnss_terms(fix), kind="gnss")
+
+    def _kalman_update(self, z, H, N, kind: str) -> UpdateResult:
+        """One update with (z, H, N); ``kind`` "gnss" (position: the PI-LIEKF correction and its update clock) or
+        "gnss_vel" (plain correction L z)."""
         self._P_prior = self.P
         L, P_new, S = joseph_update(self.P, H, N)
         nis = float(z @ np.linalg.solve(S, z))
@@ -475,15 +553,17 @@ class BatchedEciCore(AlignmentCore):
             self.counters["fading"] = self.counters.get("fading", 0) + 1
             L, P_new, S = joseph_update(self.P, H, N)
         if self.cfg.gnss_nis_gate > 0 and nis > self.cfg.gnss_nis_gate:
-            self.counters["gnss_rejected"] += 1
-            self.last_reject_reason = f"GNSS: NIS {nis:.1f} above gate {self.cfg.gnss_nis_gate}"
+            self.counters[f"{kind}_rejected"] += 1
+            self.last_reject_reason = (f"{'GNSS' if kind == 'gnss' else 'GNSS velocity'}: NIS {nis:.1f} above gate "
+                                       f"{self.cfg.gnss_nis_gate}")
             return UpdateResult(False, z, S, nis, self.last_reject_reason)
-        dx = self._correction(z, L, H, N)
+        dx = self._correction(z, L, H, N) if kind == "gnss" else L @ z
         self.P = P_new
         self._inject(dx)
-        self.counters["gnss"] += 1
-        self._Phi_since_update = np.eye(self._n_states)
-        self._t_last_update = self.t_s
+        self.counters[kind] += 1
+        if kind == "gnss":
+            self._Phi_since_update = np.eye(self._n_states)
+            self._t_last_update = self.t_s
         return UpdateResult(True, z, S, nis, "")
 
     def _correction(self, z, L, H, N) -> np.ndarray:

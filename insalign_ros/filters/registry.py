@@ -75,7 +75,16 @@ def core_names() -> tuple[str, ...]:
     return tuple(CORES)
 
 
+#: cores that live above the filters and register themselves when their module is imported (name -> module):
+#: ``auto`` composes a static and an in-motion core with the session's motion detector (session/auto.py)
+LAZY_CORES: dict[str, str] = {"auto": "insalign_ros.session.auto"}
+
+
 def make_config(name: str, params: dict | None = None):
+    if name not in CORES and name in LAZY_CORES:
+        import importlib
+
+        importlib.import_module(LAZY_CORES[name])  # registers it
     if name not in CORES:
         raise ValueError(f"unknown core {name!r}; choose one of {sorted(CORES)}")
     return CORES[name][1].from_dict(params)

@@ -186,7 +186,9 @@ class StaticConfig(ConfigDict):
     """Shared parameters of the static (zero-velocity) cores. Units in the names.
 
     Defaults: PKF paper Table 1 (ADIS16488A): ARW 0.26 deg/sqrt(h), VRW 0.029 m/s/sqrt(h); bias stability 5.1 deg/h,
-    0.07 mg used as the initial bias sigma of the 10-state EKF.
+    0.07 mg used as the initial bias sigma of the 10-state EKF: the IMU grade ``paper_static``
+    (filters/imu_grade.py). Sessions, the node and insalign-align set the noise and bias fields from their
+    ``imu_grade`` (default ``unknown_mems``); an explicit field overrides the grade.
     """
 
     gyro_arw_deg_sqrt_h: float = 0.26
@@ -587,21 +589,11 @@ def arw_azimuth_limit_rad(arw_deg_sqrt_h: float, lat_rad: float, T_s: float) -> 
 
 def config_for_imu(config_class, spec, **overrides):
     """Config of a static core from an ImuSpec (datasheet): process noise from VRW and ARW, the bias priors (EKF10
-    initial bias sigmas, the 5-state consider floor, the coarse alignment's bias terms) from the bias stability.
-    config/<core>.yaml (ADIS16488A) and config/<core>_navgrade.yaml are this function's output (tested)."""
-    params = {"gyro_arw_deg_sqrt_h": spec.arw_deg_sqrt_h, "acc_vrw_m_s_sqrt_h": spec.vrw_m_s_sqrt_h}
-    names = {f.name for f in fields(config_class)}
-    if "consider_gyro_bias_deg_h" in names:
-        params["consider_gyro_bias_deg_h"] = spec.gyro_bias_deg_h
-        params["consider_acc_bias_mg"] = spec.acc_bias_mg
-    if "gyro_bias_deg_h" in names:
-        params["gyro_bias_deg_h"] = spec.gyro_bias_deg_h
-        params["acc_bias_mg"] = spec.acc_bias_mg
-    if "init_sigma_gyro_bias_deg_h" in names:
-        params["init_sigma_gyro_bias_deg_h"] = spec.gyro_bias_deg_h
-        params["init_sigma_acc_bias_mg"] = spec.acc_bias_mg
-    params.update(overrides)
-    return config_class.from_dict(params)
+    initial bias sigmas, the 5-state consider floor, the coarse alignment's bias terms) from the bias stability
+    (filters/imu_grade.py maps the fields). config/<core>_navgrade.yaml is this function's output (tested)."""
+    from .imu_grade import ImuGrade, grade_params
+
+    return config_class.from_dict({**grade_params(ImuGrade.from_spec(spec), config_class), **overrides})
 
 
 def run_static(core: AlignmentCore, sc, az0_rad: float, sigma_R_m_s: float, zupt_hz: float = 10.0,

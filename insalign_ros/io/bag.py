@@ -3,6 +3,9 @@
 Topics (names configurable in read_bag for bags from other sources):
   /imu/data           sensor_msgs/msg/Imu          frame "imu_link", body FLU, rad/s, m/s^2
   /gps/fix            sensor_msgs/msg/NavSatFix    frame "gps", WGS84 deg, ellipsoidal height, ENU cov [m^2]
+  /gps/vel            geometry_msgs/msg/TwistWithCovarianceStamped  frame "gps" (optional): the antenna's velocity
+                                                    relative to Earth in ENU [m/s] in twist.linear, its ENU
+                                                    covariance [m^2/s^2] in the linear block of the 6x6
   /ground_truth/pose  geometry_msgs/msg/PoseStamped frame "enu" (local ENU about the metadata reference),
                                                     orientation = body FLU -> ENU
   /insalign/metadata  std_msgs/msg/String           JSON, written once before the first sample
@@ -35,6 +38,8 @@ log = logging.getLogger(__name__)
 
 IMU_TOPIC = "/imu/data"
 GPS_TOPIC = "/gps/fix"
+VEL_TOPIC = "/gps/vel"
+VEL_TYPE = "geometry_msgs/msg/TwistWithCovarianceStamped"
 TRUTH_TOPIC = "/ground_truth/pose"
 META_TOPIC = "/insalign/metadata"
 INVALID_SUFFIX = "_invalid"  #: flagged samples go to <topic>_invalid (docs/bag_contract.md, "Validity")
@@ -140,6 +145,8 @@ def write_bag(data: ScenarioData, path, storage: str = "sqlite3", write_truth: b
             position_covariance=R_n.ravel().astype(float),
             position_covariance_type=COVARIANCE_TYPE_DIAGONAL_KNOWN if diag else COVARIANCE_TYPE_KNOWN)
         events.append((ns, 1, GPS_TOPIC if gnss_ok[j] else GPS_INVALID_TOPIC, msg))
+    if data.has_gnss_velocity:
+        events += _velocity_events(ts, data, off_ns)
     if write_truth and data.has_truth:
         e, n_, u = pymap3d.geodetic2enu(data.lat_rad, data.lon_rad, data.h_m, math.radians(lat0),
                                         math.radians(lon0), h0, deg=False)
@@ -169,6 +176,8 @@ def write_bag(data: ScenarioData, path, storage: str = "sqlite3", write_truth: b
             conns[IMU_INVALID_TOPIC] = w.add_connection(IMU_INVALID_TOPIC, "sensor_msgs/msg/Imu", typestore=ts)
         if not gnss_ok.all():
             conns[GPS_INVALID_TOPIC] = w.add_connection(GPS_INVALID_TOPIC, "sensor_msgs/msg/NavSatFix", typestore=ts)
+        if data.has_gnss_velocity:
+            conns[VEL_TOPIC] = w.add_connection(VEL_TOPIC, VEL_TYPE, typestore=ts)
         if write_truth and data.has_truth:
             conns[TRUTH_TOPIC] = w.add_connection(TRUTH_TOPIC, "geometry_msgs/msg/PoseStamped", typestore=ts)
         first_ns = events[0][0] if events else 0
@@ -177,6 +186,42 @@ def write_bag(data: ScenarioData, path, storage: str = "sqlite3", write_truth: b
         for ns, _, topic, msg in it:
             w.write(conns[topic], ns, ts.serialize_cdr(msg, msg.__msgtype__))
     return path
+
+
+def _velocity_events(ts, data: ScenarioData, off_ns: int) -> list:
+    """(ns, 1, VEL_TOPIC, TwistWithCovarianceStamped) per GNSS velocity: ENU linear velocity, ENU covariance in
+    the linear block; the angular part is not measured (zero twist, variance -1 on its diagonal)."""
+    T = ts.types
+    out = []
+    for j in range(data.gnss_vel_t_s.shape[0]):
+        st, ns = _stamp(ts, float(data.gnss_vel_t_s[j]), off_ns)
+        cov = np.zeros((6, 6))
+        cov[:3, :3] = data.gnss_vel_R_n[j]
+        cov[3:, 3:] = -np.eye(3)
+        v = data.gnss_vel_n[j]
+        zero = T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
+        msg = T[VEL_TYPE](
+            header=T["std_msgs/msg/Header"](stamp=st, frame_id=GPS_FRAME),
+            twist=T["geometry_msgs/msg/TwistWithCovariance"](
+                twist=T["geometry_msgs/msg/Twist"](
+                    linear=T["geometry_msgs/msg/Vector3"](x=float(v[0]), y=float(v[1]), z=float(v[2])), angular=zero),
+                covariance=cov.ravel().astype(float)))
+        out.append((ns, 1, VEL_TOPIC, msg))
+    return out
+
+
+def velocity_from_twist(msg) -> tuple[np.ndarray | None, np.ndarray | None, str]:
+    """(v_n [m/s], R_n [m^2/s^2], "") from a TwistWithCovarianceStamped in ENU, or (None, None, reason)."""
+    lin = msg.twist.twist.linear
+    v = np.array([lin.x, lin.y, lin.z], float)
+    R = np.asarray(msg.twist.covariance, float).reshape(6, 6)[:3, :3]
+    if not (np.all(np.isfinite(v)) and np.all(np.isfinite(R))):
+        return None, None, "non-finite velocity or covariance"
+    try:
+        np.linalg.cholesky(0.5 * (R + R.T))
+    except np.linalg.LinAlgError:
+        return None, None, "linear velocity covariance not positive definite (unknown or zero)"
+    return v, 0.5 * (R + R.T), ""
 
 
 #: truth message types read_bag understands -> their Pose (orientation body FLU -> ENU, position ENU [m])
@@ -235,8 +280,8 @@ def _read_messages(path, streams: dict, meta_topic: str, unknown_fix_sigma_m: fl
     rejected = {topic: Counter() for topic in streams}
     frames = {topic: set() for topic in streams}
     got = {"imu": {"t": [], "w": [], "f": [], "ok": []}, "gps": {"t": [], "llh": [], "cov": [], "ok": []},
-           "truth": {"t": [], "p": [], "q": []}}
-    prev = {"imu": None, "gps": None, "truth": None}
+           "truth": {"t": [], "p": [], "q": []}, "vel": {"t": [], "v": [], "R": []}}
+    prev = {"imu": None, "gps": None, "truth": None, "vel": None}
     meta, n_unknown = None, 0
     with Reader(Path(path)) as r:
         topics = {c.topic: c.msgtype for c in r.connections}
@@ -246,8 +291,11 @@ def _read_messages(path, streams: dict, meta_topic: str, unknown_fix_sigma_m: fl
         for topic, (kind, _) in streams.items():
             if kind == "truth" and topic in topics and topics[topic] not in TRUTH_POSE:
                 rep["warnings"].append(f"{topic}: type {topics[topic]} is not a pose ({sorted(TRUTH_POSE)}): ignored")
+            if kind == "vel" and topic in topics and topics[topic] != VEL_TYPE:
+                rep["warnings"].append(f"{topic}: type {topics[topic]} is not {VEL_TYPE}: ignored")
         conns = [c for c in r.connections if c.topic == meta_topic or (
-            c.topic in streams and (streams[c.topic][0] != "truth" or c.msgtype in TRUTH_POSE))]
+            c.topic in streams and (streams[c.topic][0] != "truth" or c.msgtype in TRUTH_POSE)
+            and (streams[c.topic][0] != "vel" or c.msgtype == VEL_TYPE))]
         for conn, _, raw in r.messages(connections=conns):
             msg = ts.deserialize_cdr(raw, conn.msgtype)
             if conn.topic == meta_topic:
@@ -282,6 +330,11 @@ def _read_messages(path, streams: dict, meta_topic: str, unknown_fix_sigma_m: fl
                     g["t"].append(t_ns), g["llh"].append((msg.latitude, msg.longitude, msg.altitude))
                     g["cov"].append(cov), g["ok"].append(ok)
                     n_unknown += int(unknown)
+            elif kind == "vel":
+                v, R, why = velocity_from_twist(msg)
+                reason = reason or why
+                if not reason:
+                    g["t"].append(t_ns), g["v"].append(v), g["R"].append(R)
             else:
                 pose = TRUTH_POSE[conn.msgtype](msg)
                 p, q = pose.position, pose.orientation
@@ -331,7 +384,7 @@ def _truth_reference(meta: dict, ref_llh_deg, gps: dict, tr_t_ns, tr_p, warnings
 def read_bag(path, imu_topic: str = IMU_TOPIC, gps_topic: str = GPS_TOPIC, truth_topic: str = TRUTH_TOPIC,
              meta_topic: str = META_TOPIC, report: dict | None = None,
              unknown_fix_sigma_m: float | None = DEFAULT_UNKNOWN_FIX_SIGMA_M, imu_invalid_topic: str | None = None,
-             gps_invalid_topic: str | None = None, ref_llh_deg=None) -> ScenarioData:
+             gps_invalid_topic: str | None = None, ref_llh_deg=None, vel_topic: str = VEL_TOPIC) -> ScenarioData:
     """Read a contract bag, or any bag with an Imu topic (and optionally NavSatFix and pose topics), into ScenarioData.
 
     Parameters
@@ -343,6 +396,8 @@ def read_bag(path, imu_topic: str = IMU_TOPIC, gps_topic: str = GPS_TOPIC, truth
     imu_invalid_topic, gps_invalid_topic : topics of flagged samples (default ``<topic>_invalid``): read into
         ``imu_valid`` / ``gnss_valid`` (False), in stamp order with the valid ones.
     ref_llh_deg : (lat [deg], lon [deg], h [m]) ENU origin of the truth positions when the metadata has none.
+    vel_topic : GNSS velocity topic (TwistWithCovarianceStamped, ENU, antenna velocity relative to Earth; read when
+        present into gnss_vel_*; a velocity with a zero/unknown covariance is rejected and counted).
 
     Invalid samples (validation.py) are dropped and counted; the counts are logged as warnings and stored in
     ``report`` (if given) as {"rejected": {topic: {reason: count}}, "warnings": [...], "unknown_covariance_fixes": n}.
@@ -358,9 +413,14 @@ def read_bag(path, imu_topic: str = IMU_TOPIC, gps_topic: str = GPS_TOPIC, truth
     rep.setdefault("warnings", [])
     streams = {imu_topic: ("imu", True), imu_invalid_topic or imu_topic + INVALID_SUFFIX: ("imu", False),
                gps_topic: ("gps", True), gps_invalid_topic or gps_topic + INVALID_SUFFIX: ("gps", False),
-               truth_topic: ("truth", True)}
-    meta, got, rejected, frames, n_unknown = _read_messages(path, streams, meta_topic, unknown_fix_sigma_m, rep)
-    expect = {"imu": IMU_FRAME, "gps": GPS_FRAME, "truth": TRUTH_FRAME}
+               truth_topic: ("truth", True), vel_topic: ("vel", True)}
+    from rosbags.rosbag2 import ReaderError
+
+    try:
+        meta, got, rejected, frames, n_unknown = _read_messages(path, streams, meta_topic, unknown_fix_sigma_m, rep)
+    except ReaderError as exc:  # a user error (not a rosbag2 bag, a damaged one): one line, not a traceback
+        raise ValueError(f"{path}: not a readable rosbag2 bag ({exc})") from exc
+    expect = {"imu": IMU_FRAME, "gps": GPS_FRAME, "truth": TRUTH_FRAME, "vel": GPS_FRAME}
     for topic, fs in frames.items():
         if fs and fs != {expect[streams[topic][0]]}:
             rep["warnings"].append(f"{topic}: frame_id {sorted(fs)} != contract {expect[streams[topic][0]]!r}")
@@ -372,7 +432,7 @@ def read_bag(path, imu_topic: str = IMU_TOPIC, gps_topic: str = GPS_TOPIC, truth
     if n_unknown:
         rep["warnings"].append(f"{gps_topic}: {n_unknown} fix(es) with UNKNOWN covariance: sigma "
                                f"{unknown_fix_sigma_m:g} m per axis (unknown_fix_sigma_m)")
-    imu, gps, tru = got["imu"], got["gps"], got["truth"]
+    imu, gps, tru, vel = got["imu"], got["gps"], got["truth"], got["vel"]
     if not imu["t"]:
         for wmsg in rep["warnings"]:
             log.warning("%s: %s", path, wmsg)
@@ -420,7 +480,9 @@ def read_bag(path, imu_topic: str = IMU_TOPIC, gps_topic: str = GPS_TOPIC, truth
         gnss_t_s=rel(gps["t"]) if gps["t"] else np.zeros(0), gnss_p_e=gnss_p_e, gnss_R_e=R_e,
         imu_spec=spec, gnss_sigma_m=float(meta.get("gnss_sigma_m", float("nan"))),
         bias_gyro_b=arr(meta.get("bias_gyro_b_rad_s")), bias_acc_b=arr(meta.get("bias_acc_b_m_s2")),
-        params=params, imu_valid=np.array(imu["ok"], bool), gnss_valid=np.array(gps["ok"], bool), **truth)
+        params=params, imu_valid=np.array(imu["ok"], bool), gnss_valid=np.array(gps["ok"], bool),
+        gnss_vel_t_s=rel(vel["t"]) if vel["t"] else None, gnss_vel_n=np.array(vel["v"]) if vel["t"] else None,
+        gnss_vel_R_n=np.array(vel["R"]) if vel["t"] else None, **truth)
 
 
 def _truth_at_imu(t_s, tr_t_s, tr_p_n, tr_q, ref, warnings: list) -> dict:

@@ -4,7 +4,10 @@ Topics (relative names, remappable as usual):
 
 - in ``imu/data`` sensor_msgs/Imu, ``gps/fix`` sensor_msgs/NavSatFix (QoS ``imu_qos`` / ``gnss_qos``: the
   sensor-data profile by default, which matches reliable and best-effort publishers), ``ground_truth/pose``
-  geometry_msgs/PoseStamped (optional: initialisation in tests and the Euler errors). The Imu's rates and specific
+  geometry_msgs/PoseStamped (optional: initialisation in tests and the Euler errors), ``gps/vel``
+  geometry_msgs/TwistWithCovarianceStamped (optional: the GNSS antenna's ENU velocity relative to Earth, as u-blox,
+  NovAtel and MicroStrain drivers publish it; QoS ``gnss_qos``; fused at its stamp like a fix by the cores that
+  declare ``supports_gnss_velocity``; the antenna offset is the core parameter ``gnss_lever_arm_b_m``). The Imu's rates and specific
   forces are turned into the vehicle FLU frame once, in the callback (``imu_axes``, ``imu_mount_rpy_deg``:
   conversions.imu_to_vehicle_matrix; the convention is written there and in docs/nodes.md);
 - out ``~/pose`` PoseWithCovarianceStamped (frame ``enu_frame_id``: local ENU anchored at the initial position;
@@ -19,7 +22,7 @@ Topics (relative names, remappable as usual):
 
 The callbacks only convert a message to a sample and push it into the session; a timer (``process_rate_hz``)
 lets the session process the buffered inputs in stamp order and publishes what comes out. The node decides
-nothing the session could (docs/session.md, docs/nodes.md). ``core`` is read-only after start: a different core
+nothing the session could (docs/session.md, docs/nodes.md). ``core`` and ``imu_grade`` are read-only after start: a different core
 means a different parameter set (restart the node, or call the reset with a new configuration file).
 """
 
@@ -33,7 +36,7 @@ from collections import OrderedDict, deque
 import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, Vector3Stamped
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistWithCovarianceStamped, Vector3Stamped
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -41,8 +44,10 @@ from sensor_msgs.msg import Imu, NavSatFix
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
+from ..core.types import GnssVelocity
 from ..eval.aligned import AlignedCriteria
 from ..filters import registry
+from ..filters.imu_grade import GRADES, grade_params
 from ..filters.liekf import Liekf
 from ..session.config import SessionConfig
 from ..session.session import AlignmentSession, TruthSample
@@ -77,9 +82,15 @@ _SESSION_DOC = {  # session parameters the node exposes under the same names (Se
     "backtrack_covariance": "backtracking: 'reset' (honest sigma) or 'reuse' (the paper's, optimistic)",
     "backtrack_budget_s": "backtracking: wall time per processing tick spent on the passes [s]",
 }
+#: descriptions of core parameters the node shows (others: "<core> core parameter")
+_CORE_DOC = {"gnss_lever_arm_b_m": "GNSS antenna position in the body frame FLU relative to the IMU [m] (x forward, "
+                                   "y left, z up): the fix and gps/vel models predict the antenna"}
 #: node parameters: name -> (default, description, read_only)
 NODE_PARAMS = {
-    "core": ("iekf", "alignment core (filters/registry.py); read-only after start", True),
+    "core": ("iekf", "alignment core (filters/registry.py; auto: session/auto.py); read-only after start", True),
+    "imu_grade": (SessionConfig().imu_grade, "IMU noise model, one of " + ", ".join(GRADES) + " (docs/imu_grades.md): "
+                  "the defaults of the core's noise and bias parameters; an explicit core parameter overrides it. "
+                  "Read-only after start", True),
     "init_from_ground_truth": (False, "initialise from ground_truth/pose plus init_rpy_error_deg (tests, demos; "
                                       "overrides init_mode)", False),
     "pose_rate_hz": (10.0, "~/pose, ~/euler_error and aligned-flag evaluation rate [Hz data time] (0: every Imu)", False),
@@ -99,8 +110,8 @@ NODE_PARAMS = {
     "process_rate_hz": (50.0, "rate of the processing timer [Hz wall]", True),
     "imu_qos": ("sensor_data", "Imu and ground-truth subscription QoS: sensor_data (best effort) or reliable", True),
     "imu_qos_depth": (1000, "keep-last depth of the Imu subscription", True),
-    "gnss_qos": ("sensor_data", "NavSatFix subscription QoS: sensor_data (best effort) or reliable", True),
-    "gnss_qos_depth": (100, "keep-last depth of the NavSatFix subscription", True),
+    "gnss_qos": ("sensor_data", "NavSatFix and gps/vel subscription QoS: sensor_data (best effort) or reliable", True),
+    "gnss_qos_depth": (100, "keep-last depth of the NavSatFix and gps/vel subscriptions", True),
     "log_throttle_s": (2.0, "throttle of the rejection log lines, per kind [s]", False),
 }
 _RANGES = {"pose_rate_hz": (0.0, 1000.0), "gnss_sigma_m": (1e-3, 1e4), "diagnostics_period_s": (0.01, 60.0),
@@ -156,9 +167,14 @@ class AlignmentNode(Node):
             raise ValueError(f"core: unknown core {core!r}; choose one of {sorted(registry.core_names())}")
         self.core_name = core
         self.core_param_names = list(registry.CORES[core][1]().to_dict())
+        grade = self.get_parameter("imu_grade").value
+        from_grade = grade_params(grade, registry.CORES[core][1])  # ValueError: unknown grade, exit 2
         for name, default in registry.CORES[core][1]().to_dict().items():
-            if name not in self.defaults:
-                self._declare(name, default, f"{core} core parameter (config/{core}.yaml)", False)
+            if name in from_grade:
+                self._declare(name, from_grade[name], f"{core} core parameter, default from imu_grade {grade} "
+                                                      "(docs/imu_grades.md)", False)
+            elif name not in self.defaults:
+                self._declare(name, default, _CORE_DOC.get(name, f"{core} core parameter (config/{core}.yaml)"), False)
         p = {n: self._coerced(n) for n in self.defaults}
         self.session = AlignmentSession(*self._session_args(p), log=self._log)  # ValueError: bad value, exit 2
         self._apply_node_params(p)
@@ -167,6 +183,8 @@ class AlignmentNode(Node):
         qi = imu_qos(p["imu_qos"], p["imu_qos_depth"])
         self.create_subscription(Imu, "imu/data", self._on_imu, qi)
         self.create_subscription(NavSatFix, "gps/fix", self._on_fix, imu_qos(p["gnss_qos"], p["gnss_qos_depth"]))
+        self.create_subscription(TwistWithCovarianceStamped, "gps/vel", self._on_vel,
+                                 imu_qos(p["gnss_qos"], p["gnss_qos_depth"]))
         self.create_subscription(PoseStamped, "ground_truth/pose", self._on_truth, qi)
         self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, "~/pose", 50)
         self.pub_err = self.create_publisher(Vector3Stamped, "~/euler_error", 50)
@@ -207,7 +225,7 @@ class AlignmentNode(Node):
 
     def _session_args(self, p: dict):
         sp = {k: p[k] for k in _SESSION_DOC}
-        sp["core"] = p["core"]
+        sp["core"], sp["imu_grade"] = p["core"], p["imu_grade"]
         if p["init_from_ground_truth"]:
             sp["init_mode"] = "truth"
         sp["output_period_s"] = 1.0 / p["pose_rate_hz"] if p["pose_rate_hz"] > 0 else 0.0
@@ -330,6 +348,14 @@ class AlignmentNode(Node):
             self.session.reject_input("gnss", counter, reason, wall)
             return
         self.session.push_fix(fix, wall)
+
+    def _on_vel(self, msg: TwistWithCovarianceStamped) -> None:
+        """gps/vel: the ENU linear velocity and the linear block of the covariance, as they are (the session
+        validates: non-finite values, a zero or unknown covariance and implausible speeds are counted and rejected)."""
+        lin = msg.twist.twist.linear
+        R = np.asarray(msg.twist.covariance, float).reshape(6, 6)[:3, :3]
+        self.session.push_velocity(GnssVelocity(cv.stamp_s(msg, self._epoch(msg)), np.array([lin.x, lin.y, lin.z]), R),
+                                   time.monotonic())
 
     def _on_truth(self, msg: PoseStamped) -> None:
         val, reason = cv.truth_from_msg(msg, self._epoch(msg))

@@ -17,7 +17,10 @@ Topics (relative, remappable): ``imu/data`` sensor_msgs/Imu (frame ``frame_id``,
 from the IMU specification's noise densities, orientation_covariance[0] = -1), ``gps/fix`` sensor_msgs/NavSatFix
 (frame ``gps_frame_id``, ENU covariance, 1 Hz by default), ``ground_truth/pose`` geometry_msgs/PoseStamped (frame
 ``enu``: local ENU at the first truth sample, orientation body FLU -> ENU; only when the source knows the truth; on IMU stamps every 1/
-``truth_rate_hz``, 10 Hz by default: 0 = every IMU sample), ``/clock`` rosgraph_msgs/Clock (data time, every ``clock_period_s``), so ``use_sim_time`` works.
+``truth_rate_hz``, 10 Hz by default: 0 = every IMU sample), ``gps/vel`` geometry_msgs/TwistWithCovarianceStamped (the
+antenna's ENU velocity relative to Earth, when the source has it: a bag's ``bag_vel_topic``, or a scenario with
+``gnss_vel_sigma_m_s`` > 0; delayed like the fixes; ``gnss_lever_arm_b_m`` puts a scenario's antenna at that body
+FLU offset [m]), ``/clock`` rosgraph_msgs/Clock (data time, every ``clock_period_s``), so ``use_sim_time`` works.
 
 Timing: stamps are data time: ``start_stamp_s`` (0: the wall clock at the first message) + the scenario time.
 Message k is published at wall time ``start + t_k / rate_factor`` (1.0 = real time, > 1 faster).
@@ -46,7 +49,7 @@ import time
 
 import numpy as np
 import rclpy
-from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistWithCovarianceStamped
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from scipy.spatial.transform import Rotation
@@ -73,8 +76,9 @@ def _set_stamp_ns(msg, ns: int) -> None:
 
 
 def load_data(source: str, scenario: str, seed: int, duration_s: float, rate_hz: float, gps_rate_hz: float,
-              bag_path: str, bag_options: dict | None = None):
-    """ScenarioData of the source (scenario generated, or bag read; ``bag_options``: read_bag keyword arguments)."""
+              bag_path: str, bag_options: dict | None = None, scenario_options: dict | None = None):
+    """ScenarioData of the source (scenario generated, or bag read; ``bag_options``: read_bag keyword arguments;
+    ``scenario_options``: make_scenario parameter overrides)."""
     if source == "bag":
         from ..io.bag import read_bag
 
@@ -84,7 +88,7 @@ def load_data(source: str, scenario: str, seed: int, duration_s: float, rate_hz:
         return data
     from ..sim.scenarios import make_scenario
 
-    kw = {"rate_hz": rate_hz}
+    kw = {"rate_hz": rate_hz, **(scenario_options or {})}
     if gps_rate_hz > 0:
         kw["gnss_rate_hz"] = gps_rate_hz
     return make_scenario(scenario, seed=seed, duration_s=duration_s if duration_s > 0 else None, **kw)
@@ -136,7 +140,15 @@ class ImuSimNode(Node):
         self.bag_options = {"imu_topic": str(p("bag_imu_topic", bag_io.IMU_TOPIC).value),
                             "gps_topic": str(p("bag_gps_topic", bag_io.GPS_TOPIC).value),
                             "truth_topic": str(p("bag_truth_topic", bag_io.TRUTH_TOPIC).value),
-                            "unknown_fix_sigma_m": unknown_sigma if unknown_sigma > 0 else None}
+                            "unknown_fix_sigma_m": unknown_sigma if unknown_sigma > 0 else None,
+                            "vel_topic": str(p("bag_vel_topic", bag_io.VEL_TOPIC).value)}
+        vel_sigma = float(p("gnss_vel_sigma_m_s", 0.0, any_number).value)  # scenario: GNSS velocity 1-sigma (0: none)
+        lever = [float(x) for x in p("gnss_lever_arm_b_m", [0.0, 0.0, 0.0]).value]  # scenario: antenna, body FLU [m]
+        if len(lever) != 3 or not all(math.isfinite(x) for x in lever) or not vel_sigma >= 0:
+            raise ValueError(f"gnss_lever_arm_b_m must be 3 finite numbers and gnss_vel_sigma_m_s >= 0, got {lever}, "
+                             f"{vel_sigma}")
+        self.scenario_options = {"gnss_vel_sigma_m_s": vel_sigma, **dict(zip(
+            ("gnss_lever_x_m", "gnss_lever_y_m", "gnss_lever_z_m"), lever))}
         if self.source not in SOURCES:
             raise ValueError(f"source must be one of {SOURCES}, got {self.source!r}")
         if not (0.0 < self.rate_hz <= 2000.0):
@@ -159,7 +171,7 @@ class ImuSimNode(Node):
         self.done = False
         self.gave_up = False  # no subscriber matched within wait_timeout_s
         self.data = None
-        self.sent_fix = self.sent_truth = 0
+        self.sent_fix = self.sent_truth = self.sent_vel = 0
         self.skipped_flagged = 0  # Imu samples the source flags invalid: not published (a gap)
         if self.source == "rest":
             self.omega_ib_b, self.f_ib_b = rest_imu(lat, lon, h, rpy)
@@ -167,11 +179,13 @@ class ImuSimNode(Node):
             return
         t0 = time.monotonic()
         self.data = load_data(self.source, self.scenario, self.seed, self.duration_s, self.rate_hz,
-                              self.gps_rate_hz, self.bag_path, self.bag_options)
+                              self.gps_rate_hz, self.bag_path, self.bag_options, self.scenario_options)
         self.get_logger().info(f"{self.source} {self.data.name!r}: {self.data.n} IMU samples, "
                                f"{len(self.data.gnss_t_s)} fixes, truth {'yes' if self.data.has_truth else 'no'}; "
                                f"ready in {time.monotonic() - t0:.2f} s; rate factor {self.rate_factor:g}")
         self.pub_fix = self.create_publisher(NavSatFix, "gps/fix", qos)
+        self.pub_vel = self.create_publisher(TwistWithCovarianceStamped, "gps/vel", qos) if (
+            self.data.has_gnss_velocity) else None
         self.pub_truth = self.create_publisher(PoseStamped, "ground_truth/pose", qos) if (
             self.publish_truth and self.data.has_truth) else None
         self.pub_clock = self.create_publisher(Clock, "/clock", 10)
@@ -208,6 +222,8 @@ class ImuSimNode(Node):
             self.truth_p_n = np.stack([e, n, u], axis=1)
         self.k = 0
         self.j = 0
+        self.jv = 0
+        self.vel_t = d.gnss_vel_t_s if d.has_gnss_velocity else np.zeros(0)
         self.next_clock_t = -math.inf
         self.next_truth_t = -math.inf
 
@@ -262,6 +278,7 @@ class ImuSimNode(Node):
             while self.j < len(d.gnss_t_s) and d.gnss_t_s[self.j] <= d.t_s[limit - 1]:  # delayed fixes still due
                 self._publish_fix(self.j)
                 self.j += 1
+            self._publish_velocities_until(float(d.t_s[limit - 1]))
             self.done = True
             return None
         if d.t_s[self.k] > lead and d.t_s[self.k] - d.t_s[0] <= elapsed_data:  # due, but the consumer lags: pause
@@ -317,6 +334,7 @@ class ImuSimNode(Node):
         while self.j < len(d.gnss_t_s) and d.gnss_t_s[self.j] + self.fix_delay_s <= t:
             self._publish_fix(self.j)
             self.j += 1
+        self._publish_velocities_until(t - self.fix_delay_s)
         if t >= self.next_clock_t:
             c = Clock()
             c.clock.sec, c.clock.nanosec = divmod(int(round(stamp * 1e9)), 1_000_000_000)
@@ -336,9 +354,28 @@ class ImuSimNode(Node):
         self.pub_fix.publish(m)
         self.sent_fix += 1
 
+    def _publish_velocities_until(self, t_s: float) -> None:
+        """GNSS velocities stamped up to ``t_s`` [s data time]: ENU twist.linear, ENU covariance in the linear block
+        (angular not measured: variance -1)."""
+        d = self.data
+        while self.jv < len(self.vel_t) and self.vel_t[self.jv] <= t_s:
+            j = self.jv
+            m = TwistWithCovarianceStamped()
+            _set_stamp_ns(m, self._stamp_ns(float(self.vel_t[j])))
+            m.header.frame_id = self.gps_frame_id
+            lin = m.twist.twist.linear
+            lin.x, lin.y, lin.z = (float(x) for x in d.gnss_vel_n[j])
+            cov = np.zeros((6, 6))
+            cov[:3, :3] = d.gnss_vel_R_n[j]
+            cov[3:, 3:] = -np.eye(3)
+            m.twist.covariance = [float(x) for x in cov.reshape(-1)]
+            self.pub_vel.publish(m)
+            self.sent_vel += 1
+            self.jv += 1
+
     def summary(self) -> dict:
         return {"source": self.source, "scenario": self.data.name if self.data is not None else "rest", "imu_sent": self.sent,
-                "fix_sent": self.sent_fix, "truth_sent": self.sent_truth,
+                "fix_sent": self.sent_fix, "vel_sent": self.sent_vel, "truth_sent": self.sent_truth,
                 "imu_flagged_skipped": self.skipped_flagged, "rate_factor": self.rate_factor,
                 "first_stamp_ns": self.t_start_ns, "gave_up": self.gave_up,
                 "paused_s": round(self.paused_s, 3)}

@@ -18,6 +18,9 @@ class SessionConfig:
 
     #: alignment core (filters/registry.py)
     core: str = "iekf"
+    #: IMU noise model (filters/imu_grade.py, docs/imu_grades.md): the core's process noise and bias priors come from
+    #: this preset; an explicit core parameter overrides it. Default: a conservative prior for an unknown MEMS IMU
+    imu_grade: str = "unknown_mems"
     #: initial state: "sensors" (no guess needed: position and velocity from the first fixes, roll and pitch from
     #: the accelerometers, heading unknown -> a bank of ``unknown_heading_hypotheses`` yaw hypotheses), "guess"
     #: (``initial_rpy_deg``, ``initial_velocity_enu_m_s``) or "truth" (a ground-truth pose at an IMU stamp plus
@@ -101,6 +104,9 @@ class SessionConfig:
 
         if self.core not in registry.CORES:
             raise ValueError(f"core: unknown core {self.core!r}; choose one of {sorted(registry.core_names())}")
+        from ..filters.imu_grade import get_grade
+
+        get_grade(self.imu_grade)  # ValueError "imu_grade: unknown IMU grade ..."
         if self.init_mode not in ("sensors", "guess", "truth"):
             raise ValueError(f"init_mode: must be 'sensors', 'guess' or 'truth', got {self.init_mode!r}")
         if not (isinstance(self.unknown_heading_hypotheses, int) and 1 <= self.unknown_heading_hypotheses <= 36):

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core import earth
-from ..core.types import GnssFix, ImuSample
+from ..core.types import GnssFix, GnssVelocity, ImuSample
 from ..eval.aligned import AlignedCriteria
 from ..sim.types import ScenarioData
 from .config import SessionConfig
@@ -86,11 +86,12 @@ def truth_samples(data: ScenarioData):
 
 
 def events_in_arrival_order(data: ScenarioData, fix_delay_s: float = 0.0):
-    """(kind, item) in the order a live system would receive them: IMU in stamp order, a fix once the IMU has
-    reached ``stamp + fix_delay_s``, truth with its IMU sample. Samples and fixes the source flags invalid are
-    left out (the session sees a gap)."""
+    """(kind, item) in the order a live system would receive them: IMU in stamp order, a fix (and a GNSS velocity,
+    kind "vel", where the source has them) once the IMU has reached ``stamp + fix_delay_s``, truth with its IMU
+    sample. Samples and fixes the source flags invalid are left out (the session sees a gap)."""
     truth = truth_samples(data)
-    j = 0
+    j = jv = 0
+    v_t = data.gnss_vel_t_s if data.gnss_vel_t_s is not None else np.zeros(0)
     g_t = data.gnss_t_s
     imu_ok, gnss_ok = data.imu_valid_mask, data.gnss_valid_mask
     for k in range(data.n):
@@ -103,6 +104,11 @@ def events_in_arrival_order(data: ScenarioData, fix_delay_s: float = 0.0):
             if gnss_ok[j]:
                 yield "fix", GnssFix(float(g_t[j]), data.gnss_p_e[j], data.gnss_R_e[j])
             j += 1
+        while jv < v_t.shape[0] and v_t[jv] + fix_delay_s <= t:
+            yield "vel", GnssVelocity(float(v_t[jv]), data.gnss_vel_n[jv], data.gnss_vel_R_n[jv])
+            jv += 1
+    for jv in range(jv, v_t.shape[0]):
+        yield "vel", GnssVelocity(float(v_t[jv]), data.gnss_vel_n[jv], data.gnss_vel_R_n[jv])
     for j in range(j, g_t.shape[0]):  # delayed fixes still on their way when the IMU stream ended
         if gnss_ok[j]:
             yield "fix", GnssFix(float(g_t[j]), data.gnss_p_e[j], data.gnss_R_e[j])
@@ -129,6 +135,8 @@ def run_session(session: AlignmentSession, data: ScenarioData, fix_delay_s: floa
                     progress.update(chunk)
         elif kind == "fix":
             session.push_fix(item)
+        elif kind == "vel":
+            session.push_velocity(item)
         else:
             session.push_truth(item)
     out += session.finish()
@@ -149,6 +157,11 @@ def _run_session_arrays(session: AlignmentSession, data: ScenarioData, fix_delay
     g = np.asarray(data.gnss_t_s, float)
     arrive = np.maximum.accumulate(np.searchsorted(t, g + fix_delay_s, side="left")) if g.size else np.zeros(0, int)
     stops = set(arrive[arrive < data.n].tolist())
+    gv = np.asarray(data.gnss_vel_t_s if data.gnss_vel_t_s is not None else np.zeros(0), float)
+    arrive_v = np.maximum.accumulate(np.searchsorted(t, gv + fix_delay_s, side="left")) if gv.size \
+        else np.zeros(0, int)
+    stops.update(arrive_v[arrive_v < data.n].tolist())
+    jv = 0
     stops.update(np.flatnonzero(imu_ok & (n_valid % chunk == 0)).tolist())
     stops.add(data.n - 1)
     j = 0
@@ -167,7 +180,12 @@ def _run_session_arrays(session: AlignmentSession, data: ScenarioData, fix_delay
             if gnss_ok[j]:
                 session.push_fix(GnssFix(float(g[j]), data.gnss_p_e[j], data.gnss_R_e[j]))
             j += 1
+        while jv < gv.shape[0] and arrive_v[jv] == b:
+            session.push_velocity(GnssVelocity(float(gv[jv]), data.gnss_vel_n[jv], data.gnss_vel_R_n[jv]))
+            jv += 1
         a = b + 1
+    for jv in range(jv, gv.shape[0]):
+        session.push_velocity(GnssVelocity(float(gv[jv]), data.gnss_vel_n[jv], data.gnss_vel_R_n[jv]))
     for j in range(j, g.shape[0]):  # delayed fixes still on their way when the IMU stream ended
         if gnss_ok[j]:
             session.push_fix(GnssFix(float(g[j]), data.gnss_p_e[j], data.gnss_R_e[j]))

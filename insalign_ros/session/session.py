@@ -31,10 +31,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core import earth
-from ..core.types import GnssFix, ImuSample
+from ..core.types import GnssFix, GnssVelocity, ImuSample
 from ..eval.aligned import AlignedCriteria, AlignedFlag, euler_3sigma_deg
 from ..filters import registry
 from ..filters.base import AlignmentCore, AlignmentEstimate, AlignmentStatus
+from ..filters.liekf import check_velocity
+from ..filters.imu_grade import DEFAULT_IMU_GRADE, resolve_core_params
+from . import gaps
 from .config import SessionConfig
 
 D2R = math.pi / 180.0
@@ -45,6 +48,13 @@ COUNTERS = (
     "gnss_invalid", "gnss_no_fix", "gnss_frame", "gnss_duplicate", "gnss_stale", "gnss_future", "gnss_before_init", "gnss_filter_rejected",
     "gnss_unused", "truth_received", "truth_invalid", "time_resets", "core_faults", "zupt_accepted",
     "watchdog_trips", "inputs_dropped", "gnss_gated", "imu_spikes", "divergences")
+#: GNSS velocity (push_velocity): received, fused, rejected (total) and per reason
+VEL_COUNTERS = ("gnss_vel_received", "gnss_vel_accepted", "gnss_vel_rejected", "gnss_vel_invalid", "gnss_vel_duplicate",
+                "gnss_vel_stale", "gnss_vel_future", "gnss_vel_before_init", "gnss_vel_gated", "gnss_vel_filter_rejected",
+                "gnss_vel_unused")
+COUNTERS = COUNTERS + VEL_COUNTERS
+#: a GNSS velocity faster than this is not a vehicle's [m/s]
+MAX_GNSS_SPEED_M_S = 600.0
 
 
 @dataclass
@@ -133,6 +143,8 @@ class _Pending:
     fix: list = field(default_factory=list)
     truth: dict = field(default_factory=lambda: _TruthDict())  # stamp -> TruthSample
     truth_t: list = field(default_factory=list)  # sorted stamps of ``truth``
+    vel_t: list = field(default_factory=list)  # GNSS velocities in stamp order (push_velocity)
+    vel: list = field(default_factory=list)
 
 
 class AlignmentSession:
@@ -147,7 +159,8 @@ class AlignmentSession:
                  criteria: AlignedCriteria | None = None, log=None) -> None:
         self.cfg = config if isinstance(config, SessionConfig) else SessionConfig.from_dict(config)
         self.cfg.validate()
-        self.core_params = dict(core_params or {})
+        # the IMU grade's noise and bias fields under the explicit core parameters (filters/imu_grade.py)
+        self.core_params = resolve_core_params(self.cfg.imu_grade, self.cfg.core, core_params)
         registry.make_config(self.cfg.core, self.core_params)  # validate now (ValueError with the reason)
         self.flag = AlignedFlag(criteria or AlignedCriteria())
         self.log = log or (lambda level, key, text: None)
@@ -164,6 +177,7 @@ class AlignmentSession:
     def reconfigure(self, config: SessionConfig, core_params: dict, criteria: AlignedCriteria) -> bool:
         """Apply new parameters. Returns True when the alignment was restarted (core or core parameters changed)."""
         config.validate()
+        core_params = resolve_core_params(config.imu_grade, config.core, core_params)
         registry.make_config(config.core, core_params)
         restart = (config.core != self.cfg.core or core_params != self.core_params
                    or config.init_mode != self.cfg.init_mode or config.backtrack_passes != self.cfg.backtrack_passes)
@@ -210,6 +224,7 @@ class AlignmentSession:
         self.hist_t: deque = deque(maxlen=1000)  # recent processed samples (gap bridging statistics)
         self.hist_w: deque = deque(maxlen=1000)
         self.hist_f: deque = deque(maxlen=1000)
+        self._batch: tuple[list, int] = ([], 0)  # the batch being processed and the index in it (gap look-ahead)
         self.init_t: float | None = None
         self.anchor: tuple[float, float, float] | None = None
         self.next_out_t = -math.inf
@@ -484,6 +499,7 @@ class AlignmentSession:
                     i = j
                     continue
             t, w, f = items[i]
+            self._batch = (items, i)
             nxt = items[i + 1] if i + 1 < n else (b.imu[0] if b.imu else None)
             i += 1
             if self._spike(t, w, f, nxt):
@@ -514,6 +530,8 @@ class AlignmentSession:
         t_end = self.next_out_t - 1e-9
         if self.buf.fix_t:
             t_end = min(t_end, self.buf.fix_t[0])
+        if self.buf.vel_t:
+            t_end = min(t_end, self.buf.vel_t[0])
         if self._zupt_due(math.inf):  # the session schedules zero-velocity updates for this core
             t_end = min(t_end, self.next_zupt_t)
         if not T[i] < t_end:  # an event at this very sample (the usual case right after a run)
@@ -653,54 +671,63 @@ class AlignmentSession:
     def _on_gap(self, t_a: float, t_b: float, w_b: np.ndarray, f_b: np.ndarray) -> None:
         """An IMU gap (t_a, t_b): bridge it and inflate the covariance by what the bridge may have got wrong.
 
-        Bridge: samples at the median interval, linearly interpolated between the last sample before the gap and
-        the first after it (first-order hold; the sample after the gap then covers its own interval only).
-        Inflation: the same bridge applied to every window of the gap's length in the last seconds of real data
-        gives the error it would have made in the attitude increment (integral of the rate) and the velocity
-        increment (integral of the specific force); their mean square is added to the attitude and velocity
-        variances (docs/session.md, "Gaps"). Without enough history: the rate spread times the missing time."""
+        Bridge (session/gaps.py): samples at the median interval, predicted by the candidate (linear interpolation,
+        or a polynomial fitted to the data on both sides of the gap) that makes the smallest error when applied to
+        every window of the gap's length in the recent data; the sample after the gap covers its own interval only.
+        Inflation: that worst-window error of the attitude increment (integral of the rate) and of the velocity
+        increment (integral of the specific force), as a 1-sigma, added to the attitude and velocity variances
+        (docs/session.md, "Gaps"). Without enough history: linear, and the rate spread times the missing time."""
         self.counters["imu_gaps"] += 1
         h = self._median_dt
         n_mid = max(int(round((t_b - t_a) / h)) - 1, 0)
-        w_a, f_a = (self.hist_w[-1], self.hist_f[-1]) if self.hist_w else (w_b, f_b)
         step = (t_b - t_a) / (n_mid + 1)
-        for k in range(1, n_mid + 1):
-            a = k / (n_mid + 1)
-            self._feed(ImuSample(t_a + k * step, (1 - a) * w_a + a * w_b, (1 - a) * f_a + a * f_b))
-        var_att, var_v, how = self._bridge_error_var(n_mid + 1, step)
-        # the velocity error builds up over the gap: position error ~ its mean times the gap length
-        self.core.inflate_navigation(var_att, var_v, var_v * (0.5 * (t_b - t_a)) ** 2)
-        self.log("warn", "imu_gaps", f"IMU gap of {t_b - t_a:.3f} s before {t_b:.6f} (median interval {h * 1e3:.2f} ms): "
-                                     f"bridged with {n_mid} interpolated samples, attitude 3-sigma +"
+        t_mid = t_a + step * np.arange(1, n_mid + 1)
+        ahead = [(t_b, w_b, f_b)] + [it for it in self._lookahead(t_b + 1.0)]
+        t_after = np.array([it[0] for it in ahead])
+        Y_after = np.array([np.concatenate([it[1], it[2]]) for it in ahead])
+        if self.hist_w:
+            t_before = np.asarray(self.hist_t)
+            Y_before = np.hstack([np.asarray(self.hist_w), np.asarray(self.hist_f)])
+        else:
+            t_before, Y_before = np.array([t_a]), Y_after[:1]
+        try:
+            bridge, var_att, var_v, nwin = gaps.choose(t_before, Y_before[:, :3], Y_before[:, 3:], n_mid + 1,
+                                                       float(t_after[-1] - t_b))
+            how = f"{bridge.name}, error measured on {nwin} windows of the last {t_before[-1] - t_before[0]:.1f} s"
+        except ValueError:
+            n = len(t_before)
+            s_w = float(np.linalg.norm(np.std(Y_before[:, :3], axis=0))) if n >= 3 else 0.2
+            s_f = float(np.linalg.norm(np.std(Y_before[:, 3:], axis=0))) if n >= 3 else 2.0
+            bridge, var_att, var_v = gaps.LINEAR, (s_w * (t_b - t_a)) ** 2, (s_f * (t_b - t_a)) ** 2
+            how = "linear interpolation, short history: rate spread x gap"
+        Y_mid = gaps.fill(bridge, t_before, Y_before, t_after, Y_after, t_mid)
+        # the bridge's error builds up over the gap like process noise: added in up to 5 equal parts along it (the
+        # propagation turns the velocity part into position error), and a fix stamped inside the gap is fused at
+        # its own stamp, after the part of the bridge before it
+        parts = np.array_split(np.arange(n_mid + 1), min(5, n_mid + 1))
+        for part in parts:
+            self.core.inflate_navigation(var_att / len(parts), var_v / len(parts), 0.0)
+            for k in part[part < n_mid]:
+                self._feed(ImuSample(float(t_mid[k]), Y_mid[k, :3], Y_mid[k, 3:]))
+                self._apply_fixes_until(float(t_mid[k]), [])
+                if self.core is None:  # a divergence restarted the session
+                    return
+        self.log("warn", "imu_gaps", f"IMU gap of {t_b - t_a:.3f} s before {t_b + self.stamp_offset_s:.6f} (median "
+                                     f"interval {h * 1e3:.2f} ms): bridged with {n_mid} samples, attitude 3-sigma +"
                                      f"{3 * math.sqrt(var_att) / D2R:.3f} deg ({how}; imu_gaps={self.counters['imu_gaps']})")
 
-    def _bridge_error_var(self, m: int, step: float) -> tuple[float, float, str]:
-        """Mean-square error [rad^2, (m/s)^2] of bridging ``m`` intervals by linear interpolation, measured on the
-        recent data (every window of m intervals); a conservative default when the history is too short."""
-        W = np.asarray(self.hist_w)
-        F = np.asarray(self.hist_f)
-        n = len(W)
-        if n < m + 10:
-            s_w = float(np.linalg.norm(np.std(W, axis=0))) if n >= 3 else 0.2
-            s_f = float(np.linalg.norm(np.std(F, axis=0))) if n >= 3 else 2.0
-            T = m * step
-            return (s_w * T) ** 2, (s_f * T) ** 2, "short history: rate spread x gap"
-        a = np.arange(1, m + 1) / m  # interpolation weights of the bridged samples (the last one is the real one)
-        starts = np.arange(0, n - m, max(1, (n - m) // 40))
-        ew, ef = [], []
-        for i in starts:
-            true_w = W[i + 1:i + m + 1].sum(axis=0)
-            true_f = F[i + 1:i + m + 1].sum(axis=0)
-            br_w = ((1 - a)[:, None] * W[i] + a[:, None] * W[i + m]).sum(axis=0)
-            br_f = ((1 - a)[:, None] * F[i] + a[:, None] * F[i + m]).sum(axis=0)
-            ew.append((true_w - br_w) * step)
-            ef.append((true_f - br_f) * step)
-        ew, ef = np.asarray(ew), np.asarray(ef)
-        # the worst window of the recent data as the 1-sigma (the phase of the motion in the gap is unknown), the
-        # largest axis for every axis (isotropic inflation)
-        var_att = float(np.max(ew * ew))
-        var_v = float(np.max(ef * ef))
-        return var_att, var_v, f"bridge error measured on {len(starts)} windows of the last {n * step:.1f} s"
+    def _lookahead(self, until: float):
+        """The IMU samples not processed yet (the rest of the batch being processed, then the buffer), up to the
+        stamp ``until`` [s]: data the gap bridge may use after the gap."""
+        items, i = self._batch
+        for it in items[i + 1:]:
+            if it[0] > until:
+                return
+            yield it
+        for it in self.buf.imu:
+            if it[0] > until:
+                return
+            yield it
 
     def _feed(self, event) -> None:
         if self.bt is not None:
@@ -725,6 +752,7 @@ class AlignmentSession:
                 self.counters["gnss_before_init"] += 1
                 continue
             self._fuse_fix(fix)
+        self._apply_velocities_until(t)
 
     def _fuse_fix(self, fix: GnssFix) -> None:
         core = self.core
@@ -760,6 +788,69 @@ class AlignmentSession:
             self.counters["gnss_rejected"] += 1
             self.last_reject = f"gnss: core: {res.reason}"
             self.log("warn", "gnss_filter_rejected", f"fix rejected by the core: {res.reason}")
+        self.flag.on_update(self.processed_t, res.accepted, res.nis, len(res.innovation) or 3)
+
+    # ------------------------------------------------------------------ GNSS velocity (push_velocity)
+    def push_velocity(self, vel: GnssVelocity, wall_s: float | None = None) -> bool:
+        """Validate and buffer one GNSS velocity (ENU antenna velocity relative to Earth v_n [m/s], covariance R_n
+        [m^2/s^2]); fused at its own stamp like a fix (same buffer rule, same fusion delay). False if rejected."""
+        c = self.counters
+        c["gnss_vel_received"] += 1
+        self._touch(wall_s)
+        t = float(vel.stamp_s)
+        reason = _check_velocity(t, vel.v_n, vel.R_n)
+        if reason:
+            return self._reject("gnss_vel", "velocity", "gnss_vel_invalid", reason)
+        if self.processed_t is not None and t < self.processed_t:
+            return self._reject("gnss_vel", "velocity", "gnss_vel_stale",
+                                f"stamp {t:.6f} is {self.processed_t - t:.3f} s behind the filter time "
+                                f"(max_fix_lag_s {self.cfg.max_fix_lag_s:g} s)")
+        if t in self.buf.vel_t:
+            return self._reject("gnss_vel", "velocity", "gnss_vel_duplicate", f"duplicate stamp {t:.6f}")
+        if self.newest_imu_t is not None and t > self.newest_imu_t + self.cfg.max_fix_ahead_s:
+            return self._reject("gnss_vel", "velocity", "gnss_vel_future",
+                                f"stamp {t:.6f} is {t - self.newest_imu_t:.3f} s ahead of the IMU")
+        i = bisect.bisect(self.buf.vel_t, t)
+        self.buf.vel_t.insert(i, t)
+        self.buf.vel.insert(i, GnssVelocity(t, np.asarray(vel.v_n, float), np.asarray(vel.R_n, float)))
+        if len(self.buf.vel_t) > 1000:  # velocities with no IMU to reach them: keep the newest
+            del self.buf.vel_t[0], self.buf.vel[0]
+            c["inputs_dropped"] += 1
+        return True
+
+    def _apply_velocities_until(self, t: float) -> None:
+        b = self.buf
+        while b.vel_t and b.vel_t[0] <= t and self.core is not None:
+            b.vel_t.pop(0)
+            vel = b.vel.pop(0)
+            if vel.stamp_s < self.init_t:
+                self.counters["gnss_vel_before_init"] += 1
+                continue
+            self._fuse_velocity(vel)
+
+    def _fuse_velocity(self, vel: GnssVelocity) -> None:
+        """One GNSS velocity into the core: the NIS gate of the fixes (while the attitude is claimed), then the
+        core's update; the flag's NIS window sees its NIS like a fix's."""
+        core, c = self.core, self.counters
+        if not core.supports_gnss_velocity or self.bt is not None:
+            c["gnss_vel_unused"] += 1
+            return
+        gate = self.cfg.gnss_gate_nis
+        if gate > 0 and self._attitude_claimed():
+            pr = core.predict_gnss_velocity(vel)
+            if pr.S.size and pr.nis > gate:
+                self._reject("gnss_vel", "velocity", "gnss_vel_gated", f"NIS {pr.nis:.3g} above the gate {gate:g} "
+                             f"(|innovation| {np.linalg.norm(pr.innovation):.3g} m/s)")
+                self._lower_flag("a GNSS velocity failed the NIS gate")
+                return
+        res = core.update_gnss_velocity(vel)
+        if res.accepted:
+            c["gnss_vel_accepted"] += 1
+        else:
+            c["gnss_vel_filter_rejected"] += 1
+            c["gnss_vel_rejected"] += 1
+            self.last_reject = f"gnss_vel: core: {res.reason}"
+            self.log("warn", "gnss_vel_filter_rejected", f"GNSS velocity rejected by the core: {res.reason}")
         self.flag.on_update(self.processed_t, res.accepted, res.nis, len(res.innovation) or 3)
 
     def _attitude_claimed(self) -> bool:
@@ -998,6 +1089,8 @@ class AlignmentSession:
             self.flag_changes.append((t, now, self.flag.reason))
             self.log("info", "flag", f"aligned flag {'raised' if now else 'lowered'} at t={t + self.stamp_offset_s:.3f} s: {self.flag.reason}")
         self.status = AlignmentStatus.ALIGNED if now else AlignmentStatus.CONVERGING
+        if not now and est.status == AlignmentStatus.WAITING_FOR_MOTION:  # issue 14: core auto, heading needs motion
+            self.status = est.status
         self.reason = self.flag.reason if not est.reason else f"{self.flag.reason}; {est.reason}"
         tr = self._truth_at(t)
         err = None
@@ -1102,6 +1195,10 @@ class AlignmentSession:
         g = self._gnss_age_warning()
         if g:
             parts.append(g)
+        if not self.aligned and "3-sigma" in self.flag.reason and self.cfg.imu_grade == DEFAULT_IMU_GRADE:
+            # the conservative default prior is often why the 3-sigma stays up: say what the user can do
+            parts.append(f"imu_grade is the conservative default {DEFAULT_IMU_GRADE!r}: give your IMU's grade "
+                         "(docs/imu_grades.md) for a tighter, still honest, covariance")
         return "; ".join(parts)
 
     def diagnostics(self) -> dict:
@@ -1143,6 +1240,16 @@ class AlignmentSession:
             except Exception as exc:  # noqa: BLE001 - diagnostics never take the pipeline down
                 d["core.diagnostics_error"] = f"{type(exc).__name__}: {exc}"
         return d
+
+
+def _check_velocity(t: float, v_n, R_n) -> str:
+    """Checks of one GNSS velocity: finite stamp, the core's checks (filters/liekf.check_velocity), plausible speed."""
+    if not math.isfinite(t) or t < 0.0:
+        return f"stamp {t!r} is not a finite number >= 0"
+    reason = check_velocity(v_n, R_n)
+    if not reason and float(np.linalg.norm(v_n)) > MAX_GNSS_SPEED_M_S:
+        reason = f"speed {np.linalg.norm(v_n):.3g} m/s > {MAX_GNSS_SPEED_M_S:g} m/s"
+    return reason
 
 
 def _check_imu(t: float, w, f, max_rate: float, max_acc: float) -> str:

@@ -39,6 +39,12 @@ _COMMON = {
     "gnss_sigma_h_m": (1.0, "m", "PI-LIEKF Table 1: GPS position 1.0 m"),
     "gnss_sigma_v_m": (1.0, "m", "PI-LIEKF Table 1 (same sigma vertically)"),
     "h_m": (0.0, "m", "sea level"),
+    "gnss_vel_sigma_m_s": (0.0, "m/s", "GNSS velocity output (ENU, at the antenna) 1-sigma; 0: none. PI-LIEKF Table 1 "
+                                        "gives 0.1 m/s"),
+    # the GNSS antenna in the body frame FLU [m]: fixes and velocities are generated at the antenna
+    "gnss_lever_x_m": (0.0, "m", "antenna forward of the IMU (0: at the IMU, as in the paper)"),
+    "gnss_lever_y_m": (0.0, "m", "antenna left of the IMU"),
+    "gnss_lever_z_m": (0.0, "m", "antenna above the IMU"),
 }
 
 SCENARIOS: dict[str, Preset] = {
@@ -428,6 +434,19 @@ def _two_position(t, p):
     return np.zeros((n, 3)), np.zeros((n, 3)), rpy
 
 
+def antenna_position_velocity(traj, lever_b: np.ndarray):
+    """ECEF position [m] and ENU velocity relative to Earth [m/s] of a GNSS antenna at ``lever_b`` (body FLU [m]):
+    ``p_ant_e = p_e + C_n_e C_b_n l``; the velocity is the time derivative of p_ant_e (second-order differences on
+    the grid: ``v_e + C_b_e (omega_eb_b x l)`` without approximating the rates), in ENU at the antenna."""
+    from .trajectory import C_e_n_batch
+
+    C_ne = np.transpose(C_e_n_batch(traj.lat_rad, traj.lon_rad), (0, 2, 1))
+    arm_e = np.einsum("nij,njk,k->ni", C_ne, traj.C_b_n, np.asarray(lever_b, float))
+    p_ant_e = traj.p_e + arm_e
+    v_ant_e = traj.v_e + np.gradient(arm_e, traj.t_s, axis=0, edge_order=2)
+    return p_ant_e, np.einsum("nji,nj->ni", C_ne, v_ant_e)
+
+
 def scenario_parameters(name: str) -> dict:
     """Default parameter values of a preset (name -> value)."""
     if name not in SCENARIOS:
@@ -488,13 +507,23 @@ def make_scenario(name: str, seed: int = 0, duration_s: float | None = None, noi
     C_ne = np.array([earth.C_n_e(a, b) for a, b in zip(lat, lon)])
     R_e = C_ne @ np.diag(sig**2) @ np.transpose(C_ne, (0, 2, 1))
     err_n = rng.normal(0.0, 1.0, (len(idx), 3)) * sig if noise else np.zeros((len(idx), 3))
-    gnss_p_e = traj.p_e[sl][idx] + np.einsum("nij,nj->ni", C_ne, err_n)
+    lever_b = np.array([params["gnss_lever_x_m"], params["gnss_lever_y_m"], params["gnss_lever_z_m"]])
+    p_ant_e, v_ant_n = antenna_position_velocity(traj, lever_b)
+    gnss_p_e = p_ant_e[sl][idx] + np.einsum("nij,nj->ni", C_ne, err_n)
+    # GNSS velocity at the fix stamps (drawn after the fixes: the fixes of a seed do not change)
+    sig_v = params["gnss_vel_sigma_m_s"]
+    if sig_v < 0:
+        raise ValueError(f"gnss_vel_sigma_m_s must be >= 0 (0: no GNSS velocity), got {sig_v}")
+    vel_idx = idx if sig_v > 0 else idx[:0]
+    vel_n = v_ant_n[sl][vel_idx] + (rng.normal(0.0, sig_v, (len(vel_idx), 3)) if noise else 0.0)
     return ScenarioData(
         name=name, seed=int(seed), t0_s=0.0, t_s=t_s, omega_ib_b=omega, f_ib_b=f,
         C_b_n=traj.C_b_n[sl], lat_rad=traj.lat_rad[sl], lon_rad=traj.lon_rad[sl], h_m=traj.h_m[sl],
         v_n=traj.v_n[sl], gnss_t_s=t_s[idx], gnss_p_e=gnss_p_e, gnss_R_e=R_e, imu_spec=spec,
         gnss_sigma_m=float(params["gnss_sigma_h_m"]), bias_gyro_b=b_g, bias_acc_b=b_a,
         omega_ib_b_true=omega_true, f_ib_b_true=f_true,
+        gnss_vel_t_s=t_s[vel_idx].copy() if sig_v > 0 else None, gnss_vel_n=vel_n if sig_v > 0 else None,
+        gnss_vel_R_n=np.broadcast_to(sig_v**2 * np.eye(3), (len(vel_idx), 3, 3)).copy() if sig_v > 0 else None,
         params={**params, **segments, "noise": bool(noise), "ref_lat_deg": params["lat_deg"], "ref_lon_deg": params["lon_deg"],
                 "ref_h_m": params["h_m"]},
     )

@@ -12,7 +12,7 @@ from typing import Iterator
 
 import numpy as np
 
-from ..core.types import GnssFix, ImuSample
+from ..core.types import GnssFix, GnssVelocity, ImuSample
 
 
 @dataclass(frozen=True)
@@ -62,6 +62,11 @@ class ScenarioData:
     # the source flags the sample as not measured (to be treated as a gap); None = every sample valid
     imu_valid: np.ndarray | None = None  # (N,) bool
     gnss_valid: np.ndarray | None = None  # (M,) bool
+    # GNSS velocity where the source has it: the antenna's velocity relative to Earth in ENU [m/s], its ENU
+    # covariance [m^2/s^2], at its own stamps (None: no velocity)
+    gnss_vel_t_s: np.ndarray | None = None  # (K,)
+    gnss_vel_n: np.ndarray | None = None  # (K, 3)
+    gnss_vel_R_n: np.ndarray | None = None  # (K, 3, 3)
 
     @property
     def n(self) -> int:
@@ -93,7 +98,20 @@ class ScenarioData:
         cut = {name: None if getattr(self, name) is None else getattr(self, name)[:k] for name in per_imu}
         cut.update({name: None if getattr(self, name) is None else getattr(self, name)[:j]
                     for name in ("gnss_p_e", "gnss_R_e", "gnss_valid")})
+        if self.gnss_vel_t_s is not None:
+            m = int(np.searchsorted(self.gnss_vel_t_s, t_end_s, side="right"))
+            cut.update({name: getattr(self, name)[:m] for name in ("gnss_vel_t_s", "gnss_vel_n", "gnss_vel_R_n")})
         return replace(self, t_s=self.t_s[:k], gnss_t_s=self.gnss_t_s[:j], **cut)
+
+    @property
+    def has_gnss_velocity(self) -> bool:
+        return self.gnss_vel_t_s is not None and self.gnss_vel_t_s.shape[0] > 0
+
+    def gnss_velocities(self) -> Iterator[GnssVelocity]:
+        if self.gnss_vel_t_s is None:
+            return
+        for j in range(self.gnss_vel_t_s.shape[0]):
+            yield GnssVelocity(float(self.gnss_vel_t_s[j]), self.gnss_vel_n[j], self.gnss_vel_R_n[j])
 
     def imu_samples(self, start: int = 0, stop: int | None = None) -> Iterator[ImuSample]:
         for k in range(start, self.n if stop is None else stop):

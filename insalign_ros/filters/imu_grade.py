@@ -1,0 +1,167 @@
+"""IMU grade: one datasheet noise model from which every core's process noise and bias priors derive.
+
+An :class:`ImuGrade` holds what a datasheet gives (units in the names):
+
+* ``gyro_arw_deg_sqrt_h`` angle random walk [deg/sqrt(h)] (= 60 x the rate noise density in deg/s/sqrt(Hz));
+* ``gyro_bias_deg_h`` 1-sigma gyro bias at the start of a run [deg/h] (run-to-run / turn-on bias left after the
+  factory calibration): the initial bias prior of the cores with bias states, the consider floor of the others;
+* ``gyro_bias_instability_deg_h`` in-run bias instability [deg/h] (the Allan-deviation floor): the bias random walk
+  ``gyro_bias_rw_deg_h_sqrt_h`` = instability / sqrt(1 h), a walk that wanders by the instability in one hour;
+* ``acc_vrw_m_s_sqrt_h`` velocity random walk [m/s/sqrt(h)] (= 60 g0 x the noise density in g/sqrt(Hz));
+* ``acc_bias_mg``, ``acc_bias_instability_mg`` [mg] likewise for the accelerometers.
+
+:func:`grade_params` maps a grade onto the fields of any core's config dataclass (the fields the class has; the
+others are left alone), :func:`resolve_core_params` puts the explicit per-core parameters on top of it. The
+presets, their numbers and their sources are in docs/imu_grades.md. The core dataclasses keep the papers'
+defaults, which are presets too (``CORE_DEFAULT_GRADE``): ``paper_ship`` for the in-motion cores, ``paper_static``
+for the static ones, ``paper_two_position`` for earth_iekf; the user-facing default (session, node,
+insalign-align) is ``DEFAULT_IMU_GRADE``, a conservative prior for an unknown MEMS IMU.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+
+G0_M_S2 = 9.80665  #: the "g" of mg and ug
+#: the bias random walk is the one that wanders by the bias instability in this time [h]
+BIAS_RW_HORIZON_H = 1.0
+
+
+@dataclass(frozen=True)
+class ImuGrade:
+    """Datasheet noise model of an IMU (1-sigma values; units in the names)."""
+
+    name: str
+    gyro_arw_deg_sqrt_h: float
+    gyro_bias_deg_h: float
+    gyro_bias_instability_deg_h: float
+    acc_vrw_m_s_sqrt_h: float
+    acc_bias_mg: float
+    acc_bias_instability_mg: float
+    #: where the numbers come from (docs/imu_grades.md has the table)
+    source: str = ""
+
+    def __post_init__(self):
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if f.type in ("float", float) and not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ValueError(f"imu grade {self.name!r}: {f.name} must be a finite number >= 0, got {v!r}")
+
+    @classmethod
+    def from_spec(cls, spec) -> "ImuGrade":
+        """A simulator ImuSpec (sim/types.py: constant-in-run biases) as a grade (no bias instability)."""
+        return cls(spec.name, spec.arw_deg_sqrt_h, spec.gyro_bias_deg_h, 0.0, spec.vrw_m_s_sqrt_h, spec.acc_bias_mg,
+                   0.0, source=f"simulator ImuSpec {spec.name!r}")
+
+    @property
+    def gyro_bias_rw_deg_h_sqrt_h(self) -> float:
+        return self.gyro_bias_instability_deg_h / math.sqrt(BIAS_RW_HORIZON_H)
+
+    @property
+    def acc_bias_rw_mg_sqrt_h(self) -> float:
+        return self.acc_bias_instability_mg / math.sqrt(BIAS_RW_HORIZON_H)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def _ug_sqrt_hz(x: float) -> float:
+    """Accelerometer noise density [ug/sqrt(Hz)] -> VRW [m/s/sqrt(h)]."""
+    return x * 1e-6 * G0_M_S2 * 60.0
+
+
+def _dps_sqrt_hz(x: float) -> float:
+    """Gyro noise density [deg/s/sqrt(Hz)] -> ARW [deg/sqrt(h)]."""
+    return x * 60.0
+
+
+#: named presets (docs/imu_grades.md: the numbers, their datasheets, and which simulated IMU each one covers)
+GRADES: dict[str, ImuGrade] = {g.name: g for g in (
+    ImuGrade("consumer_mems", _dps_sqrt_hz(0.014), 1800.0, 10.0, _ug_sqrt_hz(175.0), 20.0, 0.2,
+             "Bosch BMI088 (gyro 0.014 deg/s/sqrt(Hz), zero-rate offset +-1 deg/s typ., bias stability 2 deg/h; "
+             "accel 175 ug/sqrt(Hz), offset +-20 mg typ.), InvenSense ICM-42688-P (0.0028 deg/s/sqrt(Hz), "
+             "+-0.5 deg/s; 70 ug/sqrt(Hz), +-20 mg): a raw chip, turn-on offsets not removed"),
+    ImuGrade("industrial_mems", 0.4, 10.0, 10.0, 0.1, 1.0, 0.03,
+             "Xsens MTi-1/MTi-3 (0.007 deg/s/sqrt(Hz), in-run 10 deg/h; 120 ug/sqrt(Hz), 0.03 mg in-run), "
+             "Analog Devices ADIS16470 (ARW 0.34 deg/sqrt(h), in-run 8 deg/h); the in-run bias stability is the "
+             "run bias sigma (the PKF paper's convention for its ADIS16488A): turn-on offsets removed (factory "
+             "calibration and the driver's still-period offset); covers the simulator's automotive_mems and "
+             "mems_5degh_1mg"),
+    ImuGrade("tactical", 0.125, 1.0, 0.1, 0.02, 1.0, 0.05,
+             "Honeywell HG1700-AG58 (gyro bias 1 deg/h, ARW 0.125 deg/sqrt(h); accel bias 1 mg, VRW 0.065 "
+             "ft/s/sqrt(h) = 0.02 m/s/sqrt(h)), KVH 1750 (in-run 0.05 deg/h, 0.05 mg)"),
+    ImuGrade("navigation", 0.002, 0.01, 0.0, _ug_sqrt_hz(10.0), 0.025, 0.0,
+             "Honeywell HG9900 (0.003 deg/h, ARW 0.002 deg/sqrt(h); 25 ug), iXblue/Exail navigation-grade FOG IMUs "
+             "(0.01 deg/h class); equal to the simulator's navigation_grade IMU"),
+    ImuGrade("paper_ship", 2.0, 25.2, 0.5, 0.2, 0.2, 0.005,
+             "PI-LIEKF paper Table 1/2 ship IMU (25.2 deg/h, 2.0 deg/sqrt(h), 0.2 mg, 0.2 m/s/sqrt(h)); the bias "
+             "random walks are not in the paper (its Q has 0 there): the small values the cores always used"),
+    ImuGrade("paper_static", 0.26, 5.1, 0.0, 0.029, 0.07, 0.0,
+             "PKF paper Table 1, ADIS16488A (bias stability 5.1 deg/h and 0.07 mg used as the constant bias "
+             "sigma; 0.26 deg/sqrt(h), 0.029 m/s/sqrt(h))"),
+    ImuGrade("paper_two_position", 0.0003, 0.002, 0.0, _ug_sqrt_hz(20.0), 0.020, 0.0,
+             "inverse-alignment paper Table 1 (0.002 deg/h, 0.0003 deg/sqrt(h), 20 ug, 20 ug/sqrt(Hz))"),
+    ImuGrade("unknown_mems", 2.0, 360.0, 10.0, 0.2, 5.0, 0.1,
+             "the default: no datasheet, only 'a MEMS IMU'. Noise at or above every MEMS datasheet above (ARW and "
+             "VRW of the paper's ship IMU: 2x the BMI088's); turn-on biases of a factory-calibrated MEMS part, "
+             "0.1 deg/s (360 deg/h) and 5 mg 1-sigma; a raw consumer chip: consumer_mems"),
+)}
+#: the user-facing default (SessionConfig.imu_grade, the node's imu_grade, insalign-align)
+DEFAULT_IMU_GRADE = "unknown_mems"
+#: the grade each core's dataclass defaults are (the papers' IMUs; test/test_imu_grade.py checks it)
+CORE_DEFAULT_GRADE = {"liekf": "paper_ship", "pi_liekf": "paper_ship", "iekf": "paper_ship", "ekf": "paper_ship",
+                      "liekf_backtrack": "paper_ship", "earth_iekf": "paper_two_position", "pkf": "paper_static",
+                      "ekf10": "paper_static", "coarse": "paper_static"}
+#: the preset matching each simulated scenario's IMU (sim/scenarios.py; docs/imu_grades.md): equal numbers, or
+#: (car, park_drive, drive_stop_drive) the MEMS preset whose numbers cover (>=) the simulated IMU's
+SCENARIO_IMU_GRADE = {"ship": "paper_ship", "car": "industrial_mems", "static": "paper_static",
+                      "static_navgrade": "navigation", "two_position": "paper_two_position",
+                      "park_drive": "industrial_mems", "park_drive_navgrade": "navigation",
+                      "drive_stop_drive": "industrial_mems"}
+
+#: config field -> its value from a grade (every core's config class has a subset of these fields)
+_FIELD_FROM_GRADE = {
+    "gyro_arw_deg_sqrt_h": lambda g: g.gyro_arw_deg_sqrt_h,
+    "acc_vrw_m_s_sqrt_h": lambda g: g.acc_vrw_m_s_sqrt_h,
+    # in-motion cores with bias states (iekf, ekf) and the static 10-state EKF: the initial bias sigmas
+    "init_sigma_gyro_bias_deg_h": lambda g: g.gyro_bias_deg_h,
+    "init_sigma_acc_bias_mg": lambda g: g.acc_bias_mg,
+    "init_sigma_acc_bias_ug": lambda g: 1000.0 * g.acc_bias_mg,  # earth_iekf
+    "gyro_bias_rw_deg_h_sqrt_h": lambda g: g.gyro_bias_rw_deg_h_sqrt_h,
+    "acc_bias_rw_mg_sqrt_h": lambda g: g.acc_bias_rw_mg_sqrt_h,
+    # the 5-state static cores: the unestimated biases as the consider floor of the reported covariance
+    "consider_gyro_bias_deg_h": lambda g: g.gyro_bias_deg_h,
+    "consider_acc_bias_mg": lambda g: g.acc_bias_mg,
+    # coarse alignment: the bias terms of its covariance
+    "gyro_bias_deg_h": lambda g: g.gyro_bias_deg_h,
+    "acc_bias_mg": lambda g: g.acc_bias_mg,
+}
+GRADE_FIELDS = tuple(_FIELD_FROM_GRADE)
+
+
+def get_grade(grade) -> ImuGrade:
+    """A preset name (or an ImuGrade, returned as is) -> ImuGrade; ValueError (one line) for an unknown name."""
+    if isinstance(grade, ImuGrade):
+        return grade
+    if grade not in GRADES:
+        raise ValueError(f"imu_grade: unknown IMU grade {grade!r}; choose one of {sorted(GRADES)}")
+    return GRADES[grade]
+
+
+def grade_params(grade, config_class) -> dict:
+    """The fields of ``config_class`` (a core config dataclass) that the IMU grade sets: process noise (ARW, VRW),
+    bias priors, bias random walks, consider biases. Fields the class does not have are left out."""
+    g = get_grade(grade)
+    names = {f.name for f in fields(config_class)}
+    return {k: float(fn(g)) for k, fn in _FIELD_FROM_GRADE.items() if k in names}
+
+
+def resolve_core_params(grade, core: str, core_params: dict | None = None) -> dict:
+    """Core parameters of ``core`` (filters/registry.py) for an IMU grade: the grade's fields, overridden by the
+    explicit ``core_params`` (a per-core parameter always wins over the preset)."""
+    from . import registry
+
+    if core not in registry.CORES:
+        raise ValueError(f"core: unknown core {core!r}; choose one of {sorted(registry.core_names())}")
+    return {**grade_params(grade, registry.CORES[core][1]), **dict(core_params or {})}

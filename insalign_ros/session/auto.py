@@ -1,0 +1,369 @@
+"""``core: auto`` (issue 14): from ignition to aligned in one core, parked first, then driving.
+
+A state machine around two cores and the motion detector (session/motion.py), seen by the session as one
+:class:`~insalign_ros.filters.base.AlignmentCore` (registered as ``auto``):
+
+* **waiting for data**: the session's own status until it has a position and 1 s of accelerometer data;
+* **static, levelling**: a zero-velocity core (``static_core``, default ekf10, tuned from the IMU grade) started by
+  the session's sensors initialisation (level from the accelerometers, heading unknown: its azimuth bootstrap),
+  zero-velocity updates scheduled by the session (``supports_gnss`` is False in the static states);
+* **static, fine**: the level 1-sigma is within 2x the b_acc/g floor. Heading: gyrocompassing only where the IMU
+  grade's azimuth floor eps/(omega_ie cos lat) is below ``heading_floor_max_deg`` at this latitude; otherwise the
+  status is WAITING_FOR_MOTION and the reason says "heading needs motion (floor X deg)";
+* **in motion**: when the motion detector declares motion, the in-motion core (``motion_core``, default iekf) is
+  initialised from a snapshot of the static solution taken before the onset of the motion (level, heading if
+  trusted, their 3x3 covariance, the position, zero velocity) and the buffered IMU samples since the snapshot are
+  replayed into it; a bank of ``unknown_heading_hypotheses`` yaw hypotheses when the heading is not trusted. From
+  then on ``supports_gnss`` is True: the session fuses the fixes, gates them and stops its zero-velocity updates;
+* **stopped**: the detector declares rest again: the in-motion core keeps running (no reset) and takes a
+  zero-velocity constraint at 10 Hz as a position hold (a pseudo-fix at the position where it stopped, 1-sigma
+  ``stop_hold_sigma_m``; the in-motion cores have no velocity update) besides the real fixes;
+* **aligned**: the session's flag (one meaning of "aligned").
+
+docs/session.md ("core: auto") gives the decisions and the measured behaviour.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from ..core import earth
+from ..core.types import GnssFix, ImuSample
+from ..filters import imu_grade, registry
+from ..filters.base import AlignmentCore, AlignmentEstimate, AlignmentStatus, UpdateResult
+from ..filters.config import ConfigDict
+from ..filters.hypotheses import YawHypothesisBank
+from .motion import MotionConfig, MotionDetector
+
+D2R = math.pi / 180.0
+
+#: hand-over without a snapshot at rest (moving from the start): level and velocity 1-sigma [deg, m/s]
+NO_REST_LEVEL_SIGMA_DEG = 5.0
+NO_REST_SIGMA_V_M_S = 20.0
+#: state names (``AutoCore.state``), in the order a parked-then-driving run passes through them
+STATES = ("static, levelling", "static, fine", "in motion", "stopped")
+
+
+@dataclass
+class AutoConfig(ConfigDict):
+    """Parameters of ``core: auto``. The IMU grade (bias 1-sigmas, noise densities) sets the static core's
+    tuning, the physical floors in the status and the motion detector's thresholds."""
+
+    #: zero-velocity core for the parked states (pkf, ekf10, ...) and the in-motion core for driving
+    static_core: str = "ekf10"
+    motion_core: str = "iekf"
+    #: IMU grade (the session fills these from ``imu_grade``, filters/imu_grade.py; defaults: industrial_mems):
+    #: gyro and accelerometer bias 1-sigma, angle and velocity random walks, bias random walks
+    gyro_bias_deg_h: float = 10.0
+    acc_bias_mg: float = 1.0
+    gyro_arw_deg_sqrt_h: float = 0.4
+    acc_vrw_m_s_sqrt_h: float = 0.1
+    gyro_bias_rw_deg_h_sqrt_h: float = 10.0
+    acc_bias_rw_mg_sqrt_h: float = 0.03
+    #: in-motion core: floor of the fix sigma [m] (its ``gnss_sigma_floor_m``; e.g. 1 m for KITTI's RT3003, which
+    #: reports centimetres)
+    gnss_sigma_floor_m: float = 0.0
+    #: gyrocompassing is trusted for the heading only where the azimuth floor eps/(omega_ie cos lat) is below this
+    heading_floor_max_deg: float = 1.0
+    #: ... and the static yaw 1-sigma at the hand-over below this (else the yaw bank is used)
+    heading_trust_sigma_deg: float = 10.0
+    #: yaw hypotheses of the in-motion bank when the heading is not trusted
+    unknown_heading_hypotheses: int = 8
+    #: the static snapshot the in-motion core starts from is at least this long before the motion onset [s]
+    handover_margin_s: float = 0.3
+    #: zero-velocity constraint of the in-motion core at stops: position hold 1-sigma [m] and rate [Hz]
+    stop_hold_sigma_m: float = 0.05
+    stop_hold_rate_hz: float = 10.0
+    #: ... only when the in-motion core's own horizontal speed agrees: below this [m/s] (the IMU-only detector can
+    #: take a smooth constant acceleration for rest: a position hold while driving would wreck the attitude)
+    stop_speed_max_m_s: float = 0.5
+
+    def validate(self) -> None:
+        self.check_field_types(non_negative=True)
+        values = self.to_dict()
+        for name in ("static_core", "motion_core"):
+            v = values[name]
+            if v == "auto" or v not in registry.CORES:
+                raise ValueError(f"{name}: unknown core {v!r}; choose one of {sorted(set(registry.CORES) - {'auto'})}")
+        if not 2 <= self.unknown_heading_hypotheses <= 36:
+            raise ValueError(f"unknown_heading_hypotheses: must be in [2, 36], got {self.unknown_heading_hypotheses}")
+        for name in ("heading_floor_max_deg", "heading_trust_sigma_deg", "stop_hold_sigma_m", "stop_hold_rate_hz",
+                     "stop_speed_max_m_s"):
+            if not values[name] > 0:
+                raise ValueError(f"{name}: must be > 0, got {values[name]}")
+
+    def grade_params(self, core: str) -> dict:
+        """The parameters of ``core`` (the static or the in-motion one) that the IMU grade sets (only the fields its
+        config has): noise, bias priors, bias random walks, consider floors."""
+        grade = {"gyro_arw_deg_sqrt_h": self.gyro_arw_deg_sqrt_h, "acc_vrw_m_s_sqrt_h": self.acc_vrw_m_s_sqrt_h,
+                 "consider_gyro_bias_deg_h": self.gyro_bias_deg_h, "consider_acc_bias_mg": self.acc_bias_mg,
+                 "init_sigma_gyro_bias_deg_h": self.gyro_bias_deg_h, "init_sigma_acc_bias_mg": self.acc_bias_mg,
+                 "gyro_bias_rw_deg_h_sqrt_h": self.gyro_bias_rw_deg_h_sqrt_h,
+                 "acc_bias_rw_mg_sqrt_h": self.acc_bias_rw_mg_sqrt_h, "gnss_sigma_floor_m": self.gnss_sigma_floor_m}
+        known = {f.name for f in fields(registry.CORES[core][1])}
+        return {k: v for k, v in grade.items() if k in known}
+
+    def static_params(self) -> dict:
+        return self.grade_params(self.static_core)
+
+    def level_floor_rad(self) -> float:
+        """Level floor b_acc/g [rad]."""
+        return self.acc_bias_mg * 1e-3
+
+    def azimuth_floor_rad(self, lat_rad: float) -> float:
+        """Gyrocompassing floor eps/(omega_ie cos lat) [rad] (inf at the poles)."""
+        c = math.cos(lat_rad) * earth.OMEGA_IE_RAD_S
+        return math.inf if c <= 1e-12 else self.gyro_bias_deg_h * D2R / 3600.0 / c
+
+
+class AutoCore(AlignmentCore):
+    """The ``auto`` state machine (module docstring). ``state`` is one of :data:`STATES`; ``transitions`` lists
+    (stamp [s], state, reason) at every change."""
+
+    name = "auto"
+    supports_zero_velocity = True
+
+    def __init__(self, cfg: AutoConfig):
+        self.cfg = cfg
+        self.supports_gnss = False  # the session reads it per call: True from the hand-over on
+        self.static: AlignmentCore | None = None
+        self.motion: AlignmentCore | None = None
+        self.state = "waiting for data"
+        self.reason = ""
+        self.transitions: list[tuple[float, str, str]] = []
+        self.detector: MotionDetector | None = None
+        self._dts: list[float] = []
+        self._t: float | None = None
+        self.hist: deque = deque()  # (t, omega, f): the IMU samples the hand-over may replay
+        self.snaps: deque = deque()  # (t, AlignmentEstimate) of the static core at rest
+        self.heading_trusted = False
+        self.heading_floor_deg = math.nan
+        self.grade_allows_heading = False
+        self.sig_p = 1.0
+        self.lat = 0.0
+        self._hold_p_e: np.ndarray | None = None
+        self._next_hold_t = -math.inf
+        self.counters = {"handovers": 0, "stops": 0, "stop_holds": 0, "zupt_rejected_moving": 0}
+        with_static = registry.make_core(cfg.static_core, cfg.static_params())
+        self._static_sigmas = with_static.default_initial_sigmas()
+        with_static.close()
+
+    # ------------------------------------------------------------------ life cycle
+    def default_initial_sigmas(self):
+        return self._static_sigmas
+
+    def initialize(self, stamp_s, lat_rad, lon_rad, h_m, C_b_n, v_n, P_att_n, sigma_v_m_s, sigma_p_m) -> None:
+        cfg = self.cfg
+        self.static = registry.make_core(cfg.static_core, cfg.static_params())
+        self.static.initialize(stamp_s, lat_rad, lon_rad, h_m, C_b_n, v_n, P_att_n, sigma_v_m_s, sigma_p_m)
+        self.sig_p, self.lat, self._t = float(sigma_p_m), float(lat_rad), float(stamp_s)
+        floor = cfg.azimuth_floor_rad(lat_rad) / D2R
+        self.heading_floor_deg = floor
+        self.grade_allows_heading = floor <= cfg.heading_floor_max_deg
+        self._set_state(stamp_s, "static, levelling", "level from the accelerometers")
+
+    @property
+    def initialized(self) -> bool:
+        return self.static is not None
+
+    @property
+    def active(self) -> AlignmentCore:
+        return self.motion if self.motion is not None else self.static
+
+    @property
+    def P(self):
+        return None if self.active is None else self.active.P
+
+    @property
+    def busy(self) -> bool:
+        return self.active is not None and self.active.busy
+
+    def close(self) -> None:
+        for c in (self.static, self.motion):
+            if c is not None:
+                c.close()
+
+    def flush(self) -> None:
+        if self.active is not None:
+            self.active.flush()
+
+    def inflate_navigation(self, var_att_rad2: float, var_v_m2_s2: float, var_p_m2: float = 0.0) -> None:
+        self.active.inflate_navigation(var_att_rad2, var_v_m2_s2, var_p_m2)
+
+    def _set_state(self, t: float, state: str, reason: str) -> None:
+        self.reason = reason
+        if state != self.state:
+            self.state = state
+            self.transitions.append((float(t), state, reason))
+
+    # ------------------------------------------------------------------ data
+    def _detect(self, t: float, w, f):
+        """The motion decision after this sample (the detector is built once the IMU rate is known)."""
+        if self.detector is None:
+            if self._t is not None and t > self._t:
+                self._dts.append(t - self._t)
+            if len(self._dts) < 25:
+                return None
+            rate = 1.0 / float(np.median(self._dts))
+            self.detector = MotionDetector(MotionConfig.from_dict(dict(
+                rate_hz=rate, gyro_arw_deg_sqrt_h=max(self.cfg.gyro_arw_deg_sqrt_h, 1e-4),
+                acc_vrw_m_s_sqrt_h=max(self.cfg.acc_vrw_m_s_sqrt_h, 1e-4))))
+        return self.detector.push_imu(t, w, f)
+
+    def propagate(self, imu: ImuSample) -> None:
+        t = float(imu.stamp_s)
+        w, f = np.asarray(imu.omega_ib_b, float), np.asarray(imu.f_ib_b, float)
+        dec = self._detect(t, w, f)
+        self._t = t
+        self.hist.append((t, w, f))
+        while self.hist and self.hist[0][0] < t - 6.0:
+            self.hist.popleft()
+        if self.motion is None:
+            self.static.propagate(imu)
+            if dec is not None and dec.moving:
+                self._handover(t, dec.since_s)
+            return
+        self.motion.propagate(imu)
+        if dec is None or not dec.decided:
+            return
+        if dec.moving and self.state == "stopped":
+            self._hold_p_e = None
+            self._set_state(t, "in motion", f"driving again since {dec.since_s:.2f} s")
+        elif not dec.moving and self.state == "in motion" and self._speed() < self.cfg.stop_speed_max_m_s:
+            self.counters["stops"] += 1
+            self._hold_p_e = self._position_e()
+            self._next_hold_t = t
+            self._set_state(t, "stopped", f"stopped since {dec.since_s:.2f} s: zero-velocity updates (position hold)")
+        if self.state == "stopped" and t >= self._next_hold_t and self._hold_p_e is not None:
+            self._next_hold_t = t + 1.0 / self.cfg.stop_hold_rate_hz - 1e-9
+            if not (isinstance(self.motion, YawHypothesisBank) and len(self.motion.hyps) > 1):
+                # one pseudo-fix for a bank that has not collapsed would move its weights: the fixes do it
+                res = self.motion.update_gnss(GnssFix(t, self._hold_p_e, np.eye(3) * self.cfg.stop_hold_sigma_m ** 2))
+                self.counters["stop_holds"] += int(res.accepted)
+
+    def _motion_evidence(self) -> bool:
+        """No zero-velocity update now: moving, undecided, or the detector's rest evidence fails (horizontal velocity
+        change or a spread over its threshold: a drive-off not yet declared, a person getting in rocking the body,
+        whose 0.035 m/s at the IMU pulled the navigation-grade gyrocompass by 0.2-0.6 deg)."""
+        if self.detector is None or not self.detector.decision.decided or self.detector.decision.moving:
+            return True  # undecided counts as motion: a zero-velocity update while driving would corrupt the level
+        d = self.detector.diagnostics()
+        return bool(d["dv_h_m_s"] > d["dv_h_threshold_m_s"] or d["spread_f_m_s2"] > d["spread_f_threshold_m_s2"]
+                    or d["spread_omega_deg_s"] > d["spread_omega_threshold_deg_s"])
+
+    def _speed(self) -> float:
+        """Horizontal speed of the in-motion core [m/s] (a stop is declared only when it agrees)."""
+        v = self.motion.estimate().v_n
+        return float(math.hypot(v[0], v[1]))
+
+    def update_zero_velocity(self, stamp_s: float, sigma_v_m_s: float) -> UpdateResult:
+        if self.motion is not None:
+            return UpdateResult(False, reason="in motion: the in-motion core holds its position at stops")
+        if self._motion_evidence():
+            self.counters["zupt_rejected_moving"] += 1
+            return UpdateResult(False, reason="motion evidence: no zero-velocity update")
+        res = self.static.update_zero_velocity(stamp_s, sigma_v_m_s)
+        est = self.static.estimate()
+        self.snaps.append((float(stamp_s), est))
+        while len(self.snaps) > 2 and self.snaps[1][0] < stamp_s - 5.0:
+            self.snaps.popleft()
+        self._static_state(stamp_s, est)
+        return res
+
+    def _static_state(self, t: float, est: AlignmentEstimate) -> None:
+        s = np.sqrt(np.clip(np.diag(est.P_att_n), 0.0, None))
+        lvl, yaw = max(s[0], s[1]), s[2]
+        floor_l = self.cfg.level_floor_rad()
+        level = f"level 1-sigma {lvl / D2R:.3f} deg (floor b_acc/g {floor_l / D2R:.3f} deg)"
+        if lvl > 2.0 * floor_l and self.state == "static, levelling":
+            self._set_state(t, "static, levelling", level)
+            return
+        if self.grade_allows_heading:
+            head = (f"gyrocompassing: yaw 3-sigma {3 * yaw / D2R:.2f} deg (floor {self.heading_floor_deg:.3f} deg "
+                    f"at latitude {self.lat / D2R:.1f} deg)")
+        else:
+            head = (f"heading needs motion (floor {self.heading_floor_deg:.1f} deg at latitude {self.lat / D2R:.1f} "
+                    f"deg > {self.cfg.heading_floor_max_deg:g} deg)")
+        self._set_state(t, "static, fine", f"{level}; {head}")
+
+    def _handover(self, t: float, since_s: float) -> None:
+        """Motion declared: start the in-motion core from the static solution before ``since_s`` and replay."""
+        cfg = self.cfg
+        before = [s for s in self.snaps if s[0] <= since_s - cfg.handover_margin_s]
+        if before:
+            t0, est = before[-1]
+        else:  # no snapshot at rest (moving from the start): the static core now, velocity unknown
+            t0, est = self._t, self.static.estimate()
+        P = np.array(est.P_att_n, float)
+        if not before:  # level from accelerometers that were accelerating: as the session's sensors init, >= 5 deg
+            for i in (0, 1):
+                P[i, i] = max(P[i, i], (NO_REST_LEVEL_SIGMA_DEG * D2R) ** 2)
+        yaw_sigma = math.sqrt(max(P[2, 2], 0.0))
+        self.heading_trusted = self.grade_allows_heading and yaw_sigma <= cfg.heading_trust_sigma_deg * D2R
+        params = cfg.grade_params(cfg.motion_core)
+        if not self.heading_trusted:
+            params["yaw_hypotheses"] = cfg.unknown_heading_hypotheses
+            P[2, :] = P[:, 2] = 0.0
+            P[2, 2] = (1e4 * D2R) ** 2  # unknown: uniform over the bank's hypotheses (as the session's sensors init)
+        core = registry.make_core(cfg.motion_core, params)
+        sig_v = 0.05 if before else NO_REST_SIGMA_V_M_S
+        try:
+            core.initialize(t0, est.lat_rad, est.lon_rad, est.h_m, est.C_b_n, np.zeros(3), P, sig_v, self.sig_p)
+            for (ts, w, f) in self.hist:
+                if ts > t0:
+                    core.propagate(ImuSample(ts, w, f))
+        except Exception:
+            core.close()
+            raise
+        self.motion = core
+        self.supports_gnss = True
+        self.counters["handovers"] += 1
+        self.static.close()
+        how = ("heading from gyrocompassing" if self.heading_trusted else
+               f"heading unknown: {cfg.unknown_heading_hypotheses} yaw hypotheses")
+        self._set_state(t, "in motion", f"motion since {since_s:.2f} s: {cfg.motion_core} from the static solution at "
+                                        f"{t0:.2f} s ({how})")
+
+    def update_gnss(self, fix: GnssFix) -> UpdateResult:
+        if self.motion is None:
+            return UpdateResult(False, reason="static: fixes are not used while parked")
+        res = self.motion.update_gnss(fix)
+        if self._hold_p_e is not None:  # stopped: hold where the fix put the core (holds and fixes do not fight)
+            self._hold_p_e = self._position_e()
+        return res
+
+    def _position_e(self) -> np.ndarray:
+        e = self.motion.estimate()
+        return np.asarray(earth.geodetic_to_ecef(e.lat_rad, e.lon_rad, e.h_m), float)
+
+    def predict_gnss(self, fix: GnssFix) -> UpdateResult:
+        if self.motion is None:
+            return super().predict_gnss(fix)
+        return self.motion.predict_gnss(fix)
+
+    # ------------------------------------------------------------------ outputs
+    def estimate(self) -> AlignmentEstimate:
+        est = self.active.estimate()
+        if self.motion is None and self.state == "static, fine" and not self.grade_allows_heading:
+            est.status = AlignmentStatus.WAITING_FOR_MOTION
+        est.reason = f"{self.state}: {self.reason}" if self.reason else self.state
+        return est
+
+    def diagnostics(self) -> dict:
+        d = {"state": self.state, "state_reason": self.reason,
+             "heading_floor_deg": f"{self.heading_floor_deg:.3f}",
+             "heading_trusted": str(self.heading_trusted).lower(),
+             **{k: str(v) for k, v in self.counters.items()}}
+        if self.detector is not None:
+            d.update({f"motion.{k}": v for k, v in self.detector.diagnostics().items()})
+        if self.active is not None:
+            d.update({f"{self.active.name}.{k}": v for k, v in self.active.diagnostics().items()})
+        return d
+
+
+registry.register("auto", AutoCore, AutoConfig)
+imu_grade.CORE_DEFAULT_GRADE["auto"] = "industrial_mems"  # the grade AutoConfig's defaults are (test_imu_grade)
