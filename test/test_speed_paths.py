@@ -215,3 +215,14 @@ def test_static_propagate_arrays_equals_per_sample(data):
     a, b = cores
     np.testing.assert_array_equal(a.C_b_n, b.C_b_n)
     np.testing.assert_array_equal(a.P, b.P)
+
+
+def test_session_fast_path_with_gnss_velocity(monkeypatch):
+    """GNSS velocities (push_velocity) arrive like fixes and cut the fast runs the same way: same numbers."""
+    from insalign_ros.sim.scenarios import make_scenario
+
+    d = make_scenario("car", seed=3, duration_s=40.0, gnss_vel_sigma_m_s=0.1)
+    ref = _run(monkeypatch, d, "iekf", True, fast=False, fix_delay_s=0.35)
+    fast = _run(monkeypatch, d, "iekf", True, fast=True, fix_delay_s=0.35)
+    _assert_same(ref, fast, bound_rad=1e-12)
+    assert fast.counters["gnss_vel_received"] > 30
