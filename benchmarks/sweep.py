@@ -91,7 +91,8 @@ class StageTimer:
 
         self._wrap(offline, "load_source", "read")
         self._wrap(offline, "truth_samples", "read")
-        for m in ("push_imu", "push_fix", "push_truth"):
+        self._wrap(offline, "truth_table", "read")
+        for m in ("push_imu", "push_imu_arrays", "push_fix", "push_truth", "push_truth_table"):
             self._wrap(AlignmentSession, m, "input")
         self._wrap(AlignmentSession, "_output", "outputs")
         self._wrap(offline, "result_from_outputs", "outputs")

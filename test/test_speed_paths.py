@@ -1,10 +1,18 @@
-"""The compiled propagation (core/mechanization_numba.py) gives the numbers of the numpy reference path (issue 16).
+"""The fast paths give the numbers of the reference paths (issue 16).
 
-Every core through the session path users take (``ia.align``), 60 s: ship data for the in-motion cores, the static
-scenario for the static ones, run twice, with ``mechanization_numba.ENABLED`` off (the numpy reference: batched
-ECI propagation, per-sample local-level mechanization) and on. The attitude of every output must agree to 1e-9 rad
-(the issue's bound; measured ~1e-13, i.e. rounding), the covariance to 1e-9 relative, the output stamps exactly.
+* The compiled propagation (core/mechanization_numba.py) and the session's fast path (runs of IMU samples between
+  events as arrays, ``AlignmentSession._fast_run``; IMU pushed as arrays by ``ia.align``) against the numpy reference
+  with one session step per sample: every core through ``ia.align``, 60 s (ship data for the in-motion cores, the
+  static scenario for the static ones), both switches off, then both on.
+* The session's fast path alone: 300 s (IEKF and EKF10), and data with every event the
+  fast path must hand back to the per-sample path (gaps, spikes, invalid rows, stamp jitter, late fixes, IMU out of
+  order, node-style pushes).
+
+The attitude of every output must agree to 1e-9 rad (the issue's bound; measured: 0 for the session path,
+~1e-13 for the compiled one, i.e. rounding), the covariance to 1e-9 relative, stamps and counters exactly.
 """
+
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -13,7 +21,10 @@ import insalign_ros as ia
 from insalign_ros.core import earth
 from insalign_ros.core import mechanization_numba as nb
 from insalign_ros.core.mechanization import propagate_eci
+from insalign_ros.core.types import GnssFix, ImuSample
 from insalign_ros.filters import registry
+from insalign_ros.session.offline import events_in_arrival_order
+from insalign_ros.session.session import AlignmentSession
 
 pytestmark = pytest.mark.skipif(not nb.HAVE_NUMBA, reason="numba is not installed: only the reference path exists")
 
@@ -27,9 +38,23 @@ def data():
                                                                                        duration_s=60.0)}
 
 
-def _run(monkeypatch, d, core, enabled):
+def _run(monkeypatch, d, core, enabled, fast=None, **kw):
     monkeypatch.setattr(nb, "ENABLED", enabled)
-    return ia.align(d, core=core, **KW)
+    monkeypatch.setattr(AlignmentSession, "fast_path", enabled if fast is None else fast)
+    return ia.align(d, core=core, **{**KW, **kw})
+
+
+def _assert_same(ref, fast, bound_rad=1e-9):
+    assert len(ref.outputs) == len(fast.outputs) > 50
+    np.testing.assert_array_equal(ref.t_s, fast.t_s)
+    d_att = [np.linalg.norm(earth.heading_error_enu_rad(a.estimate.C_b_n, b.estimate.C_b_n))
+             for a, b in zip(ref.outputs, fast.outputs)]
+    assert max(d_att) < bound_rad, f"attitude differs by {max(d_att):.3e} rad"
+    for a, b in zip(ref.outputs, fast.outputs):
+        scale = np.abs(a.estimate.P).max()
+        assert np.abs(a.estimate.P - b.estimate.P).max() <= 1e-9 * scale
+        assert a.aligned == b.aligned and a.reason == b.reason
+    assert ref.counters == fast.counters
 
 
 @pytest.mark.parametrize("core", registry.core_names())
@@ -37,15 +62,84 @@ def test_compiled_path_matches_reference(monkeypatch, data, core):
     d = data["static" if core in STATIC else "ship"]
     ref = _run(monkeypatch, d, core, False)
     fast = _run(monkeypatch, d, core, True)
-    assert len(ref.outputs) == len(fast.outputs) > 50
-    np.testing.assert_array_equal(ref.t_s, fast.t_s)
-    d_att = [np.linalg.norm(earth.heading_error_enu_rad(a.estimate.C_b_n, b.estimate.C_b_n))
-             for a, b in zip(ref.outputs, fast.outputs)]
-    assert max(d_att) < 1e-9, f"{core}: attitude differs by {max(d_att):.3e} rad"
-    for a, b in zip(ref.outputs, fast.outputs):
-        scale = np.abs(a.estimate.P).max()
-        assert np.abs(a.estimate.P - b.estimate.P).max() <= 1e-9 * scale
-    assert ref.counters == fast.counters
+    _assert_same(ref, fast)
+
+
+@pytest.mark.parametrize("core,scenario", [("iekf", "ship"), ("ekf10", "static")])
+def test_session_fast_path_matches_per_sample_over_300_s(monkeypatch, core, scenario):
+    """300 s, 1 s outputs, one core of each propagation family (ECI batches; static interval buffer; every core is
+    compared at 60 s above): the session's fast path changes no number."""
+    d = ia.simulate(scenario, seed=5, duration_s=300.0)
+    ref = _run(monkeypatch, d, core, True, fast=False, output_period_s=1.0)
+    fast = _run(monkeypatch, d, core, True, fast=True, output_period_s=1.0)
+    _assert_same(ref, fast, bound_rad=1e-12)
+
+
+def _perturbed(d, rng):
+    """Every event the fast path must leave to the per-sample path: stamp jitter, a 0.3 s gap (invalid rows), two
+    spikes (one inside the plausibility bounds, one beyond: rejected), a NaN row, a specific force beyond the
+    bounds."""
+    t = d.t_s + rng.uniform(-2e-4, 2e-4, d.n)
+    t[0] = d.t_s[0]
+    w, f = d.omega_ib_b.copy(), d.f_ib_b.copy()
+    valid = np.ones(d.n, bool)
+    valid[1500:1530] = False
+    w[2100] += [8.0, 0.0, 0.0]
+    w[2600] += [0.0, 0.0, 40.0]
+    f[3100, 2] = np.nan
+    f[3300] += [0.0, 60.0, 0.0]
+    # truth without velocity: the session differentiates the truth positions (TruthTable rows built on demand)
+    return replace(d, t_s=t, omega_ib_b=w, f_ib_b=f, imu_valid=valid, v_n=None)
+
+
+@pytest.mark.parametrize("core,scenario", [("iekf", "ship"), ("ekf10", "static")])
+def test_session_fast_path_hands_events_back(monkeypatch, core, scenario):
+    d = _perturbed(ia.simulate(scenario, seed=7, duration_s=40.0), np.random.default_rng(1))
+    ref = _run(monkeypatch, d, core, True, fast=False, fix_delay_s=0.35)
+    fast = _run(monkeypatch, d, core, True, fast=True, fix_delay_s=0.35)
+    _assert_same(ref, fast, bound_rad=1e-12)
+    c = fast.counters
+    assert c["imu_gaps"] >= 1 and c["imu_spikes"] >= 1 and c["imu_invalid"] >= 2, c
+
+
+def _node_style(core, d, fast, swap):
+    """One push per message (two messages swapped: reordered in the buffer), ``process`` every 10 messages as a
+    node timer would, fixes as they arrive."""
+    AlignmentSession.fast_path = fast
+    s = AlignmentSession({"core": core, "init_mode": "truth", "init_rpy_error_deg": [2.0, -2.0, 30.0],
+                          "output_period_s": 0.5})
+    out, n = [], 0
+    ev = list(events_in_arrival_order(d, 0.2))
+    i = next(k for k, e in enumerate(ev) if e[0] == "imu" and e[1].stamp_s > d.t_s[0] + swap)
+    j = next(k for k in range(i + 1, len(ev)) if ev[k][0] == "imu")
+    ev[i], ev[j] = ev[j], ev[i]
+    for kind, item in ev:
+        if kind == "imu":
+            s.push_imu(ImuSample(item.stamp_s, item.omega_ib_b, item.f_ib_b))
+            n += 1
+            if n % 10 == 0:
+                out += s.process()
+        elif kind == "fix":
+            s.push_fix(GnssFix(item.stamp_s, item.p_e, item.R_e))
+        else:
+            s.push_truth(item)
+    out += s.finish()
+    counters = dict(s.counters)
+    s.close()
+    return out, counters
+
+
+def test_session_fast_path_with_per_message_pushes(monkeypatch):
+    """The node's pattern: a message per push, a timer's ``process``; an IMU message out of order."""
+    monkeypatch.setattr(AlignmentSession, "fast_path", True)
+    d = ia.simulate("ship", seed=2, duration_s=30.0)
+    ref, c_ref = _node_style("liekf", d, False, 12.0)
+    fast, c_fast = _node_style("liekf", d, True, 12.0)
+    assert c_ref == c_fast and c_fast["imu_reordered"] == 1
+    assert [o.stamp_s for o in ref] == [o.stamp_s for o in fast] and len(ref) > 50
+    for a, b in zip(ref, fast):
+        assert np.linalg.norm(earth.heading_error_enu_rad(a.estimate.C_b_n, b.estimate.C_b_n)) < 1e-12
+        np.testing.assert_array_equal(a.estimate.P, b.estimate.P)
 
 
 def test_eci_kernel_is_the_sequential_mechanization():
@@ -121,3 +215,14 @@ def test_static_propagate_arrays_equals_per_sample(data):
     a, b = cores
     np.testing.assert_array_equal(a.C_b_n, b.C_b_n)
     np.testing.assert_array_equal(a.P, b.P)
+
+
+def test_session_fast_path_with_gnss_velocity(monkeypatch):
+    """GNSS velocities (push_velocity) arrive like fixes and cut the fast runs the same way: same numbers."""
+    from insalign_ros.sim.scenarios import make_scenario
+
+    d = make_scenario("car", seed=3, duration_s=40.0, gnss_vel_sigma_m_s=0.1)
+    ref = _run(monkeypatch, d, "iekf", True, fast=False, fix_delay_s=0.35)
+    fast = _run(monkeypatch, d, "iekf", True, fast=True, fix_delay_s=0.35)
+    _assert_same(ref, fast, bound_rad=1e-12)
+    assert fast.counters["gnss_vel_received"] > 30

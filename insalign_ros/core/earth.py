@@ -206,9 +206,15 @@ def C_b_n_from_rpy(roll_rad: float, pitch_rad: float, yaw_rad: float) -> np.ndar
 
 
 def rpy_from_C_b_n(C_b_n: np.ndarray) -> np.ndarray:
-    """(roll, pitch, yaw) [rad] of a body FLU -> ENU rotation; yaw in (-pi, pi], pitch in [-pi/2, pi/2]."""
-    yaw, pitch, roll = Rotation.from_matrix(C_b_n).as_euler("ZYX")
-    return np.array([roll, pitch, yaw])
+    """(roll, pitch, yaw) [rad] of a body FLU -> ENU rotation ``C_b_n = Rz(yaw) Ry(pitch) Rx(roll)`` (intrinsic
+    ZYX); yaw in (-pi, pi], pitch in [-pi/2, pi/2]. Also for a stack (..., 3, 3) -> (..., 3).
+
+    Closed form from the matrix entries (scipy's ``as_euler("ZYX")`` gives the same to 1e-14 rad and costs ~7x more:
+    it ran per output, docs/speed.md); at pitch +-90 deg roll and yaw are not separable and the split is arbitrary."""
+    C = np.asarray(C_b_n, float)
+    return np.stack([np.arctan2(C[..., 2, 1], C[..., 2, 2]),
+                     np.arctan2(-C[..., 2, 0], np.hypot(C[..., 0, 0], C[..., 1, 0])),
+                     np.arctan2(C[..., 1, 0], C[..., 0, 0])], axis=-1)
 
 
 def wrap_angle_rad(a):

@@ -84,6 +84,9 @@ class AlignmentCore(ABC):
     supports_zero_velocity: bool = False
     #: ``propagate_backward`` (and ``propagate_arrays(..., backward=True)``) work (filters/backtrack.py)
     supports_backtracking: bool = False
+    #: ``propagate_arrays`` gives exactly the numbers of one ``propagate`` per sample (the session's fast path
+    #: relies on it; a core whose array path differs says False and the session feeds it sample by sample)
+    propagate_arrays_matches_propagate: bool = True
     #: the core runs its own zero-velocity updates (earth_iekf's ``auto_zupt_period_s``: its backward passes need
     #: them inside the passes); the session then schedules none for it
     schedules_own_zero_velocity: bool = False

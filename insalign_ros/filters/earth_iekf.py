@@ -123,6 +123,8 @@ class EarthIekf(AlignmentCore):
     needs_motion = False
     supports_zero_velocity = True
     supports_backtracking = True
+    #: its propagate_arrays (for the backtracking driver) flushes and batches differently from propagate
+    propagate_arrays_matches_propagate = False
     att_index = (0, 1, 2)
     vel_index = (3, 4, 5)
     pos_index = (6, 7, 8)

@@ -17,7 +17,7 @@ from ..core.types import GnssFix, GnssVelocity, ImuSample
 from ..eval.aligned import AlignedCriteria
 from ..sim.types import ScenarioData
 from .config import SessionConfig
-from .session import AlignmentSession, Output, TruthSample
+from .session import AlignmentSession, Output, TruthSample, TruthTable  # noqa: F401  (TruthSample re-exported)
 
 
 @dataclass
@@ -71,21 +71,18 @@ def truncate(data: ScenarioData, duration_s: float) -> ScenarioData:
     return data.until(float(data.t_s[0]) + duration_s)
 
 
+def truth_table(data: ScenarioData) -> TruthTable | None:
+    """The truth of ``data`` as a :class:`TruthTable` (None without truth): attitude, geodetic position, ENU velocity
+    (or, without it, the ENU position relative to the first sample, differentiated by the session)."""
+    if not data.has_truth:
+        return None
+    return TruthTable(data.t_s, data.C_b_n, np.stack([data.lat_rad, data.lon_rad, data.h_m], axis=1), data.v_n)
+
+
 def truth_samples(data: ScenarioData):
     """TruthSample per IMU stamp of ``data`` (empty without truth): attitude, geodetic position, ENU velocity."""
-    if not data.has_truth:
-        return []
-    out = []
-    for k in range(data.n):
-        v = None if data.v_n is None else data.v_n[k]
-        out.append(TruthSample(float(data.t_s[k]), data.C_b_n[k], None, v,
-                               (float(data.lat_rad[k]), float(data.lon_rad[k]), float(data.h_m[k]))))
-    if data.v_n is None:  # velocity by differences of the truth positions (same rule as the node)
-        p_e = np.array([earth.geodetic_to_ecef(s.llh[0], s.llh[1], s.llh[2]) for s in out])
-        p_n = np.array([earth.ecef_to_enu(p, *out[0].llh) for p in p_e])
-        for s, p in zip(out, p_n):
-            s.p_n = p
-    return out
+    table = truth_table(data)
+    return [] if table is None else [table.sample(k) for k in range(data.n)]
 
 
 def events_in_arrival_order(data: ScenarioData, fix_delay_s: float = 0.0):
@@ -119,7 +116,13 @@ def events_in_arrival_order(data: ScenarioData, fix_delay_s: float = 0.0):
 
 def run_session(session: AlignmentSession, data: ScenarioData, fix_delay_s: float = 0.0, chunk: int = 1000,
                 progress=None) -> list[Output]:
-    """Push ``data`` into ``session`` in arrival order, processing every ``chunk`` IMU samples; drain at the end."""
+    """Push ``data`` into ``session`` in arrival order, processing every ``chunk`` IMU samples; drain at the end.
+
+    With the session's fast path on, the IMU goes in as arrays between the points where something else arrives
+    (a fix) or the loop processes (every ``chunk`` samples): the same arrival order and processing points as one
+    push per sample, so the same numbers (test/test_speed_paths.py)."""
+    if session.fast_path and data.n > 0 and bool(np.all(np.diff(data.t_s) > 0)):
+        return _run_session_arrays(session, data, fix_delay_s, chunk, progress)
     out: list[Output] = []
     n_imu = 0
     for kind, item in events_in_arrival_order(data, fix_delay_s):
@@ -139,6 +142,56 @@ def run_session(session: AlignmentSession, data: ScenarioData, fix_delay_s: floa
     out += session.finish()
     if progress is not None:
         progress.update(n_imu % chunk)
+    return out
+
+
+def _run_session_arrays(session: AlignmentSession, data: ScenarioData, fix_delay_s: float, chunk: int,
+                        progress) -> list[Output]:
+    """``run_session`` with array pushes (``push_imu_arrays``); events in the order of ``events_in_arrival_order``."""
+    out: list[Output] = []
+    truth = truth_table(data)
+    t = data.t_s
+    imu_ok, gnss_ok = data.imu_valid_mask, data.gnss_valid_mask
+    n_valid = np.cumsum(imu_ok)  # valid IMU samples pushed up to and including index k
+    # a fix arrives after the IMU sample at which its stamp + delay is reached (in order: a late one holds the next)
+    g = np.asarray(data.gnss_t_s, float)
+    arrive = np.maximum.accumulate(np.searchsorted(t, g + fix_delay_s, side="left")) if g.size else np.zeros(0, int)
+    stops = set(arrive[arrive < data.n].tolist())
+    gv = np.asarray(data.gnss_vel_t_s if data.gnss_vel_t_s is not None else np.zeros(0), float)
+    arrive_v = np.maximum.accumulate(np.searchsorted(t, gv + fix_delay_s, side="left")) if gv.size \
+        else np.zeros(0, int)
+    stops.update(arrive_v[arrive_v < data.n].tolist())
+    jv = 0
+    stops.update(np.flatnonzero(imu_ok & (n_valid % chunk == 0)).tolist())
+    stops.add(data.n - 1)
+    j = 0
+    a = 0
+    for b in sorted(stops):
+        if truth is not None:
+            session.push_truth_table(truth, a, b + 1)
+        sel = np.flatnonzero(imu_ok[a:b + 1]) + a
+        if sel.size:
+            session.push_imu_arrays(t[sel], data.omega_ib_b[sel], data.f_ib_b[sel])
+        if imu_ok[b] and n_valid[b] % chunk == 0:
+            out += session.process()
+            if progress is not None:
+                progress.update(chunk)
+        while j < g.shape[0] and arrive[j] == b:
+            if gnss_ok[j]:
+                session.push_fix(GnssFix(float(g[j]), data.gnss_p_e[j], data.gnss_R_e[j]))
+            j += 1
+        while jv < gv.shape[0] and arrive_v[jv] == b:
+            session.push_velocity(GnssVelocity(float(gv[jv]), data.gnss_vel_n[jv], data.gnss_vel_R_n[jv]))
+            jv += 1
+        a = b + 1
+    for jv in range(jv, gv.shape[0]):
+        session.push_velocity(GnssVelocity(float(gv[jv]), data.gnss_vel_n[jv], data.gnss_vel_R_n[jv]))
+    for j in range(j, g.shape[0]):  # delayed fixes still on their way when the IMU stream ended
+        if gnss_ok[j]:
+            session.push_fix(GnssFix(float(g[j]), data.gnss_p_e[j], data.gnss_R_e[j]))
+    out += session.finish()
+    if progress is not None:
+        progress.update(int(n_valid[-1]) % chunk)
     return out
 
 
@@ -167,7 +220,7 @@ def result_from_outputs(core: str, outs: list[Output], session: AlignmentSession
 
     n = len(outs)
     t = np.array([o.stamp_s for o in outs])
-    rpy = np.array([np.degrees(earth.rpy_from_C_b_n(o.estimate.C_b_n)) for o in outs]).reshape(n, 3)
+    rpy = np.degrees(earth.rpy_from_C_b_n(np.array([o.estimate.C_b_n for o in outs]).reshape(n, 3, 3)))
     s3 = np.array([o.euler_3sigma_deg for o in outs]).reshape(n, 3)
     err = np.full((n, 3), np.nan)
     nees = np.full(n, np.nan)

@@ -73,6 +73,54 @@ class TruthSample:
 
 
 @dataclass
+class TruthTable:
+    """Truth poses as arrays (offline sources): ``t_s`` (N,) [s], ``C_b_n`` (N, 3, 3), ``llh`` (N, 3) (lat_rad,
+    lon_rad, h_m) or None, ``v_n`` (N, 3) ENU [m/s] or None. :meth:`sample` builds the :class:`TruthSample` of a row;
+    without ``v_n`` it carries ``p_n``, the ENU position relative to row 0 (the session differentiates it)."""
+
+    t_s: np.ndarray
+    C_b_n: np.ndarray
+    llh: np.ndarray | None = None
+    v_n: np.ndarray | None = None
+
+    def sample(self, k: int) -> TruthSample:
+        llh = None if self.llh is None else tuple(self.llh[k].tolist())
+        tr = TruthSample(float(self.t_s[k]), self.C_b_n[k], None, None if self.v_n is None else self.v_n[k], llh)
+        if self.v_n is None and llh is not None:
+            o = self.llh[0].tolist()
+            tr.p_n = earth.ecef_to_enu(earth.geodetic_to_ecef(llh[0], llh[1], llh[2]), o[0], o[1], o[2])
+        return tr
+
+
+class _TruthDict(dict):
+    """stamp -> TruthSample; rows pushed from a :class:`TruthTable` are held as an integer reference and built on
+    first read (``[]``, ``get``)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.tables: list = []
+
+    def add_rows(self, stamps: list, table: TruthTable, start: int) -> None:
+        if not self.tables or self.tables[-1] is not table:
+            self.tables.append(table)
+        base = (len(self.tables) - 1) << 32
+        self.update(zip(stamps, range(base + start, base + start + len(stamps))))
+
+    def _build(self, t: float, ref: int) -> TruthSample:
+        tr = self.tables[ref >> 32].sample(ref & 0xFFFFFFFF)
+        dict.__setitem__(self, t, tr)
+        return tr
+
+    def __getitem__(self, t):
+        v = dict.__getitem__(self, t)
+        return self._build(t, v) if type(v) is int else v
+
+    def get(self, t, default=None):
+        v = dict.get(self, t, default)
+        return self._build(t, v) if type(v) is int else v
+
+
+@dataclass
 class Output:
     """One estimate output (every ``output_period_s`` of data time)."""
 
@@ -94,7 +142,7 @@ class _Pending:
     imu: list = field(default_factory=list)  # (t, omega (3,), f (3,))
     fix_t: list = field(default_factory=list)
     fix: list = field(default_factory=list)
-    truth: dict = field(default_factory=dict)  # stamp -> TruthSample
+    truth: dict = field(default_factory=lambda: _TruthDict())  # stamp -> TruthSample
     truth_t: list = field(default_factory=list)  # sorted stamps of ``truth``
     vel_t: list = field(default_factory=list)  # GNSS velocities in stamp order (push_velocity)
     vel: list = field(default_factory=list)
@@ -105,6 +153,8 @@ class AlignmentSession:
 
     #: the most IMU samples held for reordering / the fusion delay; beyond it the oldest are processed at once
     MAX_BUFFER = 200_000
+    #: process runs of IMU samples between events as arrays (``_fast_run``); False: one ``_step`` per sample
+    fast_path: bool = True
 
     def __init__(self, config: SessionConfig | dict | None = None, core_params: dict | None = None,
                  criteria: AlignedCriteria | None = None, log=None) -> None:
@@ -232,6 +282,67 @@ class AlignmentSession:
             self._process(until=self.buf.imu_t[len(self.buf.imu_t) - self.MAX_BUFFER])
         return True
 
+    def push_imu_arrays(self, t_s, omega_ib_b, f_ib_b, wall_s: float | None = None) -> int:
+        """``push_imu`` for arrays of samples (t_s (N,) [s], omega_ib_b (N, 3) [rad/s], f_ib_b (N, 3) [m/s^2], body
+        FLU, in arrival order); returns how many were accepted. The same checks, counters and buffer as one
+        ``push_imu`` per sample: rows that are valid and continue the time line (increasing, no jump) are taken in
+        bulk, any other row goes through ``push_imu`` (rejected or reordered there, with its reason)."""
+        t = np.asarray(t_s, float)
+        w = np.asarray(omega_ib_b, float)
+        f = np.asarray(f_ib_b, float)
+        n = t.shape[0] if t.ndim == 1 else -1
+        if n < 0 or w.shape != (n, 3) or f.shape != (n, 3):
+            return sum(self.push_imu(ImuSample(float(t[k]), w[k], f[k]), wall_s) for k in range(len(t)))
+        cfg = self.cfg
+        with np.errstate(invalid="ignore", over="ignore"):
+            nw = _row_norms(w)
+            nf = _row_norms(f)
+            ok = (np.isfinite(t) & (t >= 0.0) & np.isfinite(w[:, 0] + w[:, 1] + w[:, 2])
+                  & np.isfinite(f[:, 0] + f[:, 1] + f[:, 2]) & ~(nw > cfg.max_rate_rad_s)
+                  & ~(nf > cfg.max_acc_m_s2))
+            dt = np.diff(t)
+            # a row continues the bulk run when valid and after its predecessor by at most max_gap_s
+            cont = ok[1:] & (dt > 0.0) & ~(dt > cfg.max_gap_s)
+        brk = np.flatnonzero(~cont) + 1  # rows that cannot continue the run of their predecessor
+        accepted = 0
+        s = 0
+        while s < n:
+            newest = self.newest_imu_t
+            if not ok[s] or (newest is not None and not (0.0 < t[s] - newest <= cfg.max_gap_s)) \
+                    or self.jump_candidates:
+                accepted += self.push_imu(ImuSample(float(t[s]), w[s], f[s]), wall_s)
+                s += 1
+                continue
+            i = int(np.searchsorted(brk, s, side="right"))
+            e = int(brk[i]) if i < brk.shape[0] else n
+            self._push_imu_run(t[s:e], w[s:e], f[s:e], wall_s)
+            accepted += e - s
+            s = e
+        return accepted
+
+    def _push_imu_run(self, t: np.ndarray, w: np.ndarray, f: np.ndarray, wall_s: float | None) -> None:
+        """Buffer valid samples that continue the time line (what ``push_imu`` does for each of them)."""
+        m = t.shape[0]
+        self.counters["imu_received"] += m
+        self._touch(wall_s)
+        if wall_s is not None:
+            self.last_imu_wall = wall_s
+        tl = t.tolist()
+        rs, rset = self.recent_stamps, self._recent_set
+        drop = len(rs) + m - rs.maxlen
+        if drop >= len(rs):
+            rset.clear()
+        elif drop > 0:
+            for k in range(drop):
+                rset.discard(rs[k])
+        rs.extend(tl)
+        rset.update(tl[-rs.maxlen:])
+        self.buf.imu_t.extend(tl)
+        self.buf.imu.extend(zip(tl, list(w), list(f)))
+        self.newest_imu_t = tl[-1]
+        if len(self.buf.imu_t) > self.MAX_BUFFER:
+            self._process(until=self.buf.imu_t[len(self.buf.imu_t) - self.MAX_BUFFER])
+
     def push_fix(self, fix: GnssFix, wall_s: float | None = None) -> bool:
         """Validate and buffer one GNSS position fix (ECEF p_e [m], R_e [m^2]). False if rejected."""
         c = self.counters
@@ -267,6 +378,32 @@ class AlignmentSession:
         self.buf.truth[t] = truth
         while len(self.buf.truth_t) > 5000:
             del self.buf.truth[self.buf.truth_t.pop(0)]
+
+    def push_truth_table(self, table: "TruthTable", start: int = 0, stop: int | None = None) -> None:
+        """``push_truth`` for rows ``start:stop`` of a :class:`TruthTable` (the offline path): one vectorised check,
+        and a :class:`TruthSample` is built only for the stamps the session reads (initialisation, outputs). Rows that
+        are not all valid, new and after the buffered poses go through ``push_truth`` one by one."""
+        b = self.buf
+        stop = len(table.t_s) if stop is None else stop
+        m = stop - start
+        if m <= 0:
+            return
+        T = table.t_s[start:stop]
+        if not isinstance(b.truth, _TruthDict) or not (np.isfinite(table.C_b_n[start:stop]).all()
+                                                       and np.isfinite(T).all()) \
+                or (m > 1 and not bool(np.all(np.diff(T) > 0))) or (b.truth_t and not T[0] > b.truth_t[-1]):
+            for k in range(start, stop):
+                self.push_truth(table.sample(k))
+            return
+        self.counters["truth_received"] += m
+        ts = T.tolist()
+        b.truth.add_rows(ts, table, start)
+        b.truth_t.extend(ts)
+        k = len(b.truth_t) - 5000
+        if k > 0:
+            for x in b.truth_t[:k]:
+                del b.truth[x]
+            del b.truth_t[:k]
 
     def reject_input(self, topic: str, counter: str, reason: str, wall_s: float | None = None) -> None:
         """Count an input the caller rejected before it became a sample (a message's frame, covariance, status)."""
@@ -359,9 +496,18 @@ class AlignmentSession:
             return out
         items = b.imu[:n]
         del b.imu[:n], b.imu_t[:n]
-        for i, (t, w, f) in enumerate(items):
+        plan = _FastPlan(self, items, b.imu[0] if b.imu else None) if self.fast_path and n >= 8 else None
+        i = 0
+        while i < n:
+            if plan is not None and self.core is not None and self.bt is None:
+                j = self._fast_run(plan, i)
+                if j > i:
+                    i = j
+                    continue
+            t, w, f = items[i]
             self._batch = (items, i)
             nxt = items[i + 1] if i + 1 < n else (b.imu[0] if b.imu else None)
+            i += 1
             if self._spike(t, w, f, nxt):
                 continue
             try:
@@ -371,6 +517,93 @@ class AlignmentSession:
         self._apply_due_fixes(out)
         self.timing["samples"] += n
         return out
+
+    def _fast_run(self, plan: "_FastPlan", i: int) -> int:
+        """Process ``plan.items[i:j]`` in one batch when none of them needs per-sample attention; return ``j``
+        (``i``: nothing done, the caller takes the per-sample path).
+
+        A sample needs attention when a fix, a zero-velocity update or an output falls due at it, when its interval
+        could be a gap or make the spike check return early (bounded with a lower bound of the running median
+        interval), or when it could be a spike (off both neighbours by more than the configured bounds, which the
+        adaptive bound never undercuts). Everything else ``_step`` does per sample is done here for the run at once
+        (period tracking, counters, history, ``core.propagate_arrays``), with the same result (docs/speed.md)."""
+        core, cfg = self.core, self.cfg
+        prev = self.processed_t
+        if prev is None or self._median_dt is None or not self.hist_w or i >= plan.n_fast:
+            return i
+        T = plan.T
+        # events: fixes, outputs, zero-velocity updates (stamps increase along the buffer)
+        t_end = self.next_out_t - 1e-9
+        if self.buf.fix_t:
+            t_end = min(t_end, self.buf.fix_t[0])
+        if self.buf.vel_t:
+            t_end = min(t_end, self.buf.vel_t[0])
+        if self._zupt_due(math.inf):  # the session schedules zero-velocity updates for this core
+            t_end = min(t_end, self.next_zupt_t)
+        if not T[i] < t_end:  # an event at this very sample (the usual case right after a run)
+            return i
+        j = min(plan.n_fast, int(np.searchsorted(T, t_end, side="left")))
+        if plan.cand is not None:  # spike candidates after the first sample; the first against the history
+            j = min(j, plan.next_candidate(i + 1))
+            if j - i < 2 or plan.candidate_at(i, self.hist_w[-1], self.hist_f[-1]):
+                return i
+        if j - i < 2:
+            return i
+        # intervals: none may be a gap or exceed 3 medians (the spike check's early return), for any median the
+        # running window can take during the run (>= the 51st smallest interval of the old window and the run)
+        d = np.empty(j - i)
+        d[0] = T[i] - prev
+        d[1:] = plan.dT[i:j - 1]
+        old = list(self.dts)
+        fac = min(3.0, cfg.gap_factor)
+        # cheap bound first (the smallest interval anywhere; the median now may come from a window partly older than
+        # ``old``), the 51st smallest of the old window and the run when jitter makes the cheap one too tight
+        lb = min(min(old), float(d.min()), self._median_dt)
+        if float(d.max()) > fac * lb or plan.dnext[j - 1] > fac * lb:
+            alld = np.concatenate((old, d))
+            lb = float(alld.min()) if len(old) < self.dts.maxlen else float(np.partition(alld, 50)[50])
+            lb = min(lb, self._median_dt)
+            thr = fac * lb
+            over = np.flatnonzero(d > thr)
+            if over.size:
+                j = i + int(over[0]) - 1  # the sample before the long interval is the last whose next one is short
+                d = d[:max(j - i, 0)]
+            elif plan.dnext[j - 1] > thr:
+                j -= 1
+                d = d[:j - i]
+            if j - i < 2:
+                return i
+        m = j - i
+        # period tracking as _track_period per sample: the median at the last multiple of 20 intervals in the run
+        c0 = self._dt_count
+        self.dts.extend(d.tolist())
+        self._dt_count = c0 + m
+        p = (c0 + m) // 20 * 20
+        if p > c0:
+            self._median_dt = _median((old + d[:p - c0].tolist())[-self.dts.maxlen:])
+        # the spike check's spread statistic, due at sample k when its interval count % 100 == 1: lazily
+        if cfg.imu_spike_rad_s > 0 or cfg.imu_spike_m_s2 > 0:
+            due = None if self._spread is not None else 0
+            q = (1 - c0) % 100  # the first run offset r with (c0 + r) % 100 == 1
+            if q < m:
+                due = q + (m - 1 - q) // 100 * 100
+            if due is not None:
+                self._spread = _LazySpread(list(self.hist_w), list(self.hist_f), plan.W[i:i + due], plan.F[i:i + due],
+                                           self.hist_w.maxlen)
+        self.processed_t = float(T[j - 1])
+        self.counters["imu_processed"] += m
+        run = plan.items[i:j]
+        self.hist_t.extend(T[i:j].tolist())
+        self.hist_w.extend([it[1] for it in run])
+        self.hist_f.extend([it[2] for it in run])
+        try:
+            if core.propagate_arrays_matches_propagate:
+                core.propagate_arrays(T[i:j], plan.W[i:j], plan.F[i:j])
+            else:
+                AlignmentCore.propagate_arrays(core, T[i:j], plan.W[i:j], plan.F[i:j])
+        except Exception as exc:  # noqa: BLE001 - a core failure is a fault; the alignment restarts
+            self._fault(exc)
+        return j
 
     def _spike(self, t: float, w: np.ndarray, f: np.ndarray, nxt) -> bool:
         """A sample off both of its neighbours by more than the bounds (and 20 x the recent spread): a spike
@@ -388,6 +621,11 @@ class AlignmentSession:
         # off BOTH neighbours (the sample before a spike is off only one of them)
         dw = min(float(np.linalg.norm(w - self.hist_w[-1])), float(np.linalg.norm(w - nxt[1])))
         df = min(float(np.linalg.norm(f - self.hist_f[-1])), float(np.linalg.norm(f - nxt[2])))
+        if isinstance(self._spread, _LazySpread):  # fell due inside a fast run (_fast_run): computed when it matters
+            if not ((cfg.imu_spike_rad_s > 0 and dw > cfg.imu_spike_rad_s)
+                    or (cfg.imu_spike_m_s2 > 0 and df > cfg.imu_spike_m_s2)):
+                return False  # within the configured bounds: not a spike whatever the spread
+            self._spread = self._spread.value()
         bad_w = cfg.imu_spike_rad_s > 0 and dw > max(cfg.imu_spike_rad_s, 20.0 * self._spread[0])
         bad_f = cfg.imu_spike_m_s2 > 0 and df > max(cfg.imu_spike_m_s2, 20.0 * self._spread[1])
         if not (bad_w or bad_f):
@@ -434,7 +672,7 @@ class AlignmentSession:
         self.dts.append(dt)
         self._dt_count += 1
         if self._median_dt is None or self._dt_count % 20 == 0:
-            self._median_dt = float(np.median(self.dts))
+            self._median_dt = _median(list(self.dts))
 
     def _on_gap(self, t_a: float, t_b: float, w_b: np.ndarray, f_b: np.ndarray) -> None:
         """An IMU gap (t_a, t_b): bridge it and inflate the covariance by what the bridge may have got wrong.
@@ -1190,3 +1428,79 @@ def _check_imu(t: float, w, f, max_rate: float, max_acc: float) -> str:
     if nf > max_acc:
         return f"linear_acceleration: magnitude {nf:.3g} > {max_acc:.3g}"
     return ""
+
+
+class _FastPlan:
+    """Arrays of one ``_process`` batch for ``AlignmentSession._fast_run``: stamps, rates, specific forces, the
+    intervals, and the samples that could be spikes (off both neighbours by more than the configured bounds)."""
+
+    def __init__(self, session: AlignmentSession, items: list, nxt) -> None:
+        n = len(items)
+        self.items = items
+        self.T = np.fromiter((it[0] for it in items), float, n)
+        self.W = np.array([it[1] for it in items], dtype=float)
+        self.F = np.array([it[2] for it in items], dtype=float)
+        self.n_fast = n if nxt is not None else n - 1  # the last sample of the buffer: per sample (no neighbour)
+        if self.W.shape != (n, 3) or self.F.shape != (n, 3):
+            self.n_fast = 0
+            return
+        self.dT = np.diff(self.T)
+        self.dnext = np.append(self.dT, (nxt[0] - self.T[-1]) if nxt is not None else math.inf)
+        cfg = session.cfg
+        self.bound_w, self.bound_f = cfg.imu_spike_rad_s, cfg.imu_spike_m_s2
+        self.cand = None
+        if self.bound_w <= 0 and self.bound_f <= 0:
+            return
+        # |x_{k+1} - x_k| for every sample k (the last against the next buffered sample)
+        Wx = np.vstack((self.W, np.asarray(nxt[1], float).reshape(1, 3))) if nxt is not None else self.W
+        Fx = np.vstack((self.F, np.asarray(nxt[2], float).reshape(1, 3))) if nxt is not None else self.F
+        self.dn_w = np.append(_row_norms(np.diff(Wx, axis=0)), math.inf)[:n]
+        self.dn_f = np.append(_row_norms(np.diff(Fx, axis=0)), math.inf)[:n]
+        # sample k >= 1 with its predecessor in the run; the margin keeps the test conservative against rounding
+        dw = np.minimum(self.dn_w[1:], self.dn_w[:-1])
+        df = np.minimum(self.dn_f[1:], self.dn_f[:-1])
+        bad = np.zeros(n - 1, bool)
+        if self.bound_w > 0:
+            bad |= dw > self.bound_w * (1.0 - 1e-9)
+        if self.bound_f > 0:
+            bad |= df > self.bound_f * (1.0 - 1e-9)
+        self.cand = np.flatnonzero(bad) + 1
+
+    def next_candidate(self, k: int) -> int:
+        """Index of the first possible spike at or after ``k`` (``len(items)`` when none)."""
+        c = self.cand
+        i = int(np.searchsorted(c, k))
+        return int(c[i]) if i < c.shape[0] else len(self.items)
+
+    def candidate_at(self, k: int, w_prev, f_prev) -> bool:
+        """Could sample ``k`` be a spike, with ``w_prev``, ``f_prev`` the last processed sample before it?"""
+        dw = min(math.dist(self.W[k].tolist(), np.asarray(w_prev, float).tolist()), float(self.dn_w[k]))
+        df = min(math.dist(self.F[k].tolist(), np.asarray(f_prev, float).tolist()), float(self.dn_f[k]))
+        return bool((self.bound_w > 0 and dw > self.bound_w * (1.0 - 1e-9))
+                    or (self.bound_f > 0 and df > self.bound_f * (1.0 - 1e-9)))
+
+
+class _LazySpread:
+    """The spike check's spread statistic (rate, specific force) over the history a per-sample run would have
+    held when it fell due inside a fast run; computed only if a later spike check needs it."""
+
+    def __init__(self, hist_w: list, hist_f: list, run_w: np.ndarray, run_f: np.ndarray, maxlen: int) -> None:
+        self.parts = (hist_w, hist_f, run_w, run_f, maxlen)
+
+    def value(self) -> tuple[float, float]:
+        hw, hf, rw, rf, maxlen = self.parts
+        W = np.vstack([np.asarray(hw, float).reshape(-1, 3), rw])[-maxlen:]
+        F = np.vstack([np.asarray(hf, float).reshape(-1, 3), rf])[-maxlen:]
+        return (float(np.linalg.norm(np.std(W, axis=0))), float(np.linalg.norm(np.std(F, axis=0))))
+
+
+def _median(x: list) -> float:
+    """``float(np.median(x))`` for a list of floats, bit for bit (the middle value, or the mean of the two middle
+    ones), without numpy's per-call overhead."""
+    s = sorted(x)
+    h = len(s) // 2
+    return float(s[h]) if len(s) % 2 else float((s[h - 1] + s[h]) / 2.0)
+
+
+def _row_norms(X: np.ndarray) -> np.ndarray:
+    return np.sqrt(X[:, 0] * X[:, 0] + X[:, 1] * X[:, 1] + X[:, 2] * X[:, 2])
