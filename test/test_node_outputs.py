@@ -152,7 +152,9 @@ def test_imu_datum_and_reset_over_dds(tmp_path, monkeypatch):
         assert mon.wait_for(lambda m: m.diag.get("state") == "waiting for data" and m.aligned is False, 10.0), \
             (mon.diag, mon.aligned)
         _play(bag_car, env, tmp_path, "sim_car")
-        assert _wait(lambda: len(datums) == 2, 15.0), datums
+        # >= 2: the ship's initial guess (velocity 14 m/s) is wrong for the car at rest; the divergence guard may
+        # re-initialise it from the sensors, which publishes a third datum (the second is the car's first fix)
+        assert _wait(lambda: len(datums) >= 2, 15.0), datums
         lat, lon, h = earth.ecef_to_geodetic(car.gnss_p_e[0])
         _assert_datum(datums[1], lat, lon, h)
         print(f"~/datum: ship {datums[0].latitude:.6f} {datums[0].longitude:.6f}, after ~/reset car "
