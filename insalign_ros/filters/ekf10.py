@@ -11,7 +11,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core import earth
-from .static_model import DEG_H, MG, StaticConfig, StaticModelInputs, StaticZuptCore, f_model  # noqa: F401
+from ..core import mechanization_numba as nb
+from .static_model import (DEG_H, MG, StaticConfig, StaticModelInputs, StaticZuptCore, f_model,  # noqa: F401
+                           model_error_jacobian_nb)
 
 
 @dataclass
@@ -65,10 +67,14 @@ class Ekf10(StaticZuptCore):
         u = self._u_last
         x5 = self.x[:5]
         G = np.zeros((5, 5))
-        for j in range(5):
-            e = np.zeros(5)
-            e[j] = 1e-6
-            G[:, j] = (f_model(x5, u, e) - f_model(x5, u, -e)) / 2e-6
+        if nb.ENABLED:  # the same differences, compiled
+            model_error_jacobian_nb(np.array(x5, dtype=float), np.asarray(u.f_np_ned, float), float(u.lat_rad),
+                                    float(u.r_m), G)
+        else:
+            for j in range(5):
+                e = np.zeros(5)
+                e[j] = 1e-6
+                G[:, j] = (f_model(x5, u, e) - f_model(x5, u, -e)) / 2e-6
         F = np.zeros((10, 10))
         F[:5, :5] = F5
         F[:5, 5:] = G

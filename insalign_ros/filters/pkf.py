@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core import mechanization_numba as nb
 from .static_model import H_ZUPT, expm_taylor, StaticConfig, StaticZuptCore
 
 
@@ -65,6 +66,29 @@ def pkf_gain(F_k: np.ndarray, H: np.ndarray, p: int, R_e: np.ndarray, Q_m: np.nd
     return -np.linalg.solve(A, D_p.T @ R_e @ C_p)
 
 
+@nb._jit
+def _pkf_gain_nb(F_k, H, p, R_e, Q_m, K):
+    """:func:`pkf_gain` compiled (the same C_p, D_p, products and solve); writes K (n p, n)."""
+    n = F_k.shape[0]
+    q = H.shape[0]
+    powers = np.empty((p + 1, n, n))
+    powers[0] = np.eye(n)
+    for i in range(1, p + 1):
+        powers[i] = powers[i - 1] @ F_k
+    HP = np.empty((p + 1, q, n))
+    for i in range(p + 1):
+        HP[i] = H @ powers[i]
+    C_p = np.empty((q * p, n))
+    D_p = np.zeros((q * p, n * p))
+    for i in range(p):
+        C_p[q * i:q * (i + 1), :] = HP[i + 1]
+        for j in range(i + 1):
+            D_p[q * i:q * (i + 1), n * j:n * (j + 1)] = HP[i - j]
+    DtR = np.ascontiguousarray(D_p.T) @ R_e
+    A = DtR @ D_p + Q_m
+    K[:, :] = -np.linalg.solve(A, DtR @ C_p)
+
+
 class Pkf(StaticZuptCore):
     """PKF static alignment core (5 states + predicted model error applied to the sensor outputs)."""
 
@@ -82,8 +106,11 @@ class Pkf(StaticZuptCore):
 
     def _after_update(self, x_start: np.ndarray, dt: float) -> None:
         dx = self.x - x_start
-        F_k = expm_taylor(self._F_last * dt)
-        K = pkf_gain(F_k, H_ZUPT, self.cfg.horizon_p, self._R_e, self._Q_m)
+        if nb.ENABLED:  # exp(F5 dt) is the transition the compiled update formed (no OC correction in the PKF)
+            K = np.empty((5 * self.cfg.horizon_p, 5))
+            _pkf_gain_nb(self._Phi_raw, H_ZUPT, self.cfg.horizon_p, self._R_e, self._Q_m, K)
+        else:
+            K = pkf_gain(expm_taylor(self._F_last * dt), H_ZUPT, self.cfg.horizon_p, self._R_e, self._Q_m)
         dm = K[:5] @ dx
         self.m_rate = self.m_rate + dm / dt
         # apply: velocity rows gain +m  -> f_corr = f + C^b m_v ; attitude rows gain +m -> w_corr = w - C^b m_att

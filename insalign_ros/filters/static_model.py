@@ -130,6 +130,112 @@ _OMEGA_IE = earth.OMEGA_IE_RAD_S
 _M0 = np.zeros(5)
 
 
+@nb._jit
+def _zupt_predict_nb(x5, f_np, lat, r_m, m, dt, x5_out, F5):
+    """The RK2 step of eq. (34) over dt (x5_out) and the Jacobian F5 at x5 (:func:`jacobian`), compiled."""
+    k1 = np.empty(5)
+    k2 = np.empty(5)
+    xe = np.empty(5)
+    _f_model_nb(x5, f_np, lat, r_m, m, k1)
+    for i in range(5):
+        xe[i] = x5[i] + dt * k1[i]
+    _f_model_nb(xe, f_np, lat, r_m, m, k2)
+    _jacobian_nb(x5, f_np, lat, r_m, _M0, F5)
+    for i in range(5):
+        x5_out[i] = x5[i] + 0.5 * dt * (k1[i] + k2[i])
+
+
+@nb._jit
+def model_error_jacobian_nb(x5, f_np, lat, r_m, G):
+    """df/dm' of eq. (34) at x5 by central differences with steps 1e-6 (the 10-state EKF's G), compiled."""
+    mp = np.zeros(5)
+    mm = np.zeros(5)
+    fp = np.empty(5)
+    fm = np.empty(5)
+    for j in range(5):
+        mp[j] = 1e-6
+        mm[j] = -1e-6
+        _f_model_nb(x5, f_np, lat, r_m, mp, fp)
+        _f_model_nb(x5, f_np, lat, r_m, mm, fm)
+        for i in range(5):
+            G[i, j] = (fp[i] - fm[i]) / 2e-6
+        mp[j] = 0.0
+        mm[j] = 0.0
+
+
+@nb._jit
+def _expm_taylor_nb(A, order, out):
+    """:func:`expm_taylor` compiled (the same sum, term = term A / k, in the same order)."""
+    n = A.shape[0]
+    term = np.eye(n)
+    nxt = np.empty((n, n))
+    out[:, :] = np.eye(n)
+    for k in range(1, order + 1):
+        for i in range(n):
+            for j in range(n):
+                s = 0.0
+                for r in range(n):
+                    s += term[i, r] * A[r, j]
+                nxt[i, j] = s / k
+        for i in range(n):
+            for j in range(n):
+                term[i, j] = nxt[i, j]
+                out[i, j] = out[i, j] + nxt[i, j]
+
+
+@nb._jit
+def _zupt_cov_update_nb(x, P, F, dt, Q, N_k, N_next, use_oc, z, r2, Phi_raw, innov, S):
+    """Covariance prediction and the eq. (32) update of :meth:`StaticZuptCore.update_zero_velocity`, compiled:
+    Phi = exp(F dt) (Taylor, written to Phi_raw), the OC-EKF correction when ``use_oc``, P = Phi P Phi^T + Q, then
+    H = [I2 0], R = r2 I2 in Joseph form; updates x, P in place, writes innov (2,), S (2, 2); returns the NIS."""
+    n = P.shape[0]
+    Fd = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            Fd[i, j] = F[i, j] * dt
+    _expm_taylor_nb(Fd, 8, Phi_raw)
+    Phi = Phi_raw.copy()
+    if use_oc:
+        nn = 0.0
+        for i in range(n):
+            nn += N_k[i] * N_k[i]
+        for i in range(n):
+            d = -N_next[i]
+            for r in range(n):
+                d += Phi_raw[i, r] * N_k[r]
+            for j in range(n):
+                Phi[i, j] = Phi_raw[i, j] - d * N_k[j] / nn
+    T = Phi @ P
+    Pp = T @ Phi.T + Q
+    # update: S = P[0:2, 0:2] + R, K = P[:, 0:2] S^-1
+    S[0, 0] = Pp[0, 0] + r2
+    S[0, 1] = Pp[0, 1]
+    S[1, 0] = Pp[1, 0]
+    S[1, 1] = Pp[1, 1] + r2
+    Si = np.linalg.inv(S)
+    K = np.empty((n, 2))
+    for i in range(n):
+        K[i, 0] = Pp[i, 0] * Si[0, 0] + Pp[i, 1] * Si[1, 0]
+        K[i, 1] = Pp[i, 0] * Si[0, 1] + Pp[i, 1] * Si[1, 1]
+    innov[0] = z[0] - x[0]
+    innov[1] = z[1] - x[1]
+    for i in range(n):
+        x[i] = x[i] + K[i, 0] * innov[0] + K[i, 1] * innov[1]
+    IKH = np.eye(n)
+    for i in range(n):
+        IKH[i, 0] -= K[i, 0]
+        IKH[i, 1] -= K[i, 1]
+    Pn = IKH @ Pp @ IKH.T
+    for i in range(n):
+        for j in range(n):
+            Pn[i, j] += r2 * (K[i, 0] * K[j, 0] + K[i, 1] * K[j, 1])
+    for i in range(n):
+        for j in range(n):
+            P[i, j] = 0.5 * (Pn[i, j] + Pn[j, i])
+    sol = np.linalg.solve(S, innov)
+    return innov[0] * sol[0] + innov[1] * sol[1]
+
+
 def f_model(x: np.ndarray, u: StaticModelInputs, m_prime: np.ndarray | None = None) -> np.ndarray:
     """Continuous nonlinear model f(x, m') of eq. (34) (derivation in the module docstring).
 
@@ -390,6 +496,8 @@ class StaticZuptCore(AlignmentCore):
         # ---- predict the error state over the interval with eq. (34) (RK2) and its Jacobian eq. (35)
         m_prime = self._model_error_prime()
         x_start = self.x.copy()
+        if nb.ENABLED:  # the same steps in compiled kernels (docs/speed.md); the numpy code below is the reference
+            return self._zupt_compiled(u, m_prime, x_start, dt, float(stamp_s), sigma_v_m_s)
         x5 = self.x[:5].copy()
         k1 = f_model(x5, u, m_prime)
         k2 = f_model(x5 + dt * k1, u, m_prime)
@@ -422,6 +530,36 @@ class StaticZuptCore(AlignmentCore):
         self._after_update(x_start, dt)
         self._feedback()
         self.t_last_update_s = float(stamp_s)
+        return UpdateResult(True, innovation=innov, S=S, nis=nis)
+
+    def _zupt_compiled(self, u, m_prime, x_start, dt, stamp_s, sigma_v_m_s) -> UpdateResult:
+        """The prediction and update of :meth:`update_zero_velocity` through the compiled kernels (same formulas)."""
+        x5_new = np.empty(5)
+        F5 = np.empty((5, 5))
+        f_np = np.asarray(u.f_np_ned, float)
+        _zupt_predict_nb(self.x[:5].copy(), f_np, float(u.lat_rad), float(u.r_m),
+                         _M0 if m_prime is None else np.asarray(m_prime, float), dt, x5_new, F5)
+        F = self._full_jacobian(F5)
+        x5_phiD = self.x[4]
+        self.x[:5] = x5_new
+        N_next = self._nullspace(self.x[4])
+        n = self.x.shape[0]
+        use_oc = N_next is not None
+        if use_oc:
+            N_k = self._N_prev if self._N_prev is not None else self._nullspace(x5_phiD)
+            self._N_prev = N_next
+        else:
+            N_k = N_next = np.zeros(n)
+        self._Phi_raw = np.empty((n, n))
+        innov, S = np.empty(2), np.empty((2, 2))
+        z = ned_from_enu(self.mech.v_n)[0:2]
+        P = np.array(self.P, dtype=float)  # a new array, as the reference path assigns one
+        nis = _zupt_cov_update_nb(self.x, P, np.ascontiguousarray(F, dtype=float), dt, self._process_noise(dt),
+                                  N_k, N_next, use_oc, z, sigma_v_m_s**2, self._Phi_raw, innov, S)
+        self.P = P
+        self._after_update(x_start, dt)
+        self._feedback()
+        self.t_last_update_s = stamp_s
         return UpdateResult(True, innovation=innov, S=S, nis=nis)
 
     def _bootstrap_step(self, stamp_s: float, sigma_v_m_s: float) -> UpdateResult:
