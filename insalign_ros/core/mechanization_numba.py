@@ -171,6 +171,33 @@ def _gravitation(x, y, z, zn, zj, out):
 
 
 @_jit
+def _eci_step(k, C, v, p, W, F, DT, zn, zj, dpa, dva, dC, dv_b, dp_b, J, G2, T, g, vk):
+    """Step k of :func:`eci_steps`: writes the body increments dC, dv_b, dp_b, advances dpa, dva (position and
+    velocity relative to the batch start) and C (C_b_i) in place."""
+    dt = DT[k]
+    x, y, z = W[k, 0] * dt, W[k, 1] * dt, W[k, 2] * dt
+    a, b, c1, c2 = _coeffs(x * x + y * y + z * z)
+    _so3_from(x, y, z, a, b, 1.0, dC)
+    _so3_from(x, y, z, b, c1, 1.0, J)
+    _so3_from(x, y, z, c1, c2, 0.5, G2)
+    fx, fy, fz = F[k, 0], F[k, 1], F[k, 2]
+    for i in range(3):
+        dv_b[i] = (J[i, 0] * fx + J[i, 1] * fy + J[i, 2] * fz) * dt
+        dp_b[i] = (G2[i, 0] * fx + G2[i, 1] * fy + G2[i, 2] * fz) * (dt * dt)
+    for i in range(3):
+        vk[i] = v[i] + dva[i]
+    _gravitation((p[0] + dpa[0]) + 0.5 * dt * vk[0], (p[1] + dpa[1]) + 0.5 * dt * vk[1],
+                 (p[2] + dpa[2]) + 0.5 * dt * vk[2], zn, zj, g)
+    for i in range(3):
+        dvi = C[i, 0] * dv_b[0] + C[i, 1] * dv_b[1] + C[i, 2] * dv_b[2]
+        dpi = C[i, 0] * dp_b[0] + C[i, 1] * dp_b[1] + C[i, 2] * dp_b[2]
+        dpa[i] += vk[i] * dt + dpi + 0.5 * g[i] * dt * dt
+        dva[i] += dvi + g[i] * dt
+    _mm3(C, dC, T)
+    C[:, :] = T
+
+
+@_jit
 def eci_steps(C, v, p, W, F, DT, zn, zj, dC_out, dv_out, dp_out, Cprev_out):
     """``propagate_eci`` for each row of W, F (N, 3) and DT (N,): updates C (C_b_i), v (v_i), p (p_i) in place and
     writes the body increments exp(phi), J_l(phi) f dt, Gamma_2(phi) f dt^2 and the attitude at each step's start."""
@@ -184,29 +211,105 @@ def eci_steps(C, v, p, W, F, DT, zn, zj, dC_out, dv_out, dp_out, Cprev_out):
     dva = np.zeros(3)
     vk = np.empty(3)
     for k in range(W.shape[0]):
-        dt = DT[k]
-        x, y, z = W[k, 0] * dt, W[k, 1] * dt, W[k, 2] * dt
-        a, b, c1, c2 = _coeffs(x * x + y * y + z * z)
-        dC = dC_out[k]
-        _so3_from(x, y, z, a, b, 1.0, dC)
-        _so3_from(x, y, z, b, c1, 1.0, J)
-        _so3_from(x, y, z, c1, c2, 0.5, G2)
-        fx, fy, fz = F[k, 0], F[k, 1], F[k, 2]
-        for i in range(3):
-            dv_out[k, i] = (J[i, 0] * fx + J[i, 1] * fy + J[i, 2] * fz) * dt
-            dp_out[k, i] = (G2[i, 0] * fx + G2[i, 1] * fy + G2[i, 2] * fz) * (dt * dt)
         Cprev_out[k] = C
-        for i in range(3):
-            vk[i] = v[i] + dva[i]
-        _gravitation((p[0] + dpa[0]) + 0.5 * dt * vk[0], (p[1] + dpa[1]) + 0.5 * dt * vk[1],
-                     (p[2] + dpa[2]) + 0.5 * dt * vk[2], zn, zj, g)
-        for i in range(3):
-            dvi = C[i, 0] * dv_out[k, 0] + C[i, 1] * dv_out[k, 1] + C[i, 2] * dv_out[k, 2]
-            dpi = C[i, 0] * dp_out[k, 0] + C[i, 1] * dp_out[k, 1] + C[i, 2] * dp_out[k, 2]
-            dpa[i] += vk[i] * dt + dpi + 0.5 * g[i] * dt * dt
-            dva[i] += dvi + g[i] * dt
-        _mm3(C, dC, T)
-        C[:, :] = T
+        _eci_step(k, C, v, p, W, F, DT, zn, zj, dpa, dva, dC_out[k], dv_out[k], dp_out[k], J, G2, T, g, vk)
+    for i in range(3):
+        p[i] = p[i] + dpa[i]
+        v[i] = v[i] + dva[i]
+
+
+@_jit
+def eci_invariant_steps(C, v, p, W, F, DT, zn, zj, P, qrate, want_tot, tot):
+    """:func:`eci_steps` fused with the left-invariant error transition and the covariance, sample by sample,
+    without forming the (N, d, d) transitions: per step ``Phi = [[R, 0, 0], [a_x R, R, 0], [b_x R, dt R, R]]`` with
+    ``R = dC^T``, ``a = -R dv_b``, ``b = -R dp_b`` (filters/liekf.py ``liekf_transition_batch``), for d = 15 the
+    imperfect IEKF's bias columns ``-dt I`` (phi <- db_g, nu <- db_a) and identity bias rows
+    (filters/iekf.py ``_transitions``), then ``P <- Phi P Phi^T + diag(qrate dt)`` over the structural non-zero
+    pattern. Updates C, v, p and P in place; when ``want_tot``, tot <- Phi_N ... Phi_1 tot."""
+    d = P.shape[0]
+    J = np.empty((3, 3))
+    G2 = np.empty((3, 3))
+    T3 = np.empty((3, 3))
+    g = np.empty(3)
+    dpa = np.zeros(3)
+    dva = np.zeros(3)
+    vk = np.empty(3)
+    dC = np.empty((3, 3))
+    dv_b = np.empty(3)
+    dp_b = np.empty(3)
+    A = np.zeros((d, d))
+    # structural pattern: row blocks phi (cols 0-2, + 9-11), nu (0-5, + 12-14), rho (0-8), biases (own column)
+    nzc = np.zeros((d, 9), np.int64)
+    cnt = np.zeros(d, np.int64)
+    for i in range(d):
+        if i < 9:
+            blk = i // 3
+            for m in range(3 * (blk + 1)):
+                nzc[i, cnt[i]] = m
+                cnt[i] += 1
+            if d == 15 and blk < 2:
+                for m in range(3):
+                    nzc[i, cnt[i]] = 9 + 3 * blk + m
+                    cnt[i] += 1
+        else:
+            nzc[i, 0] = i
+            cnt[i] = 1
+            A[i, i] = 1.0
+    T = np.empty((d, d))
+    tot2 = np.empty((d, d))
+    for k in range(W.shape[0]):
+        dt = DT[k]
+        _eci_step(k, C, v, p, W, F, DT, zn, zj, dpa, dva, dC, dv_b, dp_b, J, G2, T3, g, vk)
+        a0 = -(dC[0, 0] * dv_b[0] + dC[1, 0] * dv_b[1] + dC[2, 0] * dv_b[2])
+        a1 = -(dC[0, 1] * dv_b[0] + dC[1, 1] * dv_b[1] + dC[2, 1] * dv_b[2])
+        a2 = -(dC[0, 2] * dv_b[0] + dC[1, 2] * dv_b[1] + dC[2, 2] * dv_b[2])
+        b0 = -(dC[0, 0] * dp_b[0] + dC[1, 0] * dp_b[1] + dC[2, 0] * dp_b[2])
+        b1 = -(dC[0, 1] * dp_b[0] + dC[1, 1] * dp_b[1] + dC[2, 1] * dp_b[2])
+        b2 = -(dC[0, 2] * dp_b[0] + dC[1, 2] * dp_b[1] + dC[2, 2] * dp_b[2])
+        for j in range(3):
+            r0, r1, r2 = dC[j, 0], dC[j, 1], dC[j, 2]  # column j of R = dC^T
+            for blk in range(3):
+                A[3 * blk + 0, 3 * blk + j] = r0
+                A[3 * blk + 1, 3 * blk + j] = r1
+                A[3 * blk + 2, 3 * blk + j] = r2
+            A[3, j] = -a2 * r1 + a1 * r2
+            A[4, j] = a2 * r0 - a0 * r2
+            A[5, j] = -a1 * r0 + a0 * r1
+            A[6, j] = -b2 * r1 + b1 * r2
+            A[7, j] = b2 * r0 - b0 * r2
+            A[8, j] = -b1 * r0 + b0 * r1
+            A[6, 3 + j] = dt * r0
+            A[7, 3 + j] = dt * r1
+            A[8, 3 + j] = dt * r2
+        if d == 15:
+            for i in range(3):
+                A[i, 9 + i] = -dt
+                A[3 + i, 12 + i] = -dt
+        for i in range(d):  # T = A P (and A tot)
+            for j in range(d):
+                s = 0.0
+                for r in range(cnt[i]):
+                    m = nzc[i, r]
+                    s += A[i, m] * P[m, j]
+                T[i, j] = s
+        if want_tot:
+            for i in range(d):
+                for j in range(d):
+                    s2 = 0.0
+                    for r in range(cnt[i]):
+                        m = nzc[i, r]
+                        s2 += A[i, m] * tot[m, j]
+                    tot2[i, j] = s2
+            tot[:, :] = tot2
+        for i in range(d):  # P = T A^T + Q (symmetric: the upper triangle, mirrored)
+            for j in range(i, d):
+                s = 0.0
+                for r in range(cnt[j]):
+                    m = nzc[j, r]
+                    s += T[i, m] * A[j, m]
+                P[i, j] = s
+                P[j, i] = s
+            P[i, i] += qrate[i] * dt
     for i in range(3):
         p[i] = p[i] + dpa[i]
         v[i] = v[i] + dva[i]

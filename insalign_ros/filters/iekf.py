@@ -58,6 +58,8 @@ class ImperfectIekf(BatchedEciCore):
         d[:, 12:15] = self._q_ba * dt[:, None]
         return d
 
+    _fused_kernel_transitions = True  # mechanization_numba.eci_invariant_steps builds these transitions (d = 15)
+
     def _transitions(self, dC, dv_b, dp_b, dt, C_prev, f):
         n = dt.shape[0]
         Phi = np.zeros((n, 15, 15))

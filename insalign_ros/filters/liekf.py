@@ -380,7 +380,18 @@ class BatchedEciCore(AlignmentCore):
         w = w - self.b_g
         f = f - self.b_a
         dt = np.diff(t, prepend=self.t_s)
-        if nb.ENABLED:  # compiled sequential loops (docs/speed.md); the numpy batch below is the reference path
+        fused = nb.ENABLED and self._fused_transition()
+        if fused:  # state, transitions and covariance in one compiled loop (docs/speed.md)
+            C, v, p = self.C.copy(), self.v.copy(), self.p.copy()
+            P = np.array(self.P, dtype=float)
+            want_tot = self._tracks_phi_since_update()
+            tot = np.eye(self._n_states)
+            nb.eci_invariant_steps(C, v, p, w, f, dt, nb._ZONAL_N, nb._ZONAL_J, P,
+                                   self._noise_diag(np.ones(1))[0], want_tot, tot)
+            self.P = 0.5 * (P + P.T)
+            if want_tot:
+                self._Phi_since_update = tot @ self._Phi_since_update
+        elif nb.ENABLED:  # compiled sequential loops (docs/speed.md); the numpy batch below is the reference path
             n = dt.shape[0]
             C, v, p = self.C.copy(), self.v.copy(), self.p.copy()
             dC, C_prev = np.empty((n, 3, 3)), np.empty((n, 3, 3))
@@ -398,11 +409,30 @@ class BatchedEciCore(AlignmentCore):
             C_prev, C, v, p = propagate_eci_batch(self.C, self.v, self.p, dt, dC, dv_b, dp_b)
             Phi, Qd = self._transitions(dC, dv_b, dp_b, dt, C_prev, f)
             self.P, Phi_tot = covariance_batch(self.P, Phi, Qd)
-        self._Phi_since_update = Phi_tot @ self._Phi_since_update
+        if not fused:
+            self._Phi_since_update = Phi_tot @ self._Phi_since_update
         self.omega_b = w[-1].copy()
         self.C = orthonormalize(C)  # once per batch
         self.v, self.p = v, p
         self.t_s = float(t[-1])
+
+    #: set on a class whose ``_transitions`` and ``_noise_diag`` are the left-invariant ones that
+    #: ``mechanization_numba.eci_invariant_steps`` builds itself (LIEKF 9 states; imperfect IEKF 15 states)
+    _fused_kernel_transitions = True
+
+    @classmethod
+    def _fused_transition(cls) -> bool:
+        """Whether the fused compiled kernel reproduces this class's transitions and noise: the class that defines
+        ``_transitions`` also defines ``_noise_diag`` and declares ``_fused_kernel_transitions`` itself."""
+        owner = next(k for k in cls.__mro__ if "_transitions" in k.__dict__)
+        return (owner.__dict__.get("_fused_kernel_transitions", False) and "_noise_diag" in owner.__dict__
+                and cls._n_states in (9, 15))
+
+    @classmethod
+    def _tracks_phi_since_update(cls) -> bool:
+        """Whether a correction reads ``_Phi_since_update`` (PI-LIEKF's eq. (30) overrides ``_correction``); the
+        fused kernel forms the transition product only then."""
+        return cls._correction is not BatchedEciCore._correction
 
     def default_initial_sigmas(self):
         c = self.cfg
