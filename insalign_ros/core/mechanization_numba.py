@@ -148,22 +148,23 @@ def _gravitation(x, y, z, zn, zj, out):
     r2 = x * x + y * y + z * z
     r = math.sqrt(r2)
     u = z / r
-    P = np.empty(7)
-    dP = np.empty(7)
-    P[0], P[1], dP[0], dP[1] = 1.0, u, 0.0, 1.0
-    for k in range(2, 7):
-        P[k] = ((2 * k - 1) * u * P[k - 1] - (k - 1) * P[k - 2]) / k
-        dP[k] = k * P[k - 1] + u * dP[k - 1]
+    # Legendre P_k(u) and P_k'(u) by the recursion, k = 2 .. 6, in scalars (no allocation per call); each zonal
+    # term is added when its degree is reached (the zonal list is in increasing degree: the same order of sums)
+    p0, p1, d1 = 1.0, u, 1.0
     gx = 0.0
     gy = 0.0
     gz = 0.0
-    for i in range(zn.shape[0]):
-        n = int(zn[i])
-        c = -_GM * zj[i] * (_A / r) ** n / r
-        radial = -(n + 1) * P[n] / r2 - dP[n] * z / (r2 * r)
-        gx += c * radial * x
-        gy += c * radial * y
-        gz += c * (radial * z + dP[n] / r)
+    for k in range(2, 7):
+        pk = ((2 * k - 1) * u * p1 - (k - 1) * p0) / k
+        dk = k * p1 + u * d1
+        p0, p1, d1 = p1, pk, dk
+        for i in range(zn.shape[0]):
+            if int(zn[i]) == k:
+                c = -_GM * zj[i] * (_A / r) ** k / r
+                radial = -(k + 1) * pk / r2 - dk * z / (r2 * r)
+                gx += c * radial * x
+                gy += c * radial * y
+                gz += c * (radial * z + dk / r)
     k0 = -_GM / (r2 * r)
     out[0] = k0 * x + gx
     out[1] = k0 * y + gy
@@ -219,6 +220,26 @@ def eci_steps(C, v, p, W, F, DT, zn, zj, dC_out, dv_out, dp_out, Cprev_out):
 
 
 @_jit
+def _sparse_rows_mm(A, B, hi, d, dt, out):
+    """out = A B for the structure of :func:`eci_invariant_steps`: rows i < 9 of A over columns 0 .. hi[i]-1 (and
+    -dt in column 9 + i for i < 6 when d = 15), identity rows i >= 9. Each out[i, j] sums its terms in column order
+    (as the pattern loop of :func:`covariance_steps`)."""
+    for i in range(9):
+        for j in range(d):
+            out[i, j] = 0.0
+        for m in range(hi[i]):
+            a = A[i, m]
+            for j in range(d):
+                out[i, j] += a * B[m, j]
+        if d == 15 and i < 6:
+            for j in range(d):
+                out[i, j] += -dt * B[9 + i, j]
+    for i in range(9, d):
+        for j in range(d):
+            out[i, j] = B[i, j]
+
+
+@_jit
 def eci_invariant_steps(C, v, p, W, F, DT, zn, zj, P, qrate, want_tot, tot):
     """:func:`eci_steps` fused with the left-invariant error transition and the covariance, sample by sample,
     without forming the (N, d, d) transitions: per step ``Phi = [[R, 0, 0], [a_x R, R, 0], [b_x R, dt R, R]]`` with
@@ -238,24 +259,14 @@ def eci_invariant_steps(C, v, p, W, F, DT, zn, zj, P, qrate, want_tot, tot):
     dv_b = np.empty(3)
     dp_b = np.empty(3)
     A = np.zeros((d, d))
-    # structural pattern: row blocks phi (cols 0-2, + 9-11), nu (0-5, + 12-14), rho (0-8), biases (own column)
-    nzc = np.zeros((d, 9), np.int64)
-    cnt = np.zeros(d, np.int64)
-    for i in range(d):
-        if i < 9:
-            blk = i // 3
-            for m in range(3 * (blk + 1)):
-                nzc[i, cnt[i]] = m
-                cnt[i] += 1
-            if d == 15 and blk < 2:
-                for m in range(3):
-                    nzc[i, cnt[i]] = 9 + 3 * blk + m
-                    cnt[i] += 1
-        else:
-            nzc[i, 0] = i
-            cnt[i] = 1
-            A[i, i] = 1.0
+    # structural pattern: row i of A is non-zero in columns 0 .. hi[i]-1, plus -dt in column 9 + i for i < 6 (d = 15)
+    hi = np.zeros(9, np.int64)
+    for i in range(9):
+        hi[i] = 3 * (i // 3 + 1)
+    for i in range(9, d):
+        A[i, i] = 1.0
     T = np.empty((d, d))
+    U = np.empty((d, d))
     tot2 = np.empty((d, d))
     for k in range(W.shape[0]):
         dt = DT[k]
@@ -281,34 +292,17 @@ def eci_invariant_steps(C, v, p, W, F, DT, zn, zj, P, qrate, want_tot, tot):
             A[6, 3 + j] = dt * r0
             A[7, 3 + j] = dt * r1
             A[8, 3 + j] = dt * r2
-        if d == 15:
-            for i in range(3):
-                A[i, 9 + i] = -dt
-                A[3 + i, 12 + i] = -dt
-        for i in range(d):  # T = A P (and A tot)
-            for j in range(d):
-                s = 0.0
-                for r in range(cnt[i]):
-                    m = nzc[i, r]
-                    s += A[i, m] * P[m, j]
-                T[i, j] = s
+        _sparse_rows_mm(A, P, hi, d, dt, T)  # T = A P
         if want_tot:
-            for i in range(d):
-                for j in range(d):
-                    s2 = 0.0
-                    for r in range(cnt[i]):
-                        m = nzc[i, r]
-                        s2 += A[i, m] * tot[m, j]
-                    tot2[i, j] = s2
+            _sparse_rows_mm(A, tot, hi, d, dt, tot2)
             tot[:, :] = tot2
-        for i in range(d):  # P = T A^T + Q (symmetric: the upper triangle, mirrored)
-            for j in range(i, d):
-                s = 0.0
-                for r in range(cnt[j]):
-                    m = nzc[j, r]
-                    s += T[i, m] * A[j, m]
-                P[i, j] = s
-                P[j, i] = s
+        for i in range(d):
+            for j in range(d):
+                U[i, j] = T[j, i]
+        _sparse_rows_mm(A, U, hi, d, dt, P)  # P = A (A P)^T = A P A^T; row j holds the sums of the upper triangle
+        for i in range(d):
+            for j in range(i + 1, d):
+                P[i, j] = P[j, i]
             P[i, i] += qrate[i] * dt
     for i in range(3):
         p[i] = p[i] + dpa[i]
