@@ -249,11 +249,60 @@ def usable_imu_arrays(t_s, omega_ib_b, f_ib_b, t_last_s: float):
     w = np.asarray(omega_ib_b, float)
     f = np.asarray(f_ib_b, float)
     n = t.shape[0] if t.ndim == 1 else 0
-    if n == 0 or w.shape != (n, 3) or f.shape != (n, 3) or not (
-            np.isfinite(t).all() and np.isfinite(w).all() and np.isfinite(f).all()):
+    # one finiteness test: a sum is non-finite iff a term is (or it overflows: garbage, the per-sample path decides)
+    if n == 0 or w.shape != (n, 3) or f.shape != (n, 3) or not math.isfinite(
+            float(t.sum()) + float(w.sum()) + float(f.sum())):
         return None
-    dt = np.diff(t, prepend=t_last_s)
-    return (t, w, f, dt) if bool(np.all(dt > 0.0) and np.all(dt <= 1.0)) else None
+    dt = np.empty(n)
+    dt[0] = t[0] - t_last_s
+    np.subtract(t[1:], t[:-1], out=dt[1:])
+    return (t, w, f, dt) if dt.min() > 0.0 and dt.max() <= 1.0 else None
+
+
+class ImuBuffer:
+    """IMU samples waiting for a core's next flush, added one by one (``add``: a stamp or step [s] and two (3,)
+    rows) or as blocks (``add_block``: (k,) and (k, 3) arrays, kept as they are); ``take`` returns them as
+    (n,), (n, 3), (n, 3) float arrays (the same values in the same order) and empties the buffer."""
+
+    __slots__ = ("t", "w", "f", "n", "blocks", "last_t")
+
+    def __init__(self) -> None:
+        self.clear()
+
+    def clear(self) -> None:
+        self.t: list = []
+        self.w: list = []
+        self.f: list = []
+        self.n = 0
+        self.blocks = False
+        self.last_t = 0.0
+
+    def add(self, t: float, w, f) -> None:
+        self.t.append(t)
+        self.w.append(w)
+        self.f.append(f)
+        self.n += 1
+        self.last_t = t
+
+    def add_block(self, t: np.ndarray, w: np.ndarray, f: np.ndarray) -> None:
+        if t.shape[0]:
+            self.t.append(t)
+            self.w.append(w)
+            self.f.append(f)
+            self.n += t.shape[0]
+            self.blocks = True
+            self.last_t = float(t[-1])
+
+    def take(self):
+        if self.blocks and len(self.t) == 1:
+            out = self.t[0], self.w[0], self.f[0]
+        elif self.blocks:
+            out = (np.hstack(self.t).astype(float, copy=False), np.vstack(self.w).astype(float, copy=False),
+                   np.vstack(self.f).astype(float, copy=False))
+        else:
+            out = np.asarray(self.t, float), np.asarray(self.w, float), np.asarray(self.f, float)
+        self.clear()
+        return out
 
 
 # ----------------------------------------------------------------------------------- the shared core
@@ -277,9 +326,7 @@ class BatchedEciCore(AlignmentCore):
         self.cfg = config if config is not None else self.config_class()
         self.cfg.validate()
         self._init = False
-        self._buf_t: list[float] = []
-        self._buf_w: list[np.ndarray] = []
-        self._buf_f: list[np.ndarray] = []
+        self._buf = ImuBuffer()
         self.counters = {"imu": 0, "imu_rejected": 0, "gnss": 0, "gnss_rejected": 0, "gnss_vel": 0,
                          "gnss_vel_rejected": 0}
         self.lever_b = np.asarray(getattr(self.cfg, "gnss_lever_arm_b_m", (0.0, 0.0, 0.0)), float)
@@ -308,7 +355,7 @@ class BatchedEciCore(AlignmentCore):
         C_b_n = np.asarray(C_b_n, float)
         self.P = self._P0(C_b_n, np.asarray(P_att_n, float), float(sigma_v_m_s), float(sigma_p_m))
         self._P0_att = self.P[0:3, 0:3].copy()
-        self._buf_t, self._buf_w, self._buf_f = [], [], []
+        self._buf = ImuBuffer()
         self._Phi_since_update = np.eye(self._n_states)
         self._t_last_update = self.t0_s
         self._init = True
@@ -318,7 +365,7 @@ class BatchedEciCore(AlignmentCore):
         if not self._init:
             self._reject_imu("not initialised")
             return
-        t_last = self._buf_t[-1] if self._buf_t else self.t_s
+        t_last = self._buf.last_t if self._buf.n else self.t_s
         reason = _check_imu(imu)
         if not reason and not imu.stamp_s > t_last:
             reason = f"stamp {imu.stamp_s:.6f} not after {t_last:.6f}"
@@ -330,10 +377,8 @@ class BatchedEciCore(AlignmentCore):
                 return
             # a gap: propagate anyway (the sample's average covers the gap) but count it
         self.counters["imu"] += 1
-        self._buf_t.append(float(imu.stamp_s))
-        self._buf_w.append(np.asarray(imu.omega_ib_b, float))
-        self._buf_f.append(np.asarray(imu.f_ib_b, float))
-        if len(self._buf_t) >= self.cfg.max_batch_samples:
+        self._buf.add(float(imu.stamp_s), np.asarray(imu.omega_ib_b, float), np.asarray(imu.f_ib_b, float))
+        if self._buf.n >= self.cfg.max_batch_samples:
             self.flush()
 
     def _reject_imu(self, reason: str) -> None:
@@ -342,17 +387,15 @@ class BatchedEciCore(AlignmentCore):
 
     def flush(self) -> None:
         """Propagate the buffered samples (state and covariance)."""
-        if not self._buf_t:
+        if not self._buf.n:
             return
-        t, w, f = np.asarray(self._buf_t), np.asarray(self._buf_w), np.asarray(self._buf_f)
-        self._buf_t, self._buf_w, self._buf_f = [], [], []
-        self._propagate_block(t, w, f)
+        self._propagate_block(*self._buf.take())
 
     def propagate_arrays(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
         """Forward: whole arrays without a Python step per sample, in the same batches as sample-by-sample
         ``propagate`` (so the same numbers); any unusable row (non-finite, stamps not increasing, a gap > 1 s) sends
         the call through the per-sample path, which rejects and counts it."""
-        arr = usable_imu_arrays(t_s, omega_ib_b, f_ib_b, self._buf_t[-1] if self._buf_t else self.t_s) \
+        arr = usable_imu_arrays(t_s, omega_ib_b, f_ib_b, self._buf.last_t if self._buf.n else self.t_s) \
             if self._init and not backward else None
         if arr is None:
             super().propagate_arrays(t_s, omega_ib_b, f_ib_b, backward)
@@ -361,19 +404,15 @@ class BatchedEciCore(AlignmentCore):
         n = t.shape[0]
         self.counters["imu"] += n
         mb = self.cfg.max_batch_samples
-        i = min(n, mb - len(self._buf_t))  # complete the pending batch first, as propagate() would
-        self._buf_t += t[:i].tolist()
-        self._buf_w += list(w[:i])
-        self._buf_f += list(f[:i])
-        if len(self._buf_t) >= mb:
+        i = min(n, mb - self._buf.n)  # complete the pending batch first, as propagate() would
+        self._buf.add_block(t[:i], w[:i], f[:i])
+        if self._buf.n >= mb:
             self.flush()
         while n - i >= mb:
             self._propagate_block(t[i:i + mb], w[i:i + mb], f[i:i + mb])
             i += mb
         if i < n:
-            self._buf_t += t[i:].tolist()
-            self._buf_w += list(w[i:])
-            self._buf_f += list(f[i:])
+            self._buf.add_block(t[i:], w[i:], f[i:])
 
     def _propagate_block(self, t: np.ndarray, w: np.ndarray, f: np.ndarray) -> None:
         """Propagate state and covariance over samples (t (N,) [s], raw omega_ib_b, f_ib_b (N, 3))."""

@@ -30,6 +30,7 @@ from ..core import mechanization_numba as nb
 from ..core.mechanization_n import LocalLevelMechanization
 from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, ImuSample, UpdateResult
 from .config import ConfigDict
+from .liekf import ImuBuffer, usable_imu_arrays
 
 #: NED <-> ENU axis swap (a proper rotation, its own inverse): v_ned = T v_enu
 T_NED_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
@@ -390,9 +391,7 @@ class StaticZuptCore(AlignmentCore):
         self._init_bias_cov()
         self._f_sum_n = np.zeros(3)
         self._dt_acc = 0.0
-        self._buf_w: list = []
-        self._buf_f: list = []
-        self._buf_dt: list[float] = []
+        self._buf = ImuBuffer()  # (dt, omega, f) of the samples since the last flush
         self._f_lp_ned = None
         self._N_prev = None
         self.t0_s = float(stamp_s)
@@ -418,9 +417,7 @@ class StaticZuptCore(AlignmentCore):
             return
         self.t_s = float(imu.stamp_s)
         if nb.ENABLED:  # buffered: the compiled loop runs on the next flush (docs/speed.md)
-            self._buf_w.append(imu.omega_ib_b)
-            self._buf_f.append(imu.f_ib_b)
-            self._buf_dt.append(dt)
+            self._buf.add(dt, imu.omega_ib_b, imu.f_ib_b)
             return
         f_n = self.mech.step(imu.omega_ib_b, imu.f_ib_b, dt)
         self._f_sum_n += f_n * dt
@@ -429,27 +426,20 @@ class StaticZuptCore(AlignmentCore):
     def propagate_arrays(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
         """Forward, compiled path: whole arrays appended to the interval buffer when every row is usable (finite,
         0 < dt <= 1 s); otherwise sample by sample (which skips and handles the bad rows)."""
-        from .liekf import usable_imu_arrays
-
         arr = usable_imu_arrays(t_s, omega_ib_b, f_ib_b, self.t_s) if nb.ENABLED and self._init and not backward \
             else None
         if arr is None:
             super().propagate_arrays(t_s, omega_ib_b, f_ib_b, backward)
             return
         t, w, f, dt = arr
-        self._buf_w += list(w)
-        self._buf_f += list(f)
-        self._buf_dt += dt.tolist()
+        self._buf.add_block(dt, w, f)
         self.t_s = float(t[-1])
 
     def flush(self) -> None:
         """Run the buffered IMU samples through the mechanization (one compiled call for the whole interval)."""
-        if not self._init or not self._buf_dt:
+        if not self._init or not self._buf.n:
             return
-        W = np.asarray(self._buf_w, dtype=float)
-        F = np.asarray(self._buf_f, dtype=float)
-        DT = np.asarray(self._buf_dt, dtype=float)
-        self._buf_w, self._buf_f, self._buf_dt = [], [], []
+        DT, W, F = self._buf.take()
         m = self.mech
         C = np.ascontiguousarray(m.C_b_n)
         v = np.array(m.v_n, dtype=float)
