@@ -58,7 +58,7 @@ def ecef_to_eci(t_s: float, p_e: np.ndarray, v_e: np.ndarray | None = None, t0_s
     p_i = C @ p_e
     if v_e is None:
         return p_i
-    return p_i, C @ (np.asarray(v_e) + np.cross(OMEGA_IE_E, p_e))
+    return p_i, C @ (np.asarray(v_e) + _omega_ie_cross(p_e))
 
 
 def eci_to_ecef(t_s: float, p_i: np.ndarray, v_i: np.ndarray | None = None, t0_s: float = 0.0):
@@ -67,7 +67,13 @@ def eci_to_ecef(t_s: float, p_i: np.ndarray, v_i: np.ndarray | None = None, t0_s
     p_e = C @ p_i
     if v_i is None:
         return p_e
-    return p_e, C @ np.asarray(v_i) - np.cross(OMEGA_IE_E, p_e)
+    return p_e, C @ np.asarray(v_i) - _omega_ie_cross(p_e)
+
+
+def _omega_ie_cross(p_e: np.ndarray) -> np.ndarray:
+    """``OMEGA_IE_E x p_e`` [m/s] written out (the same numbers as np.cross, which costs ~12 us a call; every
+    estimate() of the ECI cores converts once, docs/speed.md)."""
+    return np.array([-OMEGA_IE_RAD_S * p_e[1], OMEGA_IE_RAD_S * p_e[0], 0.0])
 
 
 def geodetic_to_ecef(lat_rad: float, lon_rad: float, h_m: float) -> np.ndarray:

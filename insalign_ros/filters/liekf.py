@@ -189,8 +189,95 @@ def covariance_batch(P: np.ndarray, Phi: np.ndarray, Qd: np.ndarray):
     return 0.5 * (P_new + P_new.T), Phi_tot
 
 
-def joseph_update(P: np.ndarray, H: np.ndarray, N: np.ndarray):
-    """Kalman gain and Joseph-form covariance (PI-LIEKF eqs. (11), (13)); returns (L, P_new, S)."""
+@nb._jit
+def _joseph_nb(P, H, N):
+    """:func:`joseph_update` compiled (the same products, LAPACK solve); returns (L, P_new, S)."""
+    HP = H @ P
+    S = HP @ np.ascontiguousarray(H.T) + N
+    S = 0.5 * (S + S.T)
+    L = np.ascontiguousarray(np.linalg.solve(S, HP).T)
+    IKH = np.eye(P.shape[0]) - L @ H
+    P_new = IKH @ P @ np.ascontiguousarray(IKH.T) + L @ N @ np.ascontiguousarray(L.T)
+    return L, 0.5 * (P_new + P_new.T), S
+
+
+@nb._jit
+def _nis_nb(S, z):
+    """z^T S^-1 z (LAPACK solve)."""
+    y = np.linalg.solve(S, z)
+    s = 0.0
+    for i in range(z.shape[0]):
+        s += z[i] * y[i]
+    return s
+
+
+@nb._jit
+def _spd3_nb(R) -> bool:
+    """Whether the symmetric part of a 3x3 matrix has a Cholesky factor (the test of ``np.linalg.cholesky``)."""
+    A = 0.5 * (R + R.T)
+    L = np.zeros((3, 3))
+    for j in range(3):
+        d = A[j, j]
+        for k in range(j):
+            d -= L[j, k] * L[j, k]
+        if not d > 0.0:
+            return False
+        L[j, j] = math.sqrt(d)
+        for i in range(j + 1, 3):
+            s = A[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = s / L[j, j]
+    return True
+
+
+@nb._jit
+def _retract_nb(C, v, p, xi):
+    """``X exp(xi)`` on SE2(3) (eq. (14), lie.se23_exp): returns (C exp(phi), v + C J_l(phi) nu, p + C J_l(phi) rho)
+    as new arrays."""
+    x, y, z = xi[0], xi[1], xi[2]
+    a, b, c1, _ = nb._coeffs(x * x + y * y + z * z)
+    E = np.empty((3, 3))
+    J = np.empty((3, 3))
+    nb._so3_from(x, y, z, a, b, 1.0, E)
+    nb._so3_from(x, y, z, b, c1, 1.0, J)
+    Cn = np.empty((3, 3))
+    nb._mm3(C, E, Cn)
+    vn = v.copy()
+    pn = p.copy()
+    for i in range(3):
+        jn = J[i, 0] * xi[3] + J[i, 1] * xi[4] + J[i, 2] * xi[5]
+        jr = J[i, 0] * xi[6] + J[i, 1] * xi[7] + J[i, 2] * xi[8]
+        for r in range(3):
+            vn[r] += C[r, i] * jn
+            pn[r] += C[r, i] * jr
+    return Cn, vn, pn
+
+
+def _spd3(R: np.ndarray) -> bool:
+    """3x3 covariance test of the checks below (compiled; numpy's Cholesky on the reference path)."""
+    if nb.ENABLED:
+        return _spd3_nb(np.ascontiguousarray(R, dtype=float))
+    try:
+        np.linalg.cholesky(0.5 * (R + R.T))
+    except np.linalg.LinAlgError:
+        return False
+    return True
+
+
+def nis(S: np.ndarray, z: np.ndarray) -> float:
+    """Normalised innovation squared z^T S^-1 z."""
+    if nb.ENABLED:
+        return float(_nis_nb(np.ascontiguousarray(S, dtype=float), np.ascontiguousarray(z, dtype=float)))
+    return float(z @ np.linalg.solve(S, z))
+
+
+def joseph_update(P: np.ndarray, H: np.ndarray, N: np.ndarray, compiled: bool = False):
+    """Kalman gain and Joseph-form covariance (PI-LIEKF eqs. (11), (13)); returns (L, P_new, S). ``compiled``: the
+    same products in a numba kernel (when ``mechanization_numba.ENABLED``)."""
+    if compiled and nb.ENABLED:
+        return _joseph_nb(np.ascontiguousarray(P, dtype=float), np.ascontiguousarray(H, dtype=float),
+                          np.ascontiguousarray(N, dtype=float))
     S = H @ P @ H.T + N
     S = 0.5 * (S + S.T)
     L = np.linalg.solve(S, H @ P).T  # P H^T S^-1 (S symmetric)
@@ -208,9 +295,7 @@ def _check_fix(fix: GnssFix) -> str:
         return "non-finite position or covariance"
     if not 6.0e6 < np.linalg.norm(p) < 7.0e6:
         return f"ECEF position norm {np.linalg.norm(p):.0f} m is not near the Earth's surface"
-    try:
-        np.linalg.cholesky(0.5 * (R + R.T))
-    except np.linalg.LinAlgError:
+    if not _spd3(R):
         return "covariance R_e is not positive definite"
     return ""
 
@@ -223,9 +308,7 @@ def check_velocity(v_n, R_n) -> str:
         return f"bad shapes v_n {v.shape}, R_n {R.shape}"
     if not (np.all(np.isfinite(v)) and np.all(np.isfinite(R))):
         return "non-finite velocity or covariance"
-    try:
-        np.linalg.cholesky(0.5 * (R + R.T))
-    except np.linalg.LinAlgError:
+    if not _spd3(R):
         return "covariance not positive definite (unknown or zero covariance)"
     return ""
 
@@ -520,6 +603,9 @@ class BatchedEciCore(AlignmentCore):
 
     def _inject(self, dx: np.ndarray) -> None:
         """Retraction X_hat exp(dxi) (eq. (14)); error reset (eq. (15)) is implicit."""
+        if nb.ENABLED:
+            self.C, self.v, self.p = _retract_nb(self.C, self.v, self.p, np.ascontiguousarray(dx[0:9], dtype=float))
+            return
         X = lie.se23_from(self.C, self.v, self.p) @ lie.se23_exp(dx[0:9])
         self.C, self.v, self.p = lie.se23_parts(X)
         self.C, self.v, self.p = self.C.copy(), self.v.copy(), self.p.copy()
@@ -558,7 +644,7 @@ class BatchedEciCore(AlignmentCore):
         z, H, N = terms
         S = H @ self.P @ H.T + N
         S = 0.5 * (S + S.T)
-        return UpdateResult(False, z, S, float(z @ np.linalg.solve(S, z)), "prediction only")
+        return UpdateResult(False, z, S, nis(S, z), "prediction only")
 
     def predict_gnss(self, fix: GnssFix) -> UpdateResult:
         """The innovation, its covariance and NIS a fix would have now; changes nothing (an outlier gate)."""
@@ -604,28 +690,28 @@ class BatchedEciCore(AlignmentCore):
         """One update with (z, H, N); ``kind`` "gnss" (position: the PI-LIEKF correction and its update clock) or
         "gnss_vel" (plain correction L z)."""
         self._P_prior = self.P
-        L, P_new, S = joseph_update(self.P, H, N)
-        nis = float(z @ np.linalg.solve(S, z))
+        L, P_new, S = joseph_update(self.P, H, N, compiled=True)
+        nis_v = nis(S, z)
         fading = self.cfg.fading_nis_threshold
         self.last_fading_factor = 1.0
-        if fading > 0 and nis > fading:
+        if fading > 0 and nis_v > fading:
             # adaptive fading memory: the innovation says P is too small (linearisation error of a large
             # initial attitude error); inflate the prior by NIS/threshold and redo the gain (docs/inmotion_cores.md)
             # never above the initial attitude uncertainty: beyond it the linear update only adds damage
             room = float(np.min(np.diag(self._P0_att) / np.maximum(np.diag(self.P)[0:3], 1e-30)))
-            lam = max(1.0, min(nis / fading, self.cfg.fading_max_factor, room))
+            lam = max(1.0, min(nis_v / fading, self.cfg.fading_max_factor, room))
             self.last_fading_factor = lam
             D = np.ones(self._n_states)
             D[0:9] = math.sqrt(lam)  # navigation block, by congruence D P D (stays SPD, keeps correlations)
             self.P = self.P * np.outer(D, D)
             self._P_prior = self.P
             self.counters["fading"] = self.counters.get("fading", 0) + 1
-            L, P_new, S = joseph_update(self.P, H, N)
-        if self.cfg.gnss_nis_gate > 0 and nis > self.cfg.gnss_nis_gate:
+            L, P_new, S = joseph_update(self.P, H, N, compiled=True)
+        if self.cfg.gnss_nis_gate > 0 and nis_v > self.cfg.gnss_nis_gate:
             self.counters[f"{kind}_rejected"] += 1
-            self.last_reject_reason = (f"{'GNSS' if kind == 'gnss' else 'GNSS velocity'}: NIS {nis:.1f} above gate "
+            self.last_reject_reason = (f"{'GNSS' if kind == 'gnss' else 'GNSS velocity'}: NIS {nis_v:.1f} above gate "
                                        f"{self.cfg.gnss_nis_gate}")
-            return UpdateResult(False, z, S, nis, self.last_reject_reason)
+            return UpdateResult(False, z, S, nis_v, self.last_reject_reason)
         dx = self._correction(z, L, H, N) if kind == "gnss" else L @ z
         self.P = P_new
         self._inject(dx)
@@ -633,7 +719,7 @@ class BatchedEciCore(AlignmentCore):
         if kind == "gnss":
             self._Phi_since_update = np.eye(self._n_states)
             self._t_last_update = self.t_s
-        return UpdateResult(True, z, S, nis, "")
+        return UpdateResult(True, z, S, nis_v, "")
 
     def _correction(self, z, L, H, N) -> np.ndarray:
         """Error-state correction dx = L z (eq. (12)); PI-LIEKF overrides (eq. (30))."""

@@ -147,6 +147,30 @@ def _zupt_predict_nb(x5, f_np, lat, r_m, m, dt, x5_out, F5):
 
 
 @nb._jit
+def _corrected_attitude_nb(pN, pE, pD, C_b_n):
+    """``mech.correct_attitude(misalignment_rotation_enu([pN, pE, pD]))`` compiled: the nearest rotation (SVD) to
+    ``T Rz(pD) exp([pN, pE, 0]) T C_b_n``; returns the new C_b_n."""
+    X = np.empty((3, 3))
+    a, b, _, _ = nb._coeffs(pN * pN + pE * pE)  # lie.so3_exp's coefficients
+    nb._so3_from(pN, pE, 0.0, a, b, 1.0, X)
+    c, s = math.cos(pD), math.sin(pD)
+    E = np.empty((3, 3))  # T Rz(pD) X T with T the NED/ENU swap: rows/columns 0, 1 exchanged, row/column 2 negated
+    Rx = np.empty((3, 3))
+    for j in range(3):
+        Rx[0, j] = c * X[0, j] - s * X[1, j]
+        Rx[1, j] = s * X[0, j] + c * X[1, j]
+        Rx[2, j] = X[2, j]
+    sg = np.array([1.0, 1.0, -1.0])
+    idx = np.array([1, 0, 2])
+    for i in range(3):
+        for j in range(3):
+            E[i, j] = sg[i] * sg[j] * Rx[idx[i], idx[j]]
+    M = E @ C_b_n
+    u, _, vt = np.linalg.svd(M)
+    return u @ vt
+
+
+@nb._jit
 def model_error_jacobian_nb(x5, f_np, lat, r_m, G):
     """df/dm' of eq. (34) at x5 by central differences with steps 1e-6 (the 10-state EKF's G), compiled."""
     mp = np.zeros(5)
@@ -628,8 +652,11 @@ class StaticZuptCore(AlignmentCore):
         feed_az = sigma_D < self.cfg.azimuth_feedback_sigma_deg * D2R
         phi = np.array([x[2], x[3], x[4] if feed_az else 0.0])
         if feed_az:
-            E = misalignment_rotation_enu(phi)
-            self.mech.correct_attitude(E)
+            if nb.ENABLED:
+                self.mech.C_b_n = _corrected_attitude_nb(float(x[2]), float(x[3]), float(x[4]),
+                                                         np.ascontiguousarray(self.mech.C_b_n, dtype=float))
+            else:
+                self.mech.correct_attitude(misalignment_rotation_enu(phi))
             # the computed frame n' turns by phiD about Down: every (N, E) pair of the state (velocity, level,
             # accelerometer and gyro errors) is now expressed in the new axes, v'' = Rz(phiD) v' (reset Jacobian)
             J = np.eye(self.x.shape[0])
@@ -642,8 +669,11 @@ class StaticZuptCore(AlignmentCore):
             self.x[4] = 0.0
         else:
             # level only: C_true = Rz(phiD) exp(rho) C_est -> C_est <- exp(rho) C_est, phiD stays in the state
-            E = misalignment_rotation_enu(np.array([x[2], x[3], 0.0]))
-            self.mech.correct_attitude(E)
+            if nb.ENABLED:
+                self.mech.C_b_n = _corrected_attitude_nb(float(x[2]), float(x[3]), 0.0,
+                                                         np.ascontiguousarray(self.mech.C_b_n, dtype=float))
+            else:
+                self.mech.correct_attitude(misalignment_rotation_enu(np.array([x[2], x[3], 0.0])))
         self.x[0:4] = 0.0
         self._feedback_bias()
 
