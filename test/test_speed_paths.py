@@ -226,3 +226,54 @@ def test_session_fast_path_with_gnss_velocity(monkeypatch):
     fast = _run(monkeypatch, d, "iekf", True, fast=True, fix_delay_s=0.35)
     _assert_same(ref, fast, bound_rad=1e-12)
     assert fast.counters["gnss_vel_received"] > 30
+
+
+def test_compiled_update_helpers_match_numpy():
+    """The compiled pieces of the updates and outputs against the numpy code they replace (same formulas, so equal
+    to rounding); the 3x3 covariance test takes the same decisions as numpy's Cholesky."""
+    from insalign_ros.core import lie
+    from insalign_ros.core.mechanization_n import LocalLevelMechanization
+    from insalign_ros.filters import liekf, static_model as sm
+
+    rng = np.random.default_rng(7)
+    cases = [np.eye(3), np.zeros((3, 3)), np.diag([1.0, 1.0, -1e-12]), np.diag([1e-30, 1.0, 1.0]),
+             np.array([[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 1.0]]), np.array([[4.0, 9.0, 0], [-9.0, 4.0, 0],
+                                                                                      [0, 0, 1.0]])]
+    cases += [A @ A.T * s for A, s in zip(rng.normal(size=(20, 3, 3)), np.logspace(-8, 8, 20))]
+    for R in cases:
+        try:
+            np.linalg.cholesky(0.5 * (R + R.T))
+            ok = True
+        except np.linalg.LinAlgError:
+            ok = False
+        assert liekf._spd3_nb(np.ascontiguousarray(R)) == ok, R
+    A = rng.normal(size=(15, 15))
+    P = A @ A.T + np.eye(15)
+    H = rng.normal(size=(3, 15))
+    N = np.diag([1.0, 2.0, 3.0])
+    for a, b in zip(liekf.joseph_update(P, H, N), liekf.joseph_update(P, H, N, compiled=True)):
+        assert np.abs(a - b).max() <= 1e-12 * np.abs(a).max()
+    z = rng.normal(size=3)
+    S = H @ P @ H.T + N
+    assert abs(liekf._nis_nb(S, z) - z @ np.linalg.solve(S, z)) <= 1e-12 * abs(z @ np.linalg.solve(S, z))
+    C = lie.so3_exp(np.array([0.3, -1.2, 2.0]))
+    v, p = np.array([1.0, -2.0, 3.0]), np.array([6.4e6, 1e5, -2e4])
+    for xi in (rng.normal(size=9) * 0.3, rng.normal(size=9) * 1e-4, np.r_[1.5, 0.2, -0.1, rng.normal(size=6)]):
+        X = lie.se23_from(C, v, p) @ lie.se23_exp(xi)
+        Cn, vn, pn = liekf._retract_nb(C, v, p, xi)
+        assert np.abs(Cn - X[:3, :3]).max() < 1e-15 and np.abs(vn - X[:3, 3]).max() < 1e-14
+        assert np.abs(pn - X[:3, 4]).max() < 1e-8  # 6.4e6 m: its ulp is 1e-9 m
+    for phi in ([1e-3, -2e-3, 0.4], [0.01, 0.02, 0.0], [0.0, 0.0, 3.0]):
+        mech = LocalLevelMechanization(0.6, 0.2, 10.0, C, np.zeros(3))
+        mech.correct_attitude(sm.misalignment_rotation_enu(np.array(phi)))
+        assert np.abs(sm._corrected_attitude_nb(*phi, C) - mech.C_b_n).max() < 1e-15
+    for p_e in rng.normal(scale=6e6, size=(10, 3)):
+        np.testing.assert_array_equal(earth._omega_ie_cross(p_e), np.cross(earth.OMEGA_IE_E, p_e))
+    buf = liekf.ImuBuffer()  # rows (per-sample propagate) and blocks (propagate_arrays) in one buffer, in order
+    buf.add(1.0, np.ones(3), 2 * np.ones(3))
+    buf.add_block(np.array([2.0, 3.0]), np.arange(6.0).reshape(2, 3), np.arange(6.0, 12.0).reshape(2, 3))
+    t, w, f = buf.take()
+    np.testing.assert_array_equal(t, [1.0, 2.0, 3.0])
+    np.testing.assert_array_equal(w, [[1, 1, 1], [0, 1, 2], [3, 4, 5]])
+    np.testing.assert_array_equal(f[2], [9, 10, 11])
+    assert buf.n == 0 and buf.take()[0].shape == (0,)

@@ -501,16 +501,17 @@ class BatchedEciCore(AlignmentCore):
         """Propagate state and covariance over samples (t (N,) [s], raw omega_ib_b, f_ib_b (N, 3))."""
         w = w - self.b_g
         f = f - self.b_a
-        dt = np.diff(t, prepend=self.t_s)
-        fused = nb.ENABLED and self._fused_transition()
+        dt = np.empty(t.shape[0])
+        dt[0] = t[0] - self.t_s
+        np.subtract(t[1:], t[:-1], out=dt[1:])
+        fused = nb.ENABLED and self._fused_setup()[0]
         if fused:  # state, transitions and covariance in one compiled loop (docs/speed.md)
+            _, want_tot, qrate = self._fused_setup()
             C, v, p = self.C.copy(), self.v.copy(), self.p.copy()
-            P = np.array(self.P, dtype=float)
-            want_tot = self._tracks_phi_since_update()
+            P = np.array(self.P, dtype=float)  # exactly symmetric on return (the kernel mirrors its upper triangle)
             tot = np.eye(self._n_states)
-            nb.eci_invariant_steps(C, v, p, w, f, dt, nb._ZONAL_N, nb._ZONAL_J, P,
-                                   self._noise_diag(np.ones(1))[0], want_tot, tot)
-            self.P = 0.5 * (P + P.T)
+            nb.eci_invariant_steps(C, v, p, w, f, dt, nb._ZONAL_N, nb._ZONAL_J, P, qrate, want_tot, tot)
+            self.P = P
             if want_tot:
                 self._Phi_since_update = tot @ self._Phi_since_update
         elif nb.ENABLED:  # compiled sequential loops (docs/speed.md); the numpy batch below is the reference path
@@ -549,6 +550,15 @@ class BatchedEciCore(AlignmentCore):
         owner = next(k for k in cls.__mro__ if "_transitions" in k.__dict__)
         return (owner.__dict__.get("_fused_kernel_transitions", False) and "_noise_diag" in owner.__dict__
                 and cls._n_states in (9, 15))
+
+    def _fused_setup(self):
+        """(fused kernel usable, transition product wanted, noise PSDs per state: ``_noise_diag(dt) = qrate dt``),
+        evaluated once per core (the configuration is fixed after construction)."""
+        fs = self.__dict__.get("_fused_cache")
+        if fs is None:
+            fs = self._fused_cache = (self._fused_transition(), self._tracks_phi_since_update(),
+                                      np.ascontiguousarray(self._noise_diag(np.ones(1))[0], dtype=float))
+        return fs
 
     @classmethod
     def _tracks_phi_since_update(cls) -> bool:
