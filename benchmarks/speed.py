@@ -18,16 +18,19 @@ Data: 300 s of the ``ship`` scenario (100 Hz) for the in-motion cores, of the ``
 vibration) for the static ones (the session runs their zero-velocity updates; on a moving ship they make no sense).
 
     nice .venv/bin/python benchmarks/speed.py [--cores iekf,liekf,pkf,ekf10] [--duration 300] [--reps 3]
+        [--clock wall|cpu]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
 import sys
 import time
+import types
 from pathlib import Path
 
 for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):  # one core (and CPU time = one thread's)
@@ -43,6 +46,7 @@ from insalign_ros.core import mechanization_numba as nb  # noqa: E402
 from insalign_ros.core.types import GnssFix, ImuSample  # noqa: E402
 from insalign_ros.filters import registry  # noqa: E402
 from insalign_ros.session.session import AlignmentSession  # noqa: E402
+import sweep  # noqa: E402
 from sweep import StageTimer, format_stages  # noqa: E402
 
 STATIC_CORES = ("pkf", "ekf10", "coarse")
@@ -131,6 +135,17 @@ def core_rate(d, core_name: str, arrays: bool) -> float:
     return rate
 
 
+@contextlib.contextmanager
+def _stage_clock(clock):
+    """Run benchmarks/sweep.py's StageTimer on ``clock`` (it reads ``time.perf_counter`` from its module)."""
+    saved = sweep.time
+    sweep.time = types.SimpleNamespace(perf_counter=clock)
+    try:
+        yield
+    finally:
+        sweep.time = saved
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cores", default="iekf,liekf,pkf,ekf10")
@@ -138,8 +153,8 @@ def main(argv=None) -> int:
     ap.add_argument("--reps", type=int, default=3, help="repetitions (interleaved); the best of them is reported")
     ap.add_argument("--json-out", default="")
     ap.add_argument("--clock", choices=("wall", "cpu"), default="wall",
-                    help="rates from wall time or from this process's CPU time (a shared, loaded machine); the "
-                         "per-stage split is wall time")
+                    help="rates and the per-stage split from wall time or from this process's CPU time (a shared, "
+                         "loaded machine)")
     args = ap.parse_args(argv)
     CLOCK[0] = time.process_time if args.clock == "cpu" else time.perf_counter
     cores = args.cores.split(",")
@@ -171,7 +186,7 @@ def main(argv=None) -> int:
     stage_lines = []
     for c in cores:
         d = data["static" if c in STATIC_CORES else "ship"]
-        with StageTimer() as st:
+        with StageTimer() as st, _stage_clock(CLOCK[0]):
             st.align(d, core=c, **KW)
         stage_lines.append(f"| {c} | " + " | ".join(
             f"{1e6 * st.stages()[k] / d.n:.1f}" for k in ("read", "input", "propagate", "update", "outputs",
@@ -197,8 +212,8 @@ def main(argv=None) -> int:
                  f"{r['align_per_sample']:,.0f} | {r['align_per_sample'] / base:.2f} | "
                  f"{r['align_reference']:,.0f} | {r['align_reference'] / base:.2f} | {r['core_samples']:,.0f} | "
                  f"{r['core_samples'] / base:.2f} | {r['core_arrays']:,.0f} | {r['core_arrays'] / base:.2f} |")
-    L += ["", "Per-stage time of one `ia.align` run (compiled path, instrumented: each wrapped call adds ~0.5 us) "
-              "[us per IMU sample]:\n",
+    L += ["", f"Per-stage {args.clock} time of one `ia.align` run (compiled path, instrumented: each wrapped call "
+              "adds ~0.5 us) [us per IMU sample]:\n",
           "| core | read/convert | input (validate, buffer) | propagate | update | outputs | session (rest) | total |",
           "|---|---|---|---|---|---|---|---|"] + stage_lines
     md = "\n".join(L)

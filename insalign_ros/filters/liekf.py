@@ -719,8 +719,8 @@ class BatchedEciCore(AlignmentCore):
             L, P_new, S = joseph_update(self.P, H, N, compiled=True)
         if self.cfg.gnss_nis_gate > 0 and nis_v > self.cfg.gnss_nis_gate:
             self.counters[f"{kind}_rejected"] += 1
-            self.last_reject_reason = (f"{'GNSS' if kind == 'gnss' else 'GNSS velocity'}: NIS {nis_v:.1f} above gate "
-                                       f"{self.cfg.gnss_nis_gate}")
+            self.last_reject_reason = (f"{'GNSS' if kind == 'gnss' else 'GNSS velocity'}: NIS {nis_v:.1f} above "
+                                       f"gate {self.cfg.gnss_nis_gate}")
             return UpdateResult(False, z, S, nis_v, self.last_reject_reason)
         dx = self._correction(z, L, H, N) if kind == "gnss" else L @ z
         self.P = P_new
