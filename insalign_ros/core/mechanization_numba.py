@@ -199,18 +199,19 @@ def _eci_step(k, C, v, p, W, F, DT, zn, zj, dpa, dva, dC, dv_b, dp_b, J, G2, T, 
 
 
 @_jit
+def _eci_scratch():
+    """Work arrays of :func:`_eci_step`: J, Gamma_2, a 3x3 product, gravity, and the position and velocity increments
+    accumulated relative to the batch start (zeros; as the batched numpy path does: adding each step to a 6.4e6 m ECI
+    position rounds at its 1e-9 m ulp every step), the step's start velocity."""
+    return (np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty(3), np.zeros(3), np.zeros(3),
+            np.empty(3))
+
+
+@_jit
 def eci_steps(C, v, p, W, F, DT, zn, zj, dC_out, dv_out, dp_out, Cprev_out):
     """``propagate_eci`` for each row of W, F (N, 3) and DT (N,): updates C (C_b_i), v (v_i), p (p_i) in place and
     writes the body increments exp(phi), J_l(phi) f dt, Gamma_2(phi) f dt^2 and the attitude at each step's start."""
-    J = np.empty((3, 3))
-    G2 = np.empty((3, 3))
-    T = np.empty((3, 3))
-    g = np.empty(3)
-    # position and velocity are accumulated relative to the batch start (as the batched numpy path does): adding
-    # each step to a 6.4e6 m ECI position rounds at its 1e-9 m ulp every step
-    dpa = np.zeros(3)
-    dva = np.zeros(3)
-    vk = np.empty(3)
+    J, G2, T, g, dpa, dva, vk = _eci_scratch()
     for k in range(W.shape[0]):
         Cprev_out[k] = C
         _eci_step(k, C, v, p, W, F, DT, zn, zj, dpa, dva, dC_out[k], dv_out[k], dp_out[k], J, G2, T, g, vk)
@@ -248,13 +249,7 @@ def eci_invariant_steps(C, v, p, W, F, DT, zn, zj, P, qrate, want_tot, tot):
     (filters/iekf.py ``_transitions``), then ``P <- Phi P Phi^T + diag(qrate dt)`` over the structural non-zero
     pattern. Updates C, v, p and P in place; when ``want_tot``, tot <- Phi_N ... Phi_1 tot."""
     d = P.shape[0]
-    J = np.empty((3, 3))
-    G2 = np.empty((3, 3))
-    T3 = np.empty((3, 3))
-    g = np.empty(3)
-    dpa = np.zeros(3)
-    dva = np.zeros(3)
-    vk = np.empty(3)
+    J, G2, T3, g, dpa, dva, vk = _eci_scratch()
     dC = np.empty((3, 3))
     dv_b = np.empty(3)
     dp_b = np.empty(3)
