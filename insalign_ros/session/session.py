@@ -172,6 +172,8 @@ class AlignmentSession:
         self.timing = {"process_s": 0.0, "process_calls": 0, "samples": 0}
         #: added to stamps in log lines and diagnostics (the node's epoch: users see their header stamps)
         self.stamp_offset_s = 0.0
+        #: outputs of processing forced by a full buffer inside push_imu*, handed out by the next process()/finish()
+        self._overflow_out: list[Output] = []
         self._reset_state("start")
 
     # ------------------------------------------------------------------ configuration
@@ -259,13 +261,13 @@ class AlignmentSession:
         if wall_s is not None:
             self.last_imu_wall = wall_s  # the watchdog counts valid samples only
         if t in self._recent_set:
-            return self._reject_imu("imu_duplicate", f"duplicate stamp {t:.6f}")
+            return self._reject_imu("imu_duplicate", f"duplicate stamp {t + self.stamp_offset_s:.6f}")
         newest = self.newest_imu_t
         if newest is not None and (t - newest > self.cfg.max_gap_s or newest - t > self.cfg.max_gap_s):
             return self._jump_candidate(sample, t - newest)
         self.jump_candidates.clear()
         if self.processed_t is not None and t <= self.processed_t:
-            return self._reject_imu("imu_out_of_order", f"stamp {t:.6f} is {self.processed_t - t:.3f} s before "
+            return self._reject_imu("imu_out_of_order", f"stamp {t + self.stamp_offset_s:.6f} is {self.processed_t - t:.3f} s before "
                                                         "the filter time (beyond the fusion delay)")
         self._remember(t)
         item = (t, np.asarray(w, float), np.asarray(f, float))
@@ -279,7 +281,7 @@ class AlignmentSession:
             self.buf.imu_t.insert(i, t)
             self.buf.imu.insert(i, item)
         if len(self.buf.imu_t) > self.MAX_BUFFER:
-            self._process(until=self.buf.imu_t[len(self.buf.imu_t) - self.MAX_BUFFER])
+            self._overflow_out += self._process(until=self.buf.imu_t[len(self.buf.imu_t) - self.MAX_BUFFER])
         return True
 
     def push_imu_arrays(self, t_s, omega_ib_b, f_ib_b, wall_s: float | None = None) -> int:
@@ -341,7 +343,7 @@ class AlignmentSession:
         self.buf.imu.extend(zip(tl, list(w), list(f)))
         self.newest_imu_t = tl[-1]
         if len(self.buf.imu_t) > self.MAX_BUFFER:
-            self._process(until=self.buf.imu_t[len(self.buf.imu_t) - self.MAX_BUFFER])
+            self._overflow_out += self._process(until=self.buf.imu_t[len(self.buf.imu_t) - self.MAX_BUFFER])
 
     def push_fix(self, fix: GnssFix, wall_s: float | None = None) -> bool:
         """Validate and buffer one GNSS position fix (ECEF p_e [m], R_e [m^2]). False if rejected."""
@@ -350,12 +352,12 @@ class AlignmentSession:
         self._touch(wall_s)
         t = float(fix.stamp_s)
         if self.processed_t is not None and t < self.processed_t:
-            return self._reject_fix("gnss_stale", f"stamp {t:.6f} is {self.processed_t - t:.3f} s behind the filter "
+            return self._reject_fix("gnss_stale", f"stamp {t + self.stamp_offset_s:.6f} is {self.processed_t - t:.3f} s behind the filter "
                                                   f"time (max_fix_lag_s {self.cfg.max_fix_lag_s:g} s)")
         if t in self.fix_stamps or t in self.buf.fix_t:
-            return self._reject_fix("gnss_duplicate", f"duplicate stamp {t:.6f}")
+            return self._reject_fix("gnss_duplicate", f"duplicate stamp {t + self.stamp_offset_s:.6f}")
         if self.newest_imu_t is not None and t > self.newest_imu_t + self.cfg.max_fix_ahead_s:
-            return self._reject_fix("gnss_future", f"stamp {t:.6f} is {t - self.newest_imu_t:.3f} s ahead of the IMU")
+            return self._reject_fix("gnss_future", f"stamp {t + self.stamp_offset_s:.6f} is {t - self.newest_imu_t:.3f} s ahead of the IMU")
         self.fix_stamps.append(t)
         i = bisect.bisect(self.buf.fix_t, t)
         self.buf.fix_t.insert(i, t)
@@ -444,12 +446,13 @@ class AlignmentSession:
         c.append(sample)
         if len(c) < self.cfg.time_jump_confirm:
             return self._reject_imu("imu_out_of_order" if dt < 0 else "imu_future",
-                                    f"stamp {t:.6f} is {dt:+.3f} s from the newest {self.newest_imu_t:.6f}")
+                                    f"stamp {t + self.stamp_offset_s:.6f} is {dt:+.3f} s from the newest "
+                                    f"{self.newest_imu_t + self.stamp_offset_s:.6f}")
         kind = "backward" if dt < 0 else "forward"
         run = list(c)
         resets = self.counters["time_resets"] + 1
-        self.log("warn", "time_reset", f"time jumped {kind} by {dt:+.3f} s (from {self.newest_imu_t:.6f} to "
-                                       f"{t:.6f}, {len(run)} consistent samples): resetting the alignment")
+        self.log("warn", "time_reset", f"time jumped {kind} by {dt:+.3f} s (from {self.newest_imu_t + self.stamp_offset_s:.6f} to "
+                                       f"{t + self.stamp_offset_s:.6f}, {len(run)} consistent samples): resetting the alignment")
         self._reset_state(f"time jumped {kind} by {dt:+.3f} s")
         self.counters["time_resets"] = resets
         # the earlier candidates were counted as rejected; the run starts the new time line
@@ -471,7 +474,7 @@ class AlignmentSession:
             final = True
         until = math.inf if final else (self.newest_imu_t - self.cfg.max_fix_lag_s
                                         if self.newest_imu_t is not None else -math.inf)
-        out = self._process(until)
+        out = self._take_overflow() + self._process(until)
         self._background(math.inf if final and self.cfg.backtrack_budget_s == math.inf else self.cfg.backtrack_budget_s)
         if wall_s is not None:
             self._watchdog(wall_s)
@@ -481,10 +484,14 @@ class AlignmentSession:
 
     def finish(self) -> list[Output]:
         """Process everything buffered (end of a recording); run pending backtracking passes to the end."""
-        out = self._process(math.inf)
+        out = self._take_overflow() + self._process(math.inf)
         if self.bt is not None:
             self.bt.run_until_done()
             self._after_handover()
+        return out
+
+    def _take_overflow(self) -> list[Output]:
+        out, self._overflow_out = self._overflow_out, []
         return out
 
     def _process(self, until: float) -> list[Output]:
@@ -901,13 +908,13 @@ class AlignmentSession:
             return self._reject("gnss_vel", "velocity", "gnss_vel_invalid", reason)
         if self.processed_t is not None and t < self.processed_t:
             return self._reject("gnss_vel", "velocity", "gnss_vel_stale",
-                                f"stamp {t:.6f} is {self.processed_t - t:.3f} s behind the filter time "
+                                f"stamp {t + self.stamp_offset_s:.6f} is {self.processed_t - t:.3f} s behind the filter time "
                                 f"(max_fix_lag_s {self.cfg.max_fix_lag_s:g} s)")
         if t in self.buf.vel_t:
-            return self._reject("gnss_vel", "velocity", "gnss_vel_duplicate", f"duplicate stamp {t:.6f}")
+            return self._reject("gnss_vel", "velocity", "gnss_vel_duplicate", f"duplicate stamp {t + self.stamp_offset_s:.6f}")
         if self.newest_imu_t is not None and t > self.newest_imu_t + self.cfg.max_fix_ahead_s:
             return self._reject("gnss_vel", "velocity", "gnss_vel_future",
-                                f"stamp {t:.6f} is {t - self.newest_imu_t:.3f} s ahead of the IMU")
+                                f"stamp {t + self.stamp_offset_s:.6f} is {t - self.newest_imu_t:.3f} s ahead of the IMU")
         i = bisect.bisect(self.buf.vel_t, t)
         self.buf.vel_t.insert(i, t)
         self.buf.vel.insert(i, GnssVelocity(t, np.asarray(vel.v_n, float), np.asarray(vel.R_n, float)))
