@@ -77,11 +77,11 @@ def run_one(core_label, data, yaw, params=None, period=1.0):
     return r, s
 
 
-def sweep_task(scenario, seed, duration, core_label, yaw, default_noise, stage_timing=False):
-    """One (seed, core, yaw) run as a Dask task: summary, (t, yaw error) and (t, NEES) series, stage times."""
+def sweep_task(data, core_label, yaw, default_noise, stage_timing=False):
+    """One (seed, core, yaw) run as a Dask task on the seed's simulated ``data`` (``sweep.shared_scenario``: simulated
+    once per sweep): summary, (t, yaw error) and (t, NEES) series, stage times."""
     import sweep
 
-    data = sweep.scenario(scenario, seed, duration)
     params = None if default_noise else imu_matched_params(data.imu_spec)
     if stage_timing:
         with sweep.StageTimer() as st:
@@ -93,6 +93,14 @@ def sweep_task(scenario, seed, duration, core_label, yaw, default_noise, stage_t
         r, s = run_one(core_label, data, yaw, params)
         stages = None
     return s, (r.t_s - r.init_t_s, r.rpy_err_deg), (r.t_s - r.init_t_s, r.nees), stages
+
+
+def task_cost(core_label: str) -> float:
+    """Relative run time of one run, for the Dask submission order (longest first). Measured on 300 s of ship data
+    (docs/speed.md): liekf / iekf / ekf ~0.3 s of CPU, pi_liekf ~1.1 s (its LMI solves); a bank of K hypotheses
+    runs K filters."""
+    name, bank = parse_core(core_label)
+    return (4.0 if name.startswith("pi_liekf") else 1.0) * (bank or {}).get("yaw_hypotheses", 1)
 
 
 def throughput(scenario, cores=("liekf", "iekf"), duration=120.0, reps=3):
@@ -149,17 +157,14 @@ def main(argv=None):
     results = {}  # (core, yaw) -> list of summaries
     series = {}  # (core, yaw) -> list of (t, err) for figures
     nees_series = {}
-    tasks = [(args.scenario, seed, args.duration, c, yaw, args.default_noise, args.stage_timing)
+    tasks = [(sweep.shared_scenario(args.scenario, seed, args.duration), c, yaw, args.default_noise, args.stage_timing)
              for seed in range(args.seeds) for yaw in yaws for c in cores]
-    t_sweep = time.perf_counter()
-    outs = sweep.run_tasks(sweep_task, tasks, args, desc=f"{args.scenario} sweep")
-    t_sweep = time.perf_counter() - t_sweep
-    for (_, _, _, c, yaw, _, _), (s, ser, nees, _) in zip(tasks, outs):
+    outs = sweep.run_tasks(sweep_task, tasks, args, desc=f"{args.scenario} sweep", cost=[task_cost(t[1]) for t in tasks])
+    for (_, c, yaw, _, _), (s, ser, nees, _) in zip(tasks, outs):
         results.setdefault((c, yaw), []).append(s)
         series.setdefault((c, yaw), []).append(ser)
         nees_series.setdefault((c, yaw), []).append(nees)
-    mode = "serial" if args.serial else (args.scheduler or f"LocalCluster, {args.workers} workers")
-    print(f"sweep wall time: {t_sweep:.1f} s for {len(tasks)} runs ({mode})", flush=True)
+    print(f"sweep wall time: {args.sweep_summary}", flush=True)
     if args.stage_timing:
         st = sweep.merge_stages(o[3] for o in outs)
         print("stages (sum over runs): " + sweep.format_stages(st, sum(s["samples"] for s, *_ in outs)), flush=True)
@@ -263,7 +268,7 @@ def main(argv=None):
         L.append("|---|---|---|")
         L.extend(tp_lines)
         L.append("")
-    L.append(f"Sweep: {len(tasks)} runs in {t_sweep:.0f} s wall ({mode}).\n")
+    L.append(f"Sweep: {args.sweep_summary}.\n")
     md = "\n".join(L)
     print(md)
     if args.md_out:
