@@ -115,7 +115,8 @@ def run_tasks(fn, tasks: list[tuple], args, desc: str = "runs", cost=None) -> li
         diff = first_difference(ser, par)
         args.sweep_summary = (f"{len(tasks)} runs: {es['line']}, then {ep['line']}: speed-up "
                               f"{es['wall_s'] / ep['wall_s']:.2f}x (target >= 1.8x on 2 workers); task CPU "
-                              f"{es['task_cpu_s']:.1f} s serial, {ep['task_cpu_s']:.1f} s on Dask; results "
+                              f"{es['task_cpu_s']:.1f} s serial, {ep['task_cpu_s']:.1f} s on Dask (CPU-bound ceiling "
+                              f"{ep['workers'] * es['task_cpu_s'] / max(ep['task_cpu_s'], 1e-9):.2f}x); results "
                               + ("identical" if not diff else f"DIFFER at {diff}"))
         print(f"[{desc}] " + args.sweep_summary, file=sys.stderr, flush=True)
         args.sweep_wall_s = ep["wall_s"]

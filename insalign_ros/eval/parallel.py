@@ -203,6 +203,8 @@ def efficiency(stats: dict) -> dict:
             "busy_share": busy / (w * wall) if wall > 0 else float("nan"),
             "cluster_start_s": stats.get("cluster_start_s", 0.0), "startup_s": first - t0,
             "tail_idle_s": sum(last - e for e in ends.values()),
+            # worker time between runs (per-task overhead: dispatch, (de)serialisation, results) and idle tail
+            "gaps_s": len(ends) * (last - first) - busy,
             "shutdown_s": t0 + wall - last, "processes": len(ends)}
 
 
@@ -216,5 +218,6 @@ def format_efficiency(e: dict) -> str:
             f"{e['shared_cpu_s']:.1f} s CPU ({100 * e['shared_cpu_s'] / max(cpu, 1e-9):.1f} % of all CPU); "
             f"workers busy {100 * e['busy_share']:.0f} % of {e['workers']} x wall; start-up {e['startup_s']:.1f} s "
             f"(cluster {e['cluster_start_s']:.1f} s), "
-            f"idle tail {e['tail_idle_s']:.1f} worker-s, shut-down {e['shutdown_s']:.1f} s; "
+            f"gaps between runs {e['gaps_s'] - e['tail_idle_s']:.1f} worker-s "
+            f"({1000 * (e['gaps_s'] - e['tail_idle_s']) / n:.0f} ms/task), idle tail {e['tail_idle_s']:.1f} worker-s, shut-down {e['shutdown_s']:.1f} s; "
             f"{e['processes']} process(es) ran tasks")
