@@ -86,6 +86,15 @@ def first_difference(a, b, path: str = "", volatile=VOLATILE_KEYS) -> str:
     return "" if a == b else path
 
 
+def _at(obj, path: str):
+    """The element of ``obj`` at a :func:`first_difference` path (e.g. '[73][0].rmse_rpy_deg[0]')."""
+    import re
+
+    for key, idx in re.findall(r"\.(\w+)|\[(\d+)\]", path.split(" ")[0]):
+        obj = obj[key] if key else obj[int(idx)]
+    return obj
+
+
 def run_tasks(fn, tasks: list[tuple], args, desc: str = "runs", cost=None) -> list:
     """``[fn(*t) for t in tasks]`` with the execution options of :func:`add_arguments` (insalign_ros.eval.parallel;
     this module is uploaded to the workers: they import it by name for the scenarios and the stage timer).
@@ -117,7 +126,8 @@ def run_tasks(fn, tasks: list[tuple], args, desc: str = "runs", cost=None) -> li
                               f"{es['wall_s'] / ep['wall_s']:.2f}x (target >= 1.8x on 2 workers); task CPU "
                               f"{es['task_cpu_s']:.1f} s serial, {ep['task_cpu_s']:.1f} s on Dask (CPU-bound ceiling "
                               f"{ep['workers'] * es['task_cpu_s'] / max(ep['task_cpu_s'], 1e-9):.2f}x); results "
-                              + ("identical" if not diff else f"DIFFER at {diff}"))
+                              + ("identical" if not diff else f"DIFFER at {diff}: {_at(ser, diff)!r} serial, "
+                                                              f"{_at(par, diff)!r} on Dask"))
         print(f"[{desc}] " + args.sweep_summary, file=sys.stderr, flush=True)
         args.sweep_wall_s = ep["wall_s"]
         return par

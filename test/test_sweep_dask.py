@@ -54,3 +54,4 @@ def test_first_difference_finds_a_changed_number_and_skips_wall_times():
     assert sweep.first_difference(a, b) == ""
     b[0][0]["rmse"][0] = np.nextafter(1.0, 2.0)
     assert sweep.first_difference(a, b) == "[0][0].rmse"
+    assert sweep._at(b, "[0][0].rmse")[0] == np.nextafter(1.0, 2.0)
