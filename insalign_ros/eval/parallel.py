@@ -129,6 +129,9 @@ def run_tasks(fn, tasks: list[tuple], workers: int = 0, scheduler: str = "", ser
             from distributed import as_completed
 
             t_ready = time.time()
+            if scheduler:  # the efficiency figures count the cluster's worker threads, not --workers
+                workers = sum(w.get("nthreads", 1) for w in client.scheduler_info().get("workers", {}).values()) \
+                    or workers
             order = list(range(len(tasks)))
             if cost is not None:
                 order.sort(key=lambda i: -cost[i])  # stable: equal costs keep the caller's order
