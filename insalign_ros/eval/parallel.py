@@ -118,7 +118,7 @@ def run_tasks(fn, tasks: list[tuple], workers: int = 0, scheduler: str = "", ser
     from tqdm import tqdm
 
     bar = tqdm(total=len(tasks), desc=desc, file=sys.stderr, mininterval=2, disable=not progress)
-    t0 = time.time()
+    t0, c0 = time.time(), time.process_time()
     records: list = []
     workers = 1 if serial else (workers or os.cpu_count() or 1)
     try:
@@ -159,6 +159,13 @@ def run_tasks(fn, tasks: list[tuple], workers: int = 0, scheduler: str = "", ser
             records.extend(("shared", -1) + r for r in shared_recs)
             if stats is not None:
                 stats["cluster_start_s"] = t_ready - t0
+                # CPU outside the runs: the client, and with a LocalCluster its scheduler and nannies (this
+                # process); each worker process's whole CPU (imports, Dask's own threads, the runs)
+                stats["client_cpu_s"] = time.process_time() - c0
+                try:
+                    stats["worker_process_cpu_s"] = sum(client.run(time.process_time).values())
+                except Exception:  # a remote cluster may refuse run(): the figure is optional
+                    pass
             return out
         finally:
             client.close()
@@ -208,7 +215,8 @@ def efficiency(stats: dict) -> dict:
             "tail_idle_s": sum(last - e for e in ends.values()),
             # worker time between runs (per-task overhead: dispatch, (de)serialisation, results) and idle tail
             "gaps_s": len(ends) * (last - first) - busy,
-            "shutdown_s": t0 + wall - last, "processes": len(ends)}
+            "shutdown_s": t0 + wall - last, "processes": len(ends),
+            "client_cpu_s": stats.get("client_cpu_s"), "worker_process_cpu_s": stats.get("worker_process_cpu_s")}
 
 
 def format_efficiency(e: dict) -> str:
@@ -223,4 +231,8 @@ def format_efficiency(e: dict) -> str:
             f"(cluster {e['cluster_start_s']:.1f} s), "
             f"gaps between runs {e['gaps_s'] - e['tail_idle_s']:.1f} worker-s "
             f"({1000 * (e['gaps_s'] - e['tail_idle_s']) / n:.0f} ms/task), idle tail {e['tail_idle_s']:.1f} worker-s, shut-down {e['shutdown_s']:.1f} s; "
-            f"{e['processes']} process(es) ran tasks")
+            f"{e['processes']} process(es) ran tasks"
+            + (f"; this process (client, scheduler, nannies) {e['client_cpu_s']:.1f} s CPU" if e["client_cpu_s"] is not None
+               else "")
+            + (f"; worker processes {e['worker_process_cpu_s']:.1f} s CPU in all (start-up and Dask's threads included)"
+               if e["worker_process_cpu_s"] is not None else ""))
