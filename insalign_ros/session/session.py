@@ -886,11 +886,13 @@ class AlignmentSession:
     def _cusum(self, nis: float, dof: int) -> str:
         """Page's CUSUM of the log-likelihood ratio of one fix's NIS while the core claims its attitude: H0 NIS ~
         chi-square(dof), H1 NIS ~ r chi-square(dof) (r = ``divergence_cusum_ratio``: a covariance r times too
-        small), per fix ``-dof/2 ln r + NIS/2 (1 - 1/r)``, floored at 0; reset while the attitude is not claimed
-        (a converging filter's NIS is large by design: the windowed test watches it). Above
+        small), per fix ``-dof/2 ln r + NIS/2 (1 - 1/r)``, floored at 0; armed while the 3-sigma is within
+        ``divergence_cusum_arm_factor`` times the flag's bounds (small angles: where the filter's linearisation and
+        so its NIS hold; a converging filter's NIS is large by design: the windowed test watches it), reset
+        otherwise. Above
         ``divergence_cusum_flag_llr`` the flag drops; above ``divergence_cusum_llr`` the reason of a divergence."""
         cfg = self.cfg
-        if cfg.divergence_cusum_llr <= 0 or not math.isfinite(nis) or not self._attitude_claimed():
+        if cfg.divergence_cusum_llr <= 0 or not math.isfinite(nis) or not self._attitude_claimed(cfg.divergence_cusum_arm_factor):
             self._cusum_llr = 0.0
             return ""
         r = cfg.divergence_cusum_ratio
@@ -973,12 +975,13 @@ class AlignmentSession:
             self.log("warn", "gnss_vel_filter_rejected", f"GNSS velocity rejected by the core: {res.reason}")
         self.flag.on_update(self.processed_t, res.accepted, res.nis, len(res.innovation) or 3)
 
-    def _attitude_claimed(self) -> bool:
-        """The core claims to know its attitude: 3-sigma within twice the flag's bounds at the last output."""
+    def _attitude_claimed(self, factor: float = 2.0) -> bool:
+        """The core claims to know its attitude: 3-sigma within ``factor`` (2) times the flag's bounds at the last
+        output."""
         s = self.flag.sigma3_deg
         c = self.flag.criteria
-        return bool(np.all(np.isfinite(s)) and max(s[0], s[1]) < 2.0 * c.roll_pitch_3sigma_deg
-                    and s[2] < 2.0 * c.yaw_3sigma_deg)
+        return bool(np.all(np.isfinite(s)) and max(s[0], s[1]) < factor * c.roll_pitch_3sigma_deg
+                    and s[2] < factor * c.yaw_3sigma_deg)
 
     def _lower_flag(self, reason: str) -> None:
         """Drop the flag at once; it rises again only after the criteria hold for hold_s again."""
