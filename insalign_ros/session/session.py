@@ -889,10 +889,11 @@ class AlignmentSession:
         small), per fix ``-dof/2 ln r + NIS/2 (1 - 1/r)``, floored at 0; armed while the 3-sigma is within
         ``divergence_cusum_arm_factor`` times the flag's bounds (small angles: where the filter's linearisation and
         so its NIS hold; a converging filter's NIS is large by design: the windowed test watches it), reset
-        otherwise. Above
-        ``divergence_cusum_flag_llr`` the flag drops; above ``divergence_cusum_llr`` the reason of a divergence."""
+        otherwise. Above ``divergence_cusum_flag_llr`` the flag drops; above ``divergence_cusum_llr`` the reason of a
+        divergence. docs/session.md "The quiet inconsistency"."""
         cfg = self.cfg
-        if cfg.divergence_cusum_llr <= 0 or not math.isfinite(nis) or not self._attitude_claimed(cfg.divergence_cusum_arm_factor):
+        armed = self._attitude_claimed(cfg.divergence_cusum_arm_factor)
+        if cfg.divergence_cusum_llr <= 0 or not math.isfinite(nis) or not armed:
             self._cusum_llr = 0.0
             return ""
         r = cfg.divergence_cusum_ratio
@@ -1211,7 +1212,8 @@ class AlignmentSession:
         sig_level = math.sqrt((1.0 * D2R) ** 2 + (a_est / max(g, 1.0)) ** 2 + spread ** 2)
         # -- divergence guard: the lost filter's level (carried by the gyros) when it agrees with the accelerometers
         kept, level_from = self._kept_level_now(t), "accelerometers"
-        if kept is not None and max(abs(kept[0] - roll), abs(kept[1] - pitch)) < 3.0 * math.hypot(sig_level, kept[2]):
+        if kept is not None and max(abs(earth.wrap_angle_rad(kept[0] - roll)), abs(kept[1] - pitch)) \
+                < 3.0 * math.hypot(sig_level, kept[2]):
             roll, pitch, sig_level = kept
             level_from = "the lost filter's level, gyro-propagated"
         # -- end divergence guard
@@ -1230,7 +1232,8 @@ class AlignmentSession:
             core.close()
             raise
         self._start(core, t, pos, used, rpy, v0, how=(
-            f" (from sensors: level 1-sigma {sig_level / D2R:.2f} deg from {level_from} ({len(win)} samples), velocity 1-sigma "
+            f" (from sensors: level 1-sigma {sig_level / D2R:.2f} deg from {level_from} ({len(win)} samples), "
+            f"velocity 1-sigma "
             f"{sig_v:.2f} m/s, heading unknown: {params.get('yaw_hypotheses', 1)} hypotheses)"))
 
     def _truth_velocity(self, tr: TruthSample) -> np.ndarray:
