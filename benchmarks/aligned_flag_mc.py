@@ -28,15 +28,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from insalign_ros.eval.aligned import AlignedCriteria  # noqa: E402
 
 
-def one_run(seed: int, core_name: str, duration_s: float, criteria: AlignedCriteria, rate_s: float = 0.1,
+def one_run(data, seed: int, core_name: str, duration_s: float, criteria: AlignedCriteria, rate_s: float = 0.1,
             yaw_range_deg: float = 60.0, yaw_hypotheses: int = 1) -> dict:
     """One seeded run through the session path users take (``ia.align``): truth init plus the random error, the
-    session's aligned flag at ``rate_s`` of data time (a Dask task: the scenario is cached per worker)."""
+    session's aligned flag at ``rate_s`` of data time (a Dask task on the seed's simulated ship ``data``,
+    ``sweep.shared_scenario``)."""
     import insalign_ros as ia
     from insalign_ros.filters.imu_grade import SCENARIO_IMU_GRADE
-    import sweep
 
-    data = sweep.scenario("ship", seed, duration_s)
     rng = np.random.default_rng(10_000 + seed)
     err0 = np.array([rng.uniform(-5, 5), rng.uniform(-5, 5), rng.uniform(-yaw_range_deg, yaw_range_deg)])
     r = ia.align(data, core=core_name, core_params={"yaw_hypotheses": yaw_hypotheses} if yaw_hypotheses > 1 else {},
@@ -70,7 +69,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     crit = AlignedCriteria(yaw_3sigma_deg=args.yaw_3sigma_deg)
     t0 = time.monotonic()
-    tasks = [(s, args.core, args.duration_s, crit, 0.1, args.yaw_range_deg, args.yaw_hypotheses)
+    tasks = [(sweep.shared_scenario("ship", s, args.duration_s), s, args.core, args.duration_s, crit, 0.1, args.yaw_range_deg, args.yaw_hypotheses)
              for s in range(args.runs)]
     rows = sweep.run_tasks(one_run, tasks, args, desc="aligned-flag MC")
     print(f"aligned flag, {args.runs} ship runs x {args.duration_s:g} s, core {args.core}, yaw error "
@@ -91,6 +90,7 @@ def main(argv=None) -> int:
           f"({sum(r['false_epochs'] for r in rows)} epochs at 10 Hz); flag never up in {never} runs; "
           f"delay median {np.median(delays) if delays else float('nan'):.1f} s, "
           f"max {max(delays) if delays else float('nan'):.1f} s; {time.monotonic() - t0:.0f} s wall")
+    print(f"sweep: {args.sweep_summary}")
     return 0
 
 

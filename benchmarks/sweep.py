@@ -24,6 +24,9 @@ def add_arguments(ap) -> None:
                    help="LocalCluster worker processes (one thread each); default: the CPU count")
     g.add_argument("--scheduler", default="", help="address of a running Dask scheduler, e.g. tcp://host:8786")
     g.add_argument("--serial", action="store_true", help="no Dask: run the tasks here, in order (debugging)")
+    g.add_argument("--speedup", action="store_true",
+                   help="run the tasks twice, serially then on Dask, back to back: print both wall times, the "
+                        "speed-up, the load average around each, and whether the results are identical")
     g.add_argument("--stage-timing", action="store_true",
                    help="time the stages of every run (read/convert, input, propagate, update, outputs, session) "
                         "and print their sums (adds ~1 us per sample)")
@@ -31,20 +34,107 @@ def add_arguments(ap) -> None:
 
 @functools.lru_cache(maxsize=4)
 def scenario(name: str, seed: int, duration_s: float):
-    """The simulated run ``(name, seed)`` truncated to ``duration_s``, cached per worker process (the tasks of one
-    seed share it instead of re-simulating it)."""
+    """The simulated run ``(name, seed)`` truncated to ``duration_s``, cached per process. The benchmarks pass it to
+    their tasks as ``shared_scenario(...)``: simulated once per sweep, as a task of its own, and shipped to the
+    workers that run the seed (serially: once, freed after the seed's last run)."""
     import insalign_ros as ia
 
     return ia.simulate(name, seed=seed, duration_s=duration_s)
 
 
-def run_tasks(fn, tasks: list[tuple], args, desc: str = "runs") -> list:
+def shared_scenario(name: str, seed: int, duration_s: float):
+    """A task argument: the scenario ``(name, seed)`` simulated once per sweep (insalign_ros.eval.parallel.Shared;
+    ``ia.simulate`` itself, pickled by reference: the scheduler of a LocalCluster re-imports this uploaded module in
+    this process, so a function of this module would no longer be the one pickle finds)."""
+    import insalign_ros as ia
+    from insalign_ros.eval.parallel import Shared
+
+    return Shared(ia.simulate, (name, seed, float(duration_s)))
+
+
+#: summary fields that measure the machine, not the run (left out when the serial and Dask results are compared)
+VOLATILE_KEYS = frozenset({"wall_s", "lmi_solve_time_s"})
+
+
+def first_difference(a, b, path: str = "", volatile=VOLATILE_KEYS) -> str:
+    """'' when ``a`` and ``b`` are equal (numbers exactly, nan equal to nan; dict keys in ``volatile`` skipped),
+    otherwise the path of the first difference."""
+    import numpy as np
+
+    if isinstance(a, dict) and isinstance(b, dict):
+        if set(a) - volatile != set(b) - volatile:
+            return path + " (keys)"
+        for k in a:
+            if k not in volatile:
+                d = first_difference(a[k], b[k], f"{path}.{k}", volatile)
+                if d:
+                    return d
+        return ""
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        if len(a) != len(b):
+            return path + " (length)"
+        for i, (x, y) in enumerate(zip(a, b)):
+            d = first_difference(x, y, f"{path}[{i}]", volatile)
+            if d:
+                return d
+        return ""
+    if isinstance(a, (np.ndarray, float, np.floating)) or isinstance(b, (np.ndarray, float, np.floating)):
+        x, y = np.asarray(a), np.asarray(b)
+        same = x.shape == y.shape and (np.array_equal(x, y, equal_nan=True) if x.dtype.kind in "fc"
+                                       else np.array_equal(x, y))
+        return "" if same else path
+    return "" if a == b else path
+
+
+def _at(obj, path: str):
+    """The element of ``obj`` at a :func:`first_difference` path (e.g. '[73][0].rmse_rpy_deg[0]')."""
+    import re
+
+    for key, idx in re.findall(r"\.(\w+)|\[(\d+)\]", path.split(" ")[0]):
+        obj = obj[key] if key else obj[int(idx)]
+    return obj
+
+
+def run_tasks(fn, tasks: list[tuple], args, desc: str = "runs", cost=None) -> list:
     """``[fn(*t) for t in tasks]`` with the execution options of :func:`add_arguments` (insalign_ros.eval.parallel;
-    this module is uploaded to the workers: they import it by name for the scenario cache and the stage timer)."""
+    this module is uploaded to the workers: they import it by name for the scenarios and the stage timer).
+    ``cost``: estimated run time of each task (Dask submits the longest first). Prints the load average around the
+    run and where its time went (eval.parallel.efficiency); with ``--speedup``, runs serially first and prints the
+    comparison. Sets ``args.sweep_wall_s`` (the parallel run's wall time with ``--speedup``) and ``args.sweep_summary``
+    (one line: wall times, load averages, speed-up)."""
+    import sys
+
+    from insalign_ros.eval.parallel import efficiency, format_efficiency, loadavg
     from insalign_ros.eval.parallel import run_tasks as run
 
-    return run(fn, tasks, workers=getattr(args, "workers", 0), scheduler=getattr(args, "scheduler", ""),
-               serial=args.serial, desc=desc, upload=(__file__,))
+    def once(serial: bool):
+        mode = "serial" if serial else (getattr(args, "scheduler", "") or
+                                        f"LocalCluster, {getattr(args, 'workers', 0) or os.cpu_count()} workers")
+        load0, st = loadavg(), {}
+        out = run(fn, tasks, workers=getattr(args, "workers", 0), scheduler=getattr(args, "scheduler", ""),
+                  serial=serial, desc=f"{desc} ({mode})", upload=(__file__,), cost=cost, stats=st)
+        e = efficiency(st)
+        e["line"] = f"{e['wall_s']:.1f} s wall ({mode}; load average {load0} -> {loadavg()})"
+        print(f"[{desc}] {e['line']}: " + format_efficiency(e), file=sys.stderr, flush=True)
+        return out, e
+
+    if getattr(args, "speedup", False):
+        ser, es = once(True)
+        par, ep = once(False)
+        diff = first_difference(ser, par)
+        args.sweep_summary = (f"{len(tasks)} runs: {es['line']}, then {ep['line']}: speed-up "
+                              f"{es['wall_s'] / ep['wall_s']:.2f}x (target >= 1.8x on 2 workers); task CPU "
+                              f"{es['task_cpu_s']:.1f} s serial, {ep['task_cpu_s']:.1f} s on Dask (CPU-bound ceiling "
+                              f"{ep['workers'] * es['task_cpu_s'] / max(ep['task_cpu_s'], 1e-9):.2f}x); results "
+                              + ("identical" if not diff else f"DIFFER at {diff}: {_at(ser, diff)!r} serial, "
+                                                              f"{_at(par, diff)!r} on Dask"))
+        print(f"[{desc}] " + args.sweep_summary, file=sys.stderr, flush=True)
+        args.sweep_wall_s = ep["wall_s"]
+        return par
+    out, e = once(bool(getattr(args, "serial", False)))
+    args.sweep_wall_s = e["wall_s"]
+    args.sweep_summary = f"{len(tasks)} runs: {e['line']}"
+    return out
 
 
 # ------------------------------------------------------------------------------------- per-stage timing

@@ -1,5 +1,6 @@
 """Monte-Carlo sweeps as Dask tasks (issue 16, item 2): a 4-run yaw sweep on a 2-worker LocalCluster gives exactly
-the numbers of the serial run (every run is seeded; the tasks call ``ia.align``, the session path users take)."""
+the numbers of the serial run (every run is seeded; the tasks call ``ia.align``, the session path users take), each
+seed's scenario is simulated once per sweep (a Shared input) and every run is timed."""
 
 import argparse
 import sys
@@ -14,13 +15,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import sweep  # noqa: E402
 import yaw_sweep  # noqa: E402
 
+from insalign_ros.eval.parallel import efficiency, run_tasks  # noqa: E402
+
 
 @pytest.mark.timeout(120)
 def test_four_run_yaw_sweep_on_two_workers_equals_serial():
-    tasks = [("ship", seed, 20.0, core, 60.0, False, False) for seed in (0, 1) for core in ("liekf", "iekf")]
+    tasks = [(sweep.shared_scenario("ship", seed, 20.0), core, 60.0, False, False)
+             for seed in (0, 1) for core in ("liekf", "iekf")]
     serial = sweep.run_tasks(yaw_sweep.sweep_task, tasks, argparse.Namespace(serial=True), desc="serial")
-    dask = sweep.run_tasks(yaw_sweep.sweep_task, tasks,
-                           argparse.Namespace(serial=False, scheduler="", workers=2), desc="dask")
+    st: dict = {}
+    dask = run_tasks(yaw_sweep.sweep_task, tasks, workers=2, desc="dask", upload=(sweep.__file__,),
+                     cost=[yaw_sweep.task_cost(t[1]) for t in tasks], stats=st)
     assert len(serial) == len(dask) == 4
     for (s1, (t1, e1), (_, n1), _), (s2, (t2, e2), (_, n2), _) in zip(serial, dask):
         np.testing.assert_array_equal(t1, t2)
@@ -34,5 +39,19 @@ def test_four_run_yaw_sweep_on_two_workers_equals_serial():
                 assert np.array_equal(a, b, equal_nan=True), k
             else:
                 assert s1[k] == s2[k], k
+    assert sweep.first_difference(serial, dask) == ""
+    # two seeds: two simulations on the cluster, whichever worker runs which task; every run timed there
+    e = efficiency(st)
+    assert (e["tasks"], e["shared"]) == (4, 2)
+    assert 0.0 < e["task_cpu_s"] and 0.0 < e["busy_share"] <= 1.0 + 1e-9
     # the runs are real alignments: the ship converges from 60 deg of yaw error within 20 s
     assert all(abs(s["final_err_rpy_deg"][2]) < 5.0 for s, *_ in serial)
+
+
+def test_first_difference_finds_a_changed_number_and_skips_wall_times():
+    a = [({"rmse": np.array([1.0, np.nan]), "wall_s": 1.0}, (np.arange(3.0),))]
+    b = [({"rmse": np.array([1.0, np.nan]), "wall_s": 2.0}, (np.arange(3.0),))]
+    assert sweep.first_difference(a, b) == ""
+    b[0][0]["rmse"][0] = np.nextafter(1.0, 2.0)
+    assert sweep.first_difference(a, b) == "[0][0].rmse"
+    assert sweep._at(b, "[0][0].rmse")[0] == np.nextafter(1.0, 2.0)

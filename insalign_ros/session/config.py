@@ -94,6 +94,15 @@ class SessionConfig:
     #: initialisation from sensors on a rolling ship starts near 45 deg) [deg]; P not symmetric positive definite
     #: or not finite is one too
     divergence_level_3sigma_deg: float = 90.0
+    #: sequential test (CUSUM of the log-likelihood ratio) on the NIS of the fixes fused while the attitude 3-sigma is
+    #: within ``divergence_cusum_arm_factor`` times the aligned flag's bounds (small angles): H0 NIS ~ chi-square(3), H1 NIS ~ ``divergence_cusum_ratio`` x chi-square(3) (a filter whose
+    #: covariance is that many times too small: the quiet EKF failure from a large yaw error). Above
+    #: ``divergence_cusum_llr`` -> divergence (0: off); above ``divergence_cusum_flag_llr`` the flag drops (the first
+    #: inconsistent innovation). Log-likelihood units (a consistent filter: false alarm after ~exp(llr) fixes)
+    divergence_cusum_ratio: float = 4.0
+    divergence_cusum_arm_factor: float = 4.0
+    divergence_cusum_llr: float = 40.0
+    divergence_cusum_flag_llr: float = 8.0
     # -- end divergence guard --
     #: an IMU sample off both of its neighbours by more than this (and 20 times the recent spread) is a
     #: spike: dropped (a gap, bridged); 0: off [rad/s, m/s^2]
@@ -161,10 +170,15 @@ class SessionConfig:
             raise ValueError(f"divergence_nis_window: must be an integer in [0, 1000], got "
                              f"{self.divergence_nis_window!r}")
         for name, lo in (("gnss_jump_accel_m_s2", 0.0), ("gnss_hold_max_s", 0.0), ("gnss_hold_drift_m", 0.0), ("divergence_nis_mean", 10.0),
-                         ("divergence_level_3sigma_deg", 5.0)):
+                         ("divergence_level_3sigma_deg", 5.0), ("divergence_cusum_ratio", 1.5),
+                         ("divergence_cusum_arm_factor", 0.0)):
             v = values[name]
             if not (_is_num(v) and math.isfinite(v) and v > lo):
                 raise ValueError(f"{name}: must be a finite number > {lo:g}, got {v!r}")
+        for name in ("divergence_cusum_llr", "divergence_cusum_flag_llr"):  # 0: off
+            v = values[name]
+            if not (_is_num(v) and math.isfinite(v) and v >= 0):
+                raise ValueError(f"{name}: must be a finite number >= 0 (0: off), got {v!r}")
         # -- end divergence guard --
         if 0 < self.gnss_gate_nis < 16.3:  # chi-square(3) at p = 1e-3: a tighter gate rejects good fixes
             raise ValueError(f"gnss_gate_nis: {self.gnss_gate_nis} would reject good fixes (0 = off, or >= 16.3)")

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core import earth
+from ..core import earth, lie
 from ..core.types import GnssFix, GnssVelocity, ImuSample
 from ..eval.aligned import AlignedCriteria, AlignedFlag, euler_3sigma_deg
 from ..filters import registry
@@ -48,7 +48,7 @@ COUNTERS = (
     "gnss_invalid", "gnss_no_fix", "gnss_frame", "gnss_duplicate", "gnss_stale", "gnss_future", "gnss_before_init", "gnss_filter_rejected",
     "gnss_unused", "truth_received", "truth_invalid", "time_resets", "core_faults", "zupt_accepted",
     "watchdog_trips", "inputs_dropped", "gnss_gated", "imu_spikes", "divergences")
-COUNTERS += ("gnss_jumps", "gnss_holds", "divergences_nis", "divergences_covariance")  # divergence guard
+COUNTERS += ("gnss_jumps", "gnss_holds", "divergences_nis", "divergences_covariance", "divergences_cusum")  # divergence guard
 #: GNSS velocity (push_velocity): received, fused, rejected (total) and per reason
 VEL_COUNTERS = ("gnss_vel_received", "gnss_vel_accepted", "gnss_vel_rejected", "gnss_vel_invalid", "gnss_vel_duplicate",
                 "gnss_vel_stale", "gnss_vel_future", "gnss_vel_before_init", "gnss_vel_gated", "gnss_vel_filter_rejected",
@@ -172,6 +172,8 @@ class AlignmentSession:
         self.timing = {"process_s": 0.0, "process_calls": 0, "samples": 0}
         #: added to stamps in log lines and diagnostics (the node's epoch: users see their header stamps)
         self.stamp_offset_s = 0.0
+        #: outputs of processing forced by a full buffer inside push_imu*, handed out by the next process()/finish()
+        self._overflow_out: list[Output] = []
         self._reset_state("start")
 
     # ------------------------------------------------------------------ configuration
@@ -226,6 +228,8 @@ class AlignmentSession:
         self._fix_seq: deque = deque(maxlen=3)  # divergence guard: the last fixes seen (stamp, p_e, sigma_m)
         self._nis_win: deque = deque(maxlen=max(self.cfg.divergence_nis_window, 1))  # divergence guard
         self._level_bound_deg: float | None = None  # divergence guard: level 3-sigma bound of this filter
+        self._cusum_llr = 0.0  # divergence guard: CUSUM of the NIS log-likelihood ratio while the attitude is claimed
+        self._kept_level = None  # divergence guard: (t, C_b_n, level 1-sigma) of the lost filter, if it claimed its level
         self.pre_init: deque = deque(maxlen=4000)  # IMU samples before the initialisation (level from sensors)
         self.hist_t: deque = deque(maxlen=1000)  # recent processed samples (gap bridging statistics)
         self.hist_w: deque = deque(maxlen=1000)
@@ -259,13 +263,13 @@ class AlignmentSession:
         if wall_s is not None:
             self.last_imu_wall = wall_s  # the watchdog counts valid samples only
         if t in self._recent_set:
-            return self._reject_imu("imu_duplicate", f"duplicate stamp {t:.6f}")
+            return self._reject_imu("imu_duplicate", f"duplicate stamp {t + self.stamp_offset_s:.6f}")
         newest = self.newest_imu_t
         if newest is not None and (t - newest > self.cfg.max_gap_s or newest - t > self.cfg.max_gap_s):
             return self._jump_candidate(sample, t - newest)
         self.jump_candidates.clear()
         if self.processed_t is not None and t <= self.processed_t:
-            return self._reject_imu("imu_out_of_order", f"stamp {t:.6f} is {self.processed_t - t:.3f} s before "
+            return self._reject_imu("imu_out_of_order", f"stamp {t + self.stamp_offset_s:.6f} is {self.processed_t - t:.3f} s before "
                                                         "the filter time (beyond the fusion delay)")
         self._remember(t)
         item = (t, np.asarray(w, float), np.asarray(f, float))
@@ -279,7 +283,7 @@ class AlignmentSession:
             self.buf.imu_t.insert(i, t)
             self.buf.imu.insert(i, item)
         if len(self.buf.imu_t) > self.MAX_BUFFER:
-            self._process(until=self.buf.imu_t[len(self.buf.imu_t) - self.MAX_BUFFER])
+            self._overflow_out += self._process(until=self.buf.imu_t[len(self.buf.imu_t) - self.MAX_BUFFER])
         return True
 
     def push_imu_arrays(self, t_s, omega_ib_b, f_ib_b, wall_s: float | None = None) -> int:
@@ -341,7 +345,7 @@ class AlignmentSession:
         self.buf.imu.extend(zip(tl, list(w), list(f)))
         self.newest_imu_t = tl[-1]
         if len(self.buf.imu_t) > self.MAX_BUFFER:
-            self._process(until=self.buf.imu_t[len(self.buf.imu_t) - self.MAX_BUFFER])
+            self._overflow_out += self._process(until=self.buf.imu_t[len(self.buf.imu_t) - self.MAX_BUFFER])
 
     def push_fix(self, fix: GnssFix, wall_s: float | None = None) -> bool:
         """Validate and buffer one GNSS position fix (ECEF p_e [m], R_e [m^2]). False if rejected."""
@@ -350,12 +354,12 @@ class AlignmentSession:
         self._touch(wall_s)
         t = float(fix.stamp_s)
         if self.processed_t is not None and t < self.processed_t:
-            return self._reject_fix("gnss_stale", f"stamp {t:.6f} is {self.processed_t - t:.3f} s behind the filter "
+            return self._reject_fix("gnss_stale", f"stamp {t + self.stamp_offset_s:.6f} is {self.processed_t - t:.3f} s behind the filter "
                                                   f"time (max_fix_lag_s {self.cfg.max_fix_lag_s:g} s)")
         if t in self.fix_stamps or t in self.buf.fix_t:
-            return self._reject_fix("gnss_duplicate", f"duplicate stamp {t:.6f}")
+            return self._reject_fix("gnss_duplicate", f"duplicate stamp {t + self.stamp_offset_s:.6f}")
         if self.newest_imu_t is not None and t > self.newest_imu_t + self.cfg.max_fix_ahead_s:
-            return self._reject_fix("gnss_future", f"stamp {t:.6f} is {t - self.newest_imu_t:.3f} s ahead of the IMU")
+            return self._reject_fix("gnss_future", f"stamp {t + self.stamp_offset_s:.6f} is {t - self.newest_imu_t:.3f} s ahead of the IMU")
         self.fix_stamps.append(t)
         i = bisect.bisect(self.buf.fix_t, t)
         self.buf.fix_t.insert(i, t)
@@ -444,12 +448,13 @@ class AlignmentSession:
         c.append(sample)
         if len(c) < self.cfg.time_jump_confirm:
             return self._reject_imu("imu_out_of_order" if dt < 0 else "imu_future",
-                                    f"stamp {t:.6f} is {dt:+.3f} s from the newest {self.newest_imu_t:.6f}")
+                                    f"stamp {t + self.stamp_offset_s:.6f} is {dt:+.3f} s from the newest "
+                                    f"{self.newest_imu_t + self.stamp_offset_s:.6f}")
         kind = "backward" if dt < 0 else "forward"
         run = list(c)
         resets = self.counters["time_resets"] + 1
-        self.log("warn", "time_reset", f"time jumped {kind} by {dt:+.3f} s (from {self.newest_imu_t:.6f} to "
-                                       f"{t:.6f}, {len(run)} consistent samples): resetting the alignment")
+        self.log("warn", "time_reset", f"time jumped {kind} by {dt:+.3f} s (from {self.newest_imu_t + self.stamp_offset_s:.6f} to "
+                                       f"{t + self.stamp_offset_s:.6f}, {len(run)} consistent samples): resetting the alignment")
         self._reset_state(f"time jumped {kind} by {dt:+.3f} s")
         self.counters["time_resets"] = resets
         # the earlier candidates were counted as rejected; the run starts the new time line
@@ -471,7 +476,7 @@ class AlignmentSession:
             final = True
         until = math.inf if final else (self.newest_imu_t - self.cfg.max_fix_lag_s
                                         if self.newest_imu_t is not None else -math.inf)
-        out = self._process(until)
+        out = self._take_overflow() + self._process(until)
         self._background(math.inf if final and self.cfg.backtrack_budget_s == math.inf else self.cfg.backtrack_budget_s)
         if wall_s is not None:
             self._watchdog(wall_s)
@@ -481,10 +486,14 @@ class AlignmentSession:
 
     def finish(self) -> list[Output]:
         """Process everything buffered (end of a recording); run pending backtracking passes to the end."""
-        out = self._process(math.inf)
+        out = self._take_overflow() + self._process(math.inf)
         if self.bt is not None:
             self.bt.run_until_done()
             self._after_handover()
+        return out
+
+    def _take_overflow(self) -> list[Output]:
+        out, self._overflow_out = self._overflow_out, []
         return out
 
     def _process(self, until: float) -> list[Output]:
@@ -794,7 +803,7 @@ class AlignmentSession:
         if res is None:
             return
         self.last_nis = res.nis
-        if res.accepted and self._nis_diverged(res.nis):
+        if res.accepted and self._nis_diverged(res.nis, len(res.innovation) or 3):
             return
         if res.accepted:
             self.counters["gnss_accepted"] += 1
@@ -854,17 +863,18 @@ class AlignmentSession:
         self._diverged(f"{why} (last NIS {nis:.3g}): believing the fixes")
         return True
 
-    def _nis_diverged(self, nis: float) -> bool:
+    def _nis_diverged(self, nis: float, dof: int = 3) -> bool:
         """Windowed NIS test of every filter, also before it claims its attitude: the mean NIS of the last
-        ``divergence_nis_window`` fused fixes above ``divergence_nis_mean`` -> divergence. Then the attitude
-        covariance sanity (:func:`_covariance_problem`). True when the session restarted."""
+        ``divergence_nis_window`` fused fixes above ``divergence_nis_mean`` -> divergence. Then the CUSUM of a
+        claimed filter (:meth:`_cusum`) and the attitude covariance sanity (:func:`_covariance_problem`). True when
+        the session restarted."""
         cfg = self.cfg
-        reason, key = "", ""
+        reason, key = self._cusum(nis, dof), "divergences_cusum"
         if cfg.divergence_nis_window > 0 and math.isfinite(nis):
             self._nis_win.append(float(nis))
             mean = sum(self._nis_win) / len(self._nis_win)
             if len(self._nis_win) >= cfg.divergence_nis_window and mean > cfg.divergence_nis_mean:
-                reason, key = (f"mean NIS {mean:.3g} of the last {len(self._nis_win)} fixes above "
+                reason, key = reason or (f"mean NIS {mean:.3g} of the last {len(self._nis_win)} fixes above "
                                f"{cfg.divergence_nis_mean:g} (chi-square(3) mean 3)"), "divergences_nis"
         if not reason:
             P = self.core.estimate().P_att_n
@@ -879,6 +889,28 @@ class AlignmentSession:
         self._lower_flag(reason)
         self._diverged(reason)
         return True
+
+    def _cusum(self, nis: float, dof: int) -> str:
+        """Page's CUSUM of the log-likelihood ratio of one fix's NIS while the core claims its attitude: H0 NIS ~
+        chi-square(dof), H1 NIS ~ r chi-square(dof) (r = ``divergence_cusum_ratio``: a covariance r times too
+        small), per fix ``-dof/2 ln r + NIS/2 (1 - 1/r)``, floored at 0; armed while the 3-sigma is within
+        ``divergence_cusum_arm_factor`` times the flag's bounds (small angles: where the filter's linearisation and
+        so its NIS hold; a converging filter's NIS is large by design: the windowed test watches it), reset
+        otherwise. Above ``divergence_cusum_flag_llr`` the flag drops; above ``divergence_cusum_llr`` the reason of a
+        divergence. docs/session.md "The quiet inconsistency"."""
+        cfg = self.cfg
+        armed = self._attitude_claimed(cfg.divergence_cusum_arm_factor)
+        if cfg.divergence_cusum_llr <= 0 or not math.isfinite(nis) or not armed:
+            self._cusum_llr = 0.0
+            return ""
+        r = cfg.divergence_cusum_ratio
+        self._cusum_llr = max(0.0, self._cusum_llr - 0.5 * dof * math.log(r) + 0.5 * nis * (1.0 - 1.0 / r))
+        if self._cusum_llr > cfg.divergence_cusum_llr:
+            return (f"CUSUM of the NIS log-likelihood ratio {self._cusum_llr:.3g} above {cfg.divergence_cusum_llr:g} "
+                    f"(last NIS {nis:.3g}; the filter claims its attitude with a covariance {r:g}x too small)")
+        if cfg.divergence_cusum_flag_llr > 0 and self._cusum_llr > cfg.divergence_cusum_flag_llr:
+            self._lower_flag(f"inconsistent innovations (NIS {nis:.3g}, CUSUM {self._cusum_llr:.3g})")
+        return ""
 
     def _still_faulted(self) -> None:
         """While re-initialising after a fault or a divergence: status FAULT with its reason, and what the
@@ -901,13 +933,13 @@ class AlignmentSession:
             return self._reject("gnss_vel", "velocity", "gnss_vel_invalid", reason)
         if self.processed_t is not None and t < self.processed_t:
             return self._reject("gnss_vel", "velocity", "gnss_vel_stale",
-                                f"stamp {t:.6f} is {self.processed_t - t:.3f} s behind the filter time "
+                                f"stamp {t + self.stamp_offset_s:.6f} is {self.processed_t - t:.3f} s behind the filter time "
                                 f"(max_fix_lag_s {self.cfg.max_fix_lag_s:g} s)")
         if t in self.buf.vel_t:
-            return self._reject("gnss_vel", "velocity", "gnss_vel_duplicate", f"duplicate stamp {t:.6f}")
+            return self._reject("gnss_vel", "velocity", "gnss_vel_duplicate", f"duplicate stamp {t + self.stamp_offset_s:.6f}")
         if self.newest_imu_t is not None and t > self.newest_imu_t + self.cfg.max_fix_ahead_s:
             return self._reject("gnss_vel", "velocity", "gnss_vel_future",
-                                f"stamp {t:.6f} is {t - self.newest_imu_t:.3f} s ahead of the IMU")
+                                f"stamp {t + self.stamp_offset_s:.6f} is {t - self.newest_imu_t:.3f} s ahead of the IMU")
         i = bisect.bisect(self.buf.vel_t, t)
         self.buf.vel_t.insert(i, t)
         self.buf.vel.insert(i, GnssVelocity(t, np.asarray(vel.v_n, float), np.asarray(vel.R_n, float)))
@@ -951,12 +983,13 @@ class AlignmentSession:
             self.log("warn", "gnss_vel_filter_rejected", f"GNSS velocity rejected by the core: {res.reason}")
         self.flag.on_update(self.processed_t, res.accepted, res.nis, len(res.innovation) or 3)
 
-    def _attitude_claimed(self) -> bool:
-        """The core claims to know its attitude: 3-sigma within twice the flag's bounds at the last output."""
+    def _attitude_claimed(self, factor: float = 2.0) -> bool:
+        """The core claims to know its attitude: 3-sigma within ``factor`` (2) times the flag's bounds at the last
+        output."""
         s = self.flag.sigma3_deg
         c = self.flag.criteria
-        return bool(np.all(np.isfinite(s)) and max(s[0], s[1]) < 2.0 * c.roll_pitch_3sigma_deg
-                    and s[2] < 2.0 * c.yaw_3sigma_deg)
+        return bool(np.all(np.isfinite(s)) and max(s[0], s[1]) < factor * c.roll_pitch_3sigma_deg
+                    and s[2] < factor * c.yaw_3sigma_deg)
 
     def _lower_flag(self, reason: str) -> None:
         """Drop the flag at once; it rises again only after the criteria hold for hold_s again."""
@@ -973,9 +1006,38 @@ class AlignmentSession:
         self.counters["divergences"] += 1
         self.log("error", "divergence", f"divergence: {reason}; re-initialising from the sensors (yaw bank)")
         seq = self._fix_seq
+        kept = self._claimed_level()
         self._restart(f"divergence: {reason}")
         self._fix_seq = seq  # jump detection continues across the re-initialisation
+        self._kept_level = kept
         self._sensors_reinit = True  # whatever the first initialisation was: a guess or the truth no longer holds
+
+    def _claimed_level(self):
+        """(t, C_b_n, level 1-sigma [rad]) of the core when it claims its level (roll and pitch 3-sigma within twice
+        the flag's bound): what a divergence keeps for the re-initialisation (a lost heading leaves the level, which
+        gravity keeps observable); None otherwise."""
+        if self.core is None or self.processed_t is None:
+            return None
+        est = self.core.estimate()
+        sig = math.sqrt(max(float(est.P_att_n[0, 0]), float(est.P_att_n[1, 1]), 0.0))
+        if not (math.isfinite(sig) and 3.0 * math.degrees(sig) < 2.0 * self.flag.criteria.roll_pitch_3sigma_deg):
+            return None
+        return self.processed_t, np.asarray(est.C_b_n, float), sig
+
+    def _kept_level_now(self, t: float):
+        """The level kept at the divergence carried to ``t`` with the gyros (the samples since the divergence; the
+        heading of C_b_n does not matter: a rotation about the vertical leaves roll and pitch): (roll, pitch,
+        1-sigma [rad]) with the kept 1-sigma doubled (0.5-deg floor), or None."""
+        if self._kept_level is None:
+            return None
+        t0, C, sig = self._kept_level
+        prev = t0
+        for tt, w_, _ in self.pre_init:
+            if prev < tt <= t:
+                C = C @ lie.so3_exp(np.asarray(w_, float) * (tt - prev))
+                prev = tt
+        rpy = earth.rpy_from_C_b_n(C)
+        return float(rpy[0]), float(rpy[1]), max(2.0 * sig, 0.5 * D2R)
     # -- end divergence guard
 
     def _zupt_due(self, t: float) -> bool:
@@ -1155,6 +1217,13 @@ class AlignmentSession:
         roll, pitch = math.atan2(fm[1], fm[2]), math.atan2(-fm[0], math.hypot(fm[1], fm[2]))
         spread = float(np.linalg.norm(F.std(axis=0))) / max(g, 1.0)
         sig_level = math.sqrt((1.0 * D2R) ** 2 + (a_est / max(g, 1.0)) ** 2 + spread ** 2)
+        # -- divergence guard: the lost filter's level (carried by the gyros) when it agrees with the accelerometers
+        kept, level_from = self._kept_level_now(t), "accelerometers"
+        if kept is not None and max(abs(earth.wrap_angle_rad(kept[0] - roll)), abs(kept[1] - pitch)) \
+                < 3.0 * math.hypot(sig_level, kept[2]):
+            roll, pitch, sig_level = kept
+            level_from = "the lost filter's level, gyro-propagated"
+        # -- end divergence guard
         params = dict(self.core_params)
         if gnss_core and params.get("yaw_hypotheses", 1) == 1 and cfg.unknown_heading_hypotheses > 1:
             params["yaw_hypotheses"] = cfg.unknown_heading_hypotheses
@@ -1170,7 +1239,8 @@ class AlignmentSession:
             core.close()
             raise
         self._start(core, t, pos, used, rpy, v0, how=(
-            f" (from sensors: level 1-sigma {sig_level / D2R:.2f} deg from {len(win)} samples, velocity 1-sigma "
+            f" (from sensors: level 1-sigma {sig_level / D2R:.2f} deg from {level_from} ({len(win)} samples), "
+            f"velocity 1-sigma "
             f"{sig_v:.2f} m/s, heading unknown: {params.get('yaw_hypotheses', 1)} hypotheses)"))
 
     def _truth_velocity(self, tr: TruthSample) -> np.ndarray:
