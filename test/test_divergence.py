@@ -171,3 +171,23 @@ def test_a_reinitialisation_keeps_the_lost_filters_level(ship, core):
     rpy0 = [float(x) for x in inits[1][0].split("rpy [")[1].split("]")[0].split(",")]
     truth = np.degrees(earth.rpy_from_C_b_n(tr))
     assert abs(rpy0[0] - truth[0]) < 1.0 and abs(rpy0[1] - truth[1]) < 1.0, (rpy0, truth)
+
+
+def test_diagnostics_show_the_cusum_that_drops_the_flag(ship):
+    """/diagnostics carries the guard's statistics: when the CUSUM drops the flag (8-deg kick, as above), the value
+    published is the one above ``divergence_cusum_flag_llr``, and the windowed NIS mean is there."""
+    seen = []
+
+    def kick_and_watch(s):
+        yaw_kick(8.0)(s)
+        lower = s._lower_flag
+
+        def spy(reason, *a, **k):
+            seen.append((reason, s.diagnostics()))
+            return lower(reason, *a, **k)
+        s._lower_flag = spy
+
+    run(ship, {"core": "iekf", **SHIP}, at_s=60.0, action=kick_and_watch)
+    hits = [d for reason, d in seen if "inconsistent innovations" in reason]
+    assert hits, [r for r, _ in seen]
+    assert float(hits[0]["divergence_cusum_llr"]) > 8.0 and float(hits[0]["divergence_nis_window_mean"]) > 3.0

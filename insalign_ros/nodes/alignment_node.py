@@ -81,6 +81,27 @@ _SESSION_DOC = {  # session parameters the node exposes under the same names (Se
     "backtrack_window_s": "backtracking: stored alignment window after initialisation [s data time]",
     "backtrack_covariance": "backtracking: 'reset' (honest sigma) or 'reuse' (the paper's, optimistic)",
     "backtrack_budget_s": "backtracking: wall time per processing tick spent on the passes [s]",
+    "imu_spike_rad_s": ("an Imu rate off both neighbours by more than this (and 20x the recent spread) is a spike: "
+                        "dropped, bridged as a gap (0: off) [rad/s]"),
+    "imu_spike_m_s2": "the same for the specific force [m/s^2]",
+    "gnss_gate_nis": ("outlier gate: a fix with NIS above this is rejected without touching the filter once it claims "
+                      "its attitude (0: off)"),
+    "gnss_gate_max_consecutive": ("that many consecutive gated fixes: the filter (or the GNSS) is lost -> hold or "
+                                  "FAULT and re-initialise"),
+    "gnss_jump_accel_m_s2": ("a fix off the extrapolation of the two before it beyond this acceleration (+5 sigma) "
+                             "is a GNSS jump: hold, not re-initialise [m/s^2]"),
+    "gnss_hold_max_s": "the longest hold on the IMU after a GNSS jump before the new fixes are believed [s data time]",
+    "gnss_hold_drift_m": ("a held filter whose innovation changes by more than this without a jump is "
+                          "re-initialised [m]"),
+    "divergence_nis_window": "divergence guard: fixes in the windowed NIS test (0: off)",
+    "divergence_nis_mean": ("divergence guard: mean NIS over the window above this is a divergence (FAULT, "
+                            "re-initialisation)"),
+    "divergence_level_3sigma_deg": "divergence guard: roll or pitch 3-sigma above this is a divergence [deg]",
+    "divergence_cusum_ratio": "divergence guard: CUSUM alternative, a covariance this many times too small",
+    "divergence_cusum_arm_factor": ("divergence guard: the CUSUM runs while the attitude 3-sigma is within this times "
+                                    "the flag's bounds"),
+    "divergence_cusum_llr": "divergence guard: CUSUM log-likelihood ratio above this is a divergence (0: off)",
+    "divergence_cusum_flag_llr": "divergence guard: CUSUM above this drops the aligned flag (0: off)",
 }
 #: descriptions of core parameters the node shows (others: "<core> core parameter")
 _CORE_DOC = {"gnss_lever_arm_b_m": "GNSS antenna position in the body frame FLU relative to the IMU [m] (x forward, "

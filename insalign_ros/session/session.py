@@ -1408,6 +1408,10 @@ class AlignmentSession:
         lo, hi = self.flag.band
         d.update(nis_last=f"{self.last_nis:.3f}", nis_window_sum=f"{self.flag.nis_sum:.3f}",
                  nis_band=f"[{lo:.2f}, {hi:.2f}]", last_reject=self.last_reject)
+        # divergence guard: the statistics behind a FAULT (docs/session.md)
+        d["divergence_cusum_llr"] = f"{self._cusum_llr:.3f}"
+        if self._nis_win:
+            d["divergence_nis_window_mean"] = f"{float(np.mean(self._nis_win)):.3f}"
         if self.processed_t is not None and self.last_accepted_fix_t is not None:
             d["gnss_age_s"] = f"{self.processed_t - self.last_accepted_fix_t:.2f}"
         if self._median_dt is not None:
