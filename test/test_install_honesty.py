@@ -22,7 +22,7 @@ ROSDEP = {
     "cvxpy": "python3-cvxpy-pip", "rosbags": "python3-rosbags-pip",
 }
 #: optional runtime imports (lazy, an ImportError says how to install): no rosdep key; package.xml says so
-OPTIONAL = {"distributed"}
+OPTIONAL = {"distributed", "dask"}  # eval/parallel.py imports both only when a parallel run is asked for
 ROS_PACKAGES = {"rclpy", "rcl_interfaces", "sensor_msgs", "geometry_msgs", "std_msgs", "std_srvs", "diagnostic_msgs",
                 "rosgraph_msgs"}
 
