@@ -87,6 +87,9 @@ class AlignmentCore(ABC):
     #: ``propagate_arrays`` gives exactly the numbers of one ``propagate`` per sample (the session's fast path
     #: relies on it; a core whose array path differs says False and the session feeds it sample by sample)
     propagate_arrays_matches_propagate: bool = True
+    #: ``set_gyro_bias_prior`` works (cores with gyro bias states: the hand-over of ``core: auto`` starts them from
+    #: the bias measured at rest instead of the grade prior)
+    supports_gyro_bias_prior: bool = False
     #: the core runs its own zero-velocity updates (earth_iekf's ``auto_zupt_period_s``: its backward passes need
     #: them inside the passes); the session then schedules none for it
     schedules_own_zero_velocity: bool = False
@@ -144,6 +147,11 @@ class AlignmentCore(ABC):
     def update_zero_velocity(self, stamp_s: float, sigma_v_m_s: float) -> UpdateResult:
         """Fuse the zero-velocity condition (vehicle at rest relative to Earth) with std sigma_v [m/s]."""
         return UpdateResult(False, reason=f"{self.name} does not use zero-velocity updates")
+
+    def set_gyro_bias_prior(self, b_g_b: np.ndarray, P_b_g_b: np.ndarray) -> None:
+        """Optional (``supports_gyro_bias_prior``): right after ``initialize``, replace the gyro bias estimate
+        [rad/s, body] and its 3x3 covariance [rad^2/s^2] (no correlation with the other states)."""
+        raise NotImplementedError(f"{self.name} has no gyro bias prior")
 
     def propagate_backward(self, imu: ImuSample, t_prev_s: float) -> None:
         """Optional (``supports_backtracking``): inverse step from ``imu.stamp_s`` (the core's current time) back

@@ -55,6 +55,7 @@ class YawHypothesisBank(AlignmentCore):
         self.supports_gnss = proto.supports_gnss
         self.supports_gnss_velocity = proto.supports_gnss_velocity
         self.supports_zero_velocity = proto.supports_zero_velocity
+        self.supports_gyro_bias_prior = proto.supports_gyro_bias_prior
         self.supports_backtracking = False
         self.att_index, self.vel_index, self.pos_index = proto.att_index, proto.vel_index, proto.pos_index
         self._proto_sigmas = proto.default_initial_sigmas()
@@ -102,6 +103,11 @@ class YawHypothesisBank(AlignmentCore):
         self.n_updates = 0
         self.collapsed_at_s = None
         self._init = True
+
+    def set_gyro_bias_prior(self, b_g_b, P_b_g_b) -> None:
+        """Every hypothesis starts from the same body-frame gyro bias prior (the bias does not depend on the yaw)."""
+        for h in self.hyps:
+            h.set_gyro_bias_prior(b_g_b, P_b_g_b)
 
     @property
     def initialized(self) -> bool:

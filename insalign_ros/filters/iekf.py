@@ -52,6 +52,23 @@ class ImperfectIekf(BatchedEciCore):
         P[12:15, 12:15] = mg_to_m_s2(self.cfg.init_sigma_acc_bias_mg) ** 2 * _I3
         return P
 
+    # ---- bias initialisation API (core: auto's hand-over, session/auto.py) ----
+    supports_gyro_bias_prior = True
+
+    def set_gyro_bias_prior(self, b_g_b, P_b_g_b) -> None:
+        """Right after ``initialize`` (nothing propagated yet): gyro bias estimate [rad/s] and its 3x3 covariance
+        [rad^2/s^2] instead of zero and the grade's ``init_sigma_gyro_bias_deg_h`` (cross-covariances zero)."""
+        if not self._init or self._buf_t or self.t_s != self.t0_s:
+            raise RuntimeError("set_gyro_bias_prior: only right after initialize()")
+        P_b_g_b = np.asarray(P_b_g_b, float)
+        if P_b_g_b.shape != (3, 3) or not np.all(np.isfinite(P_b_g_b)) or np.any(np.linalg.eigvalsh(P_b_g_b) <= 0):
+            raise ValueError("set_gyro_bias_prior: P_b_g_b must be a finite 3x3 positive definite matrix")
+        self.b_g = np.asarray(b_g_b, float).reshape(3).copy()
+        self.P[9:12, :] = 0.0
+        self.P[:, 9:12] = 0.0
+        self.P[9:12, 9:12] = 0.5 * (P_b_g_b + P_b_g_b.T)
+    # ---- end of the bias initialisation API ----
+
     def _noise_diag(self, dt):
         d = super()._noise_diag(dt)
         d[:, 9:12] = self._q_bg * dt[:, None]

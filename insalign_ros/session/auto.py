@@ -12,8 +12,8 @@ A state machine around two cores and the motion detector (session/motion.py), se
   status is WAITING_FOR_MOTION and the reason says "heading needs motion (floor X deg)";
 * **in motion**: when the motion detector declares motion, the in-motion core (``motion_core``, default iekf) is
   initialised from a snapshot of the static solution taken before the onset of the motion (level, heading if
-  trusted, their 3x3 covariance, the position, zero velocity) and the buffered IMU samples since the snapshot are
-  replayed into it; a bank of ``unknown_heading_hypotheses`` yaw hypotheses when the heading is not trusted. From
+  trusted, their 3x3 covariance, the position, zero velocity, and the gyro bias measured over the rest window:
+  :func:`gyro_bias_from_rest`) and the buffered IMU samples since the snapshot are replayed into it; a bank of ``unknown_heading_hypotheses`` yaw hypotheses when the heading is not trusted. From
   then on ``supports_gnss`` is True: the session fuses the fixes, gates them and stops its zero-velocity updates;
 * **stopped**: the detector declares rest again: the in-motion core keeps running (no reset) and takes a
   zero-velocity constraint at 10 Hz as a position hold (a pseudo-fix at the position where it stopped, 1-sigma
@@ -31,6 +31,8 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from scipy.stats import chi2
+
 from ..core import earth
 from ..core.types import GnssFix, ImuSample
 from ..filters import imu_grade, registry
@@ -44,6 +46,8 @@ D2R = math.pi / 180.0
 #: hand-over without a snapshot at rest (moving from the start): level and velocity 1-sigma [deg, m/s]
 NO_REST_LEVEL_SIGMA_DEG = 5.0
 NO_REST_SIGMA_V_M_S = 20.0
+#: block length of the rest-window gyro means [s] (:func:`rest_rate_mean`)
+REST_BLOCK_S = 1.0
 #: state names (``AutoCore.state``), in the order a parked-then-driving run passes through them
 STATES = ("static, levelling", "static, fine", "in motion", "stopped")
 
@@ -75,6 +79,9 @@ class AutoConfig(ConfigDict):
     unknown_heading_hypotheses: int = 8
     #: the static snapshot the in-motion core starts from is at least this long before the motion onset [s]
     handover_margin_s: float = 0.3
+    #: the in-motion core starts from the gyro bias measured at rest (:func:`gyro_bias_from_rest`) when the rest
+    #: window before the hand-over is at least this long [s]; else from the grade's bias prior
+    gyro_rest_min_s: float = 10.0
     #: zero-velocity constraint of the in-motion core at stops: position hold 1-sigma [m] and rate [Hz]
     stop_hold_sigma_m: float = 0.05
     stop_hold_rate_hz: float = 10.0
@@ -120,6 +127,50 @@ class AutoConfig(ConfigDict):
         return math.inf if c <= 1e-12 else self.gyro_bias_deg_h * D2R / 3600.0 / c
 
 
+def rest_rate_mean(block_means_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Robust mean angular rate over a rest window from its ``REST_BLOCK_S`` block means (n, 3) [rad/s]: the
+    per-axis median, and the variance of that median [rad^2/s^2] (block-means standard error from the MAD,
+    x pi/2 for a median, at the 95 % upper chi-square bound of a variance from n blocks).
+
+    Blocks average the engine and sway vibration; the median drops the few blocks of a person getting in (the
+    load step tilts the body by ~0.5 deg: in a plain mean over 40 s that is a 45 deg/h bias error)."""
+    x = np.asarray(block_means_b, float)
+    n = x.shape[0]
+    med = np.median(x, axis=0)
+    s = 1.4826 * np.median(np.abs(x - med), axis=0)
+    var = (s * s) * (0.5 * math.pi) / n * (n - 1) / chi2.ppf(0.05, n - 1)
+    return med, var
+
+
+def gyro_bias_from_rest(omega_mean_b: np.ndarray, var_mean_b: np.ndarray, C_b_n: np.ndarray, lat_rad: float,
+                        heading_trusted: bool, gyro_bias_instability_deg_h: float, sigma_level_rad: float = 0.0,
+                        sigma_yaw_rad: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Gyro bias [rad/s, body] and its 3x3 covariance [rad^2/s^2] from the mean rate over a rest window.
+
+    At rest the gyros measure ``omega_mean_b = b_g + C_b_n^T Omega_ie_n`` + noise, with
+    ``Omega_ie_n = Omega [0, cos L, sin L]`` (ENU). The Up component (``Omega sin L``) is known from the latitude and
+    the level; the horizontal one (magnitude ``Omega cos L``, towards North) only when the heading is trusted.
+    Subtracted: the known part. Covariance: the variance of the mean ``var_mean_b`` (per body axis; white noise
+    alone: ``ARW^2 / T``, see :func:`rest_rate_mean`), the bias instability (the Allan-deviation floor: averaging
+    longer does not beat it), the Earth-rate projection error of the attitude uncertainty, and (heading not
+    trusted) the horizontal Earth rate itself: North uniform on the horizontal circle, variance
+    ``(Omega cos L)^2 / 2`` per horizontal axis.
+    """
+    C_b_n = np.asarray(C_b_n, float)
+    w_ie_n = earth.omega_ie_n(lat_rad)
+    known_n = w_ie_n if heading_trusted else np.array([0.0, 0.0, w_ie_n[2]])
+    b = np.asarray(omega_mean_b, float) - C_b_n.T @ known_n
+    var = np.asarray(var_mean_b, float) + (gyro_bias_instability_deg_h * D2R / 3600.0) ** 2
+    Om = earth.OMEGA_IE_RAD_S
+    var += (Om * sigma_level_rad) ** 2  # the Up axis is tilted by the level error
+    P_n = np.zeros((3, 3))
+    if heading_trusted:
+        var += (Om * math.cos(lat_rad) * sigma_yaw_rad) ** 2
+    else:
+        P_n[0, 0] = P_n[1, 1] = 0.5 * (Om * math.cos(lat_rad)) ** 2
+    return b, np.diag(var) + C_b_n.T @ P_n @ C_b_n
+
+
 class AutoCore(AlignmentCore):
     """The ``auto`` state machine (module docstring). ``state`` is one of :data:`STATES`; ``transitions`` lists
     (stamp [s], state, reason) at every change."""
@@ -139,7 +190,11 @@ class AutoCore(AlignmentCore):
         self._dts: list[float] = []
         self._t: float | None = None
         self.hist: deque = deque()  # (t, omega, f): the IMU samples the hand-over may replay
-        self.snaps: deque = deque()  # (t, AlignmentEstimate) of the static core at rest
+        #: (t, AlignmentEstimate, number of rest blocks done) of the static core at rest
+        self.snaps: deque = deque()
+        self._blocks: list[np.ndarray] = []  # REST_BLOCK_S means of the gyro rate since the static core started
+        self._block_int_w, self._block_T = np.zeros(3), 0.0
+        self.gyro_bias_prior: tuple[np.ndarray, np.ndarray] | None = None  # (b_g_b, P) given at the hand-over
         self.heading_trusted = False
         self.heading_floor_deg = math.nan
         self.grade_allows_heading = False
@@ -218,11 +273,17 @@ class AutoCore(AlignmentCore):
         t = float(imu.stamp_s)
         w, f = np.asarray(imu.omega_ib_b, float), np.asarray(imu.f_ib_b, float)
         dec = self._detect(t, w, f)
-        self._t = t
+        t_prev, self._t = self._t, t
         self.hist.append((t, w, f))
         while self.hist and self.hist[0][0] < t - 6.0:
             self.hist.popleft()
         if self.motion is None:
+            if t_prev is not None and t > t_prev:  # the sample is the mean rate over (t_prev, t]
+                self._block_int_w += w * (t - t_prev)
+                self._block_T += t - t_prev
+                if self._block_T >= REST_BLOCK_S:
+                    self._blocks.append(self._block_int_w / self._block_T)
+                    self._block_int_w, self._block_T = np.zeros(3), 0.0
             self.static.propagate(imu)
             if dec is not None and dec.moving:
                 self._handover(t, dec.since_s)
@@ -268,7 +329,7 @@ class AutoCore(AlignmentCore):
             return UpdateResult(False, reason="motion evidence: no zero-velocity update")
         res = self.static.update_zero_velocity(stamp_s, sigma_v_m_s)
         est = self.static.estimate()
-        self.snaps.append((float(stamp_s), est))
+        self.snaps.append((float(stamp_s), est, len(self._blocks)))
         while len(self.snaps) > 2 and self.snaps[1][0] < stamp_s - 5.0:
             self.snaps.popleft()
         self._static_state(stamp_s, est)
@@ -295,9 +356,9 @@ class AutoCore(AlignmentCore):
         cfg = self.cfg
         before = [s for s in self.snaps if s[0] <= since_s - cfg.handover_margin_s]
         if before:
-            t0, est = before[-1]
+            t0, est, n_blocks = before[-1]
         else:  # no snapshot at rest (moving from the start): the static core now, velocity unknown
-            t0, est = self._t, self.static.estimate()
+            t0, est, n_blocks = self._t, self.static.estimate(), 0
         P = np.array(est.P_att_n, float)
         if not before:  # level from accelerometers that were accelerating: as the session's sensors init, >= 5 deg
             for i in (0, 1):
@@ -311,8 +372,17 @@ class AutoCore(AlignmentCore):
             P[2, 2] = (1e4 * D2R) ** 2  # unknown: uniform over the bank's hypotheses (as the session's sensors init)
         core = registry.make_core(cfg.motion_core, params)
         sig_v = 0.05 if before else NO_REST_SIGMA_V_M_S
+        self.gyro_bias_prior = None
+        if n_blocks * REST_BLOCK_S >= cfg.gyro_rest_min_s and core.supports_gyro_bias_prior:
+            sig_lvl = math.sqrt(max(P[0, 0], P[1, 1], 0.0))
+            self.gyro_bias_prior = gyro_bias_from_rest(
+                *rest_rate_mean(np.array(self._blocks[:n_blocks])), est.C_b_n, est.lat_rad, self.heading_trusted,
+                cfg.gyro_bias_rw_deg_h_sqrt_h * math.sqrt(imu_grade.BIAS_RW_HORIZON_H), sig_lvl,
+                math.sqrt(max(P[2, 2], 0.0)) if self.heading_trusted else 0.0)
         try:
             core.initialize(t0, est.lat_rad, est.lon_rad, est.h_m, est.C_b_n, np.zeros(3), P, sig_v, self.sig_p)
+            if self.gyro_bias_prior is not None:
+                core.set_gyro_bias_prior(*self.gyro_bias_prior)
             for (ts, w, f) in self.hist:
                 if ts > t0:
                     core.propagate(ImuSample(ts, w, f))
@@ -358,6 +428,11 @@ class AutoCore(AlignmentCore):
              "heading_floor_deg": f"{self.heading_floor_deg:.3f}",
              "heading_trusted": str(self.heading_trusted).lower(),
              **{k: str(v) for k, v in self.counters.items()}}
+        if self.gyro_bias_prior is not None:  # the in-motion core's start: the bias measured at rest [deg/h]
+            b, P = self.gyro_bias_prior
+            k = 180.0 / math.pi * 3600.0
+            d["rest_gyro_bias_deg_h"] = " ".join(f"{x * k:.2f}" for x in b)
+            d["rest_gyro_bias_sigma_deg_h"] = " ".join(f"{math.sqrt(x) * k:.2f}" for x in np.diag(P))
         if self.detector is not None:
             d.update({f"motion.{k}": v for k, v in self.detector.diagnostics().items()})
         if self.active is not None:
