@@ -90,6 +90,8 @@ class AlignmentCore(ABC):
     #: ``set_gyro_bias_prior`` works (cores with gyro bias states: the hand-over of ``core: auto`` starts them from
     #: the bias measured at rest instead of the grade prior)
     supports_gyro_bias_prior: bool = False
+    #: ``update_zero_rate`` works (a zero-angular-rate update at a stop: the gyros read bias + Earth rate)
+    supports_zero_rate: bool = False
     #: the core runs its own zero-velocity updates (earth_iekf's ``auto_zupt_period_s``: its backward passes need
     #: them inside the passes); the session then schedules none for it
     schedules_own_zero_velocity: bool = False
@@ -152,6 +154,11 @@ class AlignmentCore(ABC):
         """Optional (``supports_gyro_bias_prior``): right after ``initialize``, replace the gyro bias estimate
         [rad/s, body] and its 3x3 covariance [rad^2/s^2] (no correlation with the other states)."""
         raise NotImplementedError(f"{self.name} has no gyro bias prior")
+
+    def update_zero_rate(self, omega_mean_b: np.ndarray, R_b: np.ndarray) -> UpdateResult:
+        """Optional (``supports_zero_rate``): the vehicle was at rest (relative to Earth) over a window ending now
+        and the gyros' mean over it was ``omega_mean_b`` [rad/s] with covariance ``R_b`` [rad^2/s^2]."""
+        return UpdateResult(False, reason=f"{self.name} does not use zero-angular-rate updates")
 
     def propagate_backward(self, imu: ImuSample, t_prev_s: float) -> None:
         """Optional (``supports_backtracking``): inverse step from ``imu.stamp_s`` (the core's current time) back

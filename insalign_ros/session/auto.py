@@ -17,7 +17,8 @@ A state machine around two cores and the motion detector (session/motion.py), se
   then on ``supports_gnss`` is True: the session fuses the fixes, gates them and stops its zero-velocity updates;
 * **stopped**: the detector declares rest again: the in-motion core keeps running (no reset) and takes a
   zero-velocity constraint at 10 Hz as a position hold (a pseudo-fix at the position where it stopped, 1-sigma
-  ``stop_hold_sigma_m``; the in-motion cores have no velocity update) besides the real fixes;
+  ``stop_hold_sigma_m``; the in-motion cores have no velocity update) besides the real fixes, and a
+  zero-angular-rate update per 1-s gyro mean (the z gyro bias is observable at rest);
 * **aligned**: the session's flag (one meaning of "aligned").
 
 docs/session.md ("core: auto") gives the decisions and the measured behaviour.
@@ -85,6 +86,9 @@ class AutoConfig(ConfigDict):
     #: zero-velocity constraint of the in-motion core at stops: position hold 1-sigma [m] and rate [Hz]
     stop_hold_sigma_m: float = 0.05
     stop_hold_rate_hz: float = 10.0
+    #: stops: zero-angular-rate updates from 1-s gyro means once this many blocks of the stop are in (their spread
+    #: is the update's noise); 0 turns them off
+    stop_zero_rate_min_blocks: int = 5
     #: ... only when the in-motion core's own horizontal speed agrees: below this [m/s] (the IMU-only detector can
     #: take a smooth constant acceleration for rest: a position hold while driving would wreck the attitude)
     stop_speed_max_m_s: float = 0.5
@@ -96,6 +100,9 @@ class AutoConfig(ConfigDict):
             v = values[name]
             if v == "auto" or v not in registry.CORES:
                 raise ValueError(f"{name}: unknown core {v!r}; choose one of {sorted(set(registry.CORES) - {'auto'})}")
+        if self.stop_zero_rate_min_blocks in (1, 2):
+            raise ValueError("stop_zero_rate_min_blocks: 0 (off) or >= 3 (the spread needs blocks), got "
+                             f"{self.stop_zero_rate_min_blocks}")
         if not 2 <= self.unknown_heading_hypotheses <= 36:
             raise ValueError(f"unknown_heading_hypotheses: must be in [2, 36], got {self.unknown_heading_hypotheses}")
         for name in ("heading_floor_max_deg", "heading_trust_sigma_deg", "stop_hold_sigma_m", "stop_hold_rate_hz",
@@ -127,19 +134,24 @@ class AutoConfig(ConfigDict):
         return math.inf if c <= 1e-12 else self.gyro_bias_deg_h * D2R / 3600.0 / c
 
 
+def block_variance(block_means_b: np.ndarray) -> np.ndarray:
+    """Per-axis variance [rad^2/s^2] of one block mean from n block means (n, 3): the MAD's robust sigma squared at
+    the 95 % upper chi-square bound of a variance from n samples (a few blocks of a person getting in do not
+    inflate it)."""
+    x = np.asarray(block_means_b, float)
+    n = x.shape[0]
+    s = 1.4826 * np.median(np.abs(x - np.median(x, axis=0)), axis=0)
+    return (s * s) * (n - 1) / chi2.ppf(0.05, n - 1)
+
+
 def rest_rate_mean(block_means_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Robust mean angular rate over a rest window from its ``REST_BLOCK_S`` block means (n, 3) [rad/s]: the
-    per-axis median, and the variance of that median [rad^2/s^2] (block-means standard error from the MAD,
-    x pi/2 for a median, at the 95 % upper chi-square bound of a variance from n blocks).
+    per-axis median, and the variance of that median [rad^2/s^2] (:func:`block_variance` / n, x pi/2 for a median).
 
     Blocks average the engine and sway vibration; the median drops the few blocks of a person getting in (the
     load step tilts the body by ~0.5 deg: in a plain mean over 40 s that is a 45 deg/h bias error)."""
     x = np.asarray(block_means_b, float)
-    n = x.shape[0]
-    med = np.median(x, axis=0)
-    s = 1.4826 * np.median(np.abs(x - med), axis=0)
-    var = (s * s) * (0.5 * math.pi) / n * (n - 1) / chi2.ppf(0.05, n - 1)
-    return med, var
+    return np.median(x, axis=0), block_variance(x) * (0.5 * math.pi) / x.shape[0]
 
 
 def gyro_bias_from_rest(omega_mean_b: np.ndarray, var_mean_b: np.ndarray, C_b_n: np.ndarray, lat_rad: float,
@@ -194,6 +206,9 @@ class AutoCore(AlignmentCore):
         self.snaps: deque = deque()
         self._blocks: list[np.ndarray] = []  # REST_BLOCK_S means of the gyro rate since the static core started
         self._block_int_w, self._block_T = np.zeros(3), 0.0
+        self._stop_blocks: list[np.ndarray] = []  # REST_BLOCK_S gyro means of the current stop
+        self._stop_applied = 0  # ... of which fused (zero-angular-rate updates)
+        self._stop_block_ok = True
         self.gyro_bias_prior: tuple[np.ndarray, np.ndarray] | None = None  # (b_g_b, P) given at the hand-over
         self.heading_trusted = False
         self.heading_floor_deg = math.nan
@@ -202,7 +217,8 @@ class AutoCore(AlignmentCore):
         self.lat = 0.0
         self._hold_p_e: np.ndarray | None = None
         self._next_hold_t = -math.inf
-        self.counters = {"handovers": 0, "stops": 0, "stop_holds": 0, "zupt_rejected_moving": 0}
+        self.counters = {"handovers": 0, "stops": 0, "stop_holds": 0, "zupt_rejected_moving": 0, "zero_rate_updates": 0,
+                         "zero_rate_rejected": 0}
         with_static = registry.make_core(cfg.static_core, cfg.static_params())
         self._static_sigmas = with_static.default_initial_sigmas()
         with_static.close()
@@ -289,6 +305,8 @@ class AutoCore(AlignmentCore):
                 self._handover(t, dec.since_s)
             return
         self.motion.propagate(imu)
+        if self.state == "stopped" and t_prev is not None and t > t_prev:
+            self._stop_block(t - t_prev, w, dec is not None and dec.decided and not dec.moving)
         if dec is None or not dec.decided:
             return
         if dec.moving and self.state == "stopped":
@@ -298,13 +316,39 @@ class AutoCore(AlignmentCore):
             self.counters["stops"] += 1
             self._hold_p_e = self._position_e()
             self._next_hold_t = t
-            self._set_state(t, "stopped", f"stopped since {dec.since_s:.2f} s: zero-velocity updates (position hold)")
+            self._stop_blocks, self._stop_applied = [], 0
+            self._block_int_w, self._block_T, self._stop_block_ok = np.zeros(3), 0.0, True
+            self._set_state(t, "stopped", f"stopped since {dec.since_s:.2f} s: zero-velocity updates (position hold) "
+                                          "and zero-angular-rate updates")
         if self.state == "stopped" and t >= self._next_hold_t and self._hold_p_e is not None:
             self._next_hold_t = t + 1.0 / self.cfg.stop_hold_rate_hz - 1e-9
             if not (isinstance(self.motion, YawHypothesisBank) and len(self.motion.hyps) > 1):
                 # one pseudo-fix for a bank that has not collapsed would move its weights: the fixes do it
                 res = self.motion.update_gnss(GnssFix(t, self._hold_p_e, np.eye(3) * self.cfg.stop_hold_sigma_m ** 2))
                 self.counters["stop_holds"] += int(res.accepted)
+
+    def _stop_block(self, dt: float, w: np.ndarray, at_rest: bool) -> None:
+        """Stopped: 1-s gyro means; from ``stop_zero_rate_min_blocks`` on, each one is a zero-angular-rate update of
+        the in-motion core (the z gyro bias is observable at rest: the yaw 3-sigma stops growing) with the per-block
+        variance of :func:`block_variance` over the stop so far. Blocks with the detector not at rest are dropped."""
+        self._block_int_w += w * dt
+        self._block_T += dt
+        self._stop_block_ok &= at_rest
+        if self._block_T < REST_BLOCK_S:
+            return
+        if self._stop_block_ok:
+            self._stop_blocks.append(self._block_int_w / self._block_T)
+        self._block_int_w, self._block_T, self._stop_block_ok = np.zeros(3), 0.0, True
+        n = len(self._stop_blocks)
+        if self.cfg.stop_zero_rate_min_blocks == 0 or n < self.cfg.stop_zero_rate_min_blocks \
+                or not self.motion.supports_zero_rate:
+            return
+        arw2 = (self.cfg.gyro_arw_deg_sqrt_h * D2R / 60.0) ** 2 / REST_BLOCK_S
+        R = np.diag(np.maximum(block_variance(np.array(self._stop_blocks)), 1e-4 * arw2))
+        for k in range(self._stop_applied, n):
+            res = self.motion.update_zero_rate(self._stop_blocks[k], R)
+            self.counters["zero_rate_updates" if res.accepted else "zero_rate_rejected"] += 1
+        self._stop_applied = n
 
     def _motion_evidence(self) -> bool:
         """No zero-velocity update now: moving, undecided, or the detector's rest evidence fails (horizontal velocity
