@@ -243,3 +243,20 @@ def test_stop_zero_rate_updates_hold_the_yaw_3sigma_through_a_stop():
     assert int(dg["core.zero_rate_updates"]) >= 15 and int(dg["core.zero_rate_rejected"]) >= 1, dg
     assert np.all(np.diff(s3) < 0.01) and s3[-1] < 2.0, (s3[0], s3[-1])
     assert np.all(np.abs(err) < s3)
+
+
+def test_config_yaml_is_the_dataclass_and_gnss_velocity_reaches_the_inmotion_core():
+    """config/auto.yaml = AutoConfig's defaults (grade fields excluded, as every core's file); a car already moving
+    with GNSS velocities and a lever arm: the in-motion core fuses the velocities and gets the lever arm."""
+    import yaml
+
+    from insalign_ros.filters.imu_grade import GRADE_FIELDS
+
+    root = __import__("pathlib").Path(__file__).resolve().parents[1]
+    p = dict(yaml.safe_load((root / "config" / "auto.yaml").read_text())["alignment_node"]["ros__parameters"])
+    assert p.pop("core") == "auto"
+    assert p == {k: v for k, v in AutoConfig().to_dict().items() if k not in GRADE_FIELDS}
+    d = make_scenario("car", seed=6, duration_s=15.0, gnss_vel_sigma_m_s=0.1)
+    r = ia.align(d, core="auto", core_params={"gnss_lever_arm_b_m": [0.0, 0.0, 0.0]})
+    assert r.counters["gnss_vel_accepted"] >= 10 and r.diagnostics["core.handovers"] == "1", r.counters
+    assert AutoConfig(gnss_lever_arm_b_m=[0.5, 0.0, 1.5]).grade_params("iekf")["gnss_lever_arm_b_m"] == [0.5, 0.0, 1.5]

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -72,6 +72,8 @@ class AutoConfig(ConfigDict):
     #: in-motion core: floor of the fix sigma [m] (its ``gnss_sigma_floor_m``; e.g. 1 m for KITTI's RT3003, which
     #: reports centimetres)
     gnss_sigma_floor_m: float = 0.0
+    #: in-motion core: GNSS antenna position in the body frame FLU relative to the IMU [m] (its ``gnss_lever_arm_b_m``)
+    gnss_lever_arm_b_m: list = field(default_factory=lambda: [0.0, 0.0, 0.0])
     #: gyrocompassing is trusted for the heading only where the azimuth floor eps/(omega_ie cos lat) is below this
     heading_floor_max_deg: float = 1.0
     #: ... and the static yaw 1-sigma at the hand-over below this (else the yaw bank is used)
@@ -119,6 +121,8 @@ class AutoConfig(ConfigDict):
                  "gyro_bias_rw_deg_h_sqrt_h": self.gyro_bias_rw_deg_h_sqrt_h,
                  "acc_bias_rw_mg_sqrt_h": self.acc_bias_rw_mg_sqrt_h, "gnss_sigma_floor_m": self.gnss_sigma_floor_m}
         known = {f.name for f in fields(registry.CORES[core][1])}
+        if any(self.gnss_lever_arm_b_m):
+            grade["gnss_lever_arm_b_m"] = list(self.gnss_lever_arm_b_m)
         return {k: v for k, v in grade.items() if k in known}
 
     def static_params(self) -> dict:
@@ -193,6 +197,7 @@ class AutoCore(AlignmentCore):
     def __init__(self, cfg: AutoConfig):
         self.cfg = cfg
         self.supports_gnss = False  # the session reads it per call: True from the hand-over on
+        self.supports_gnss_velocity = False  # ... and the in-motion core's from the hand-over on
         self.static: AlignmentCore | None = None
         self.motion: AlignmentCore | None = None
         self.state = "waiting for data"
@@ -435,6 +440,7 @@ class AutoCore(AlignmentCore):
             raise
         self.motion = core
         self.supports_gnss = True
+        self.supports_gnss_velocity = core.supports_gnss_velocity
         self.counters["handovers"] += 1
         self.static.close()
         how = ("heading from gyrocompassing" if self.heading_trusted else
@@ -449,6 +455,16 @@ class AutoCore(AlignmentCore):
         if self._hold_p_e is not None:  # stopped: hold where the fix put the core (holds and fixes do not fight)
             self._hold_p_e = self._position_e()
         return res
+
+    def update_gnss_velocity(self, vel) -> UpdateResult:
+        if self.motion is None:
+            return UpdateResult(False, reason="static: GNSS velocities are not used while parked")
+        return self.motion.update_gnss_velocity(vel)
+
+    def predict_gnss_velocity(self, vel) -> UpdateResult:
+        if self.motion is None:
+            return super().predict_gnss_velocity(vel)
+        return self.motion.predict_gnss_velocity(vel)
 
     def _position_e(self) -> np.ndarray:
         e = self.motion.estimate()
