@@ -131,6 +131,10 @@ class AlignmentCore(ABC):
         """Fuse a GNSS position fix (at the core's current time; the caller propagates first)."""
         return UpdateResult(False, reason=f"{self.name} does not use GNSS")
 
+    def observe_gnss(self, fix: GnssFix) -> None:
+        """A fix the core does not fuse (``supports_gnss`` False now), at its stamp in the session's order: cores that
+        use it otherwise (``core: auto``'s motion detector takes the GNSS speed) override this; default: ignore."""
+
     def predict_gnss(self, fix: GnssFix) -> UpdateResult:
         """The innovation (``innovation``, ``S``, ``nis``) a fix would have now, with nothing changed (the session's
         outlier gate). Cores without it return a result with an empty ``S`` (no gate)."""

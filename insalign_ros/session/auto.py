@@ -47,6 +47,10 @@ D2R = math.pi / 180.0
 #: hand-over without a snapshot at rest (moving from the start): level and velocity 1-sigma [deg, m/s]
 NO_REST_LEVEL_SIGMA_DEG = 5.0
 NO_REST_SIGMA_V_M_S = 20.0
+#: ... the vehicle acceleration [m/s^2] assumed when the fixes do not give it (the session's init_accel_m_s2)
+NO_REST_ACC_M_S2 = 1.0
+#: the GNSS speed for the motion detector is a position difference over at least this long [s]
+GNSS_SPEED_BASE_S = 0.9
 #: block length of the rest-window gyro means [s] (:func:`rest_rate_mean`)
 REST_BLOCK_S = 1.0
 #: state names (``AutoCore.state``), in the order a parked-then-driving run passes through them
@@ -221,6 +225,7 @@ class AutoCore(AlignmentCore):
         self.sig_p = 1.0
         self.lat = 0.0
         self._hold_p_e: np.ndarray | None = None
+        self._fixes: deque = deque()  # (t, p_e, R_e) of the fixes seen while static (GNSS speed for the detector)
         self._next_hold_t = -math.inf
         self.counters = {"handovers": 0, "stops": 0, "stop_holds": 0, "zupt_rejected_moving": 0, "zero_rate_updates": 0,
                          "zero_rate_rejected": 0}
@@ -404,14 +409,21 @@ class AutoCore(AlignmentCore):
         """Motion declared: start the in-motion core from the static solution before ``since_s`` and replay."""
         cfg = self.cfg
         before = [s for s in self.snaps if s[0] <= since_s - cfg.handover_margin_s]
+        if not before and (len(self._fixes) < 3 or self._fixes[-1][0] - self._fixes[-3][0] > 3.0):
+            # moving from the start: as the session's sensors initialisation of an in-motion core, wait for three
+            # fixes within 3 s (velocity and acceleration); the static core takes no zero-velocity update meanwhile
+            self._set_state(t, self.state, f"moving since {since_s:.2f} s: waiting for three GNSS fixes within 3 s "
+                                           "(initial velocity)")
+            return
         if before:
             t0, est, n_blocks = before[-1]
-        else:  # no snapshot at rest (moving from the start): the static core now, velocity unknown
+        else:  # no snapshot at rest (moving from the start): the static core now, velocity from the fixes or unknown
             t0, est, n_blocks = self._t, self.static.estimate(), 0
         P = np.array(est.P_att_n, float)
         if not before:  # level from accelerometers that were accelerating: as the session's sensors init, >= 5 deg
+            est.C_b_n, sig_lvl = self._moving_level(t0)
             for i in (0, 1):
-                P[i, i] = max(P[i, i], (NO_REST_LEVEL_SIGMA_DEG * D2R) ** 2)
+                P[i, i] = max(P[i, i], sig_lvl ** 2)
         yaw_sigma = math.sqrt(max(P[2, 2], 0.0))
         self.heading_trusted = self.grade_allows_heading and yaw_sigma <= cfg.heading_trust_sigma_deg * D2R
         params = cfg.grade_params(cfg.motion_core)
@@ -421,6 +433,14 @@ class AutoCore(AlignmentCore):
             P[2, 2] = (1e4 * D2R) ** 2  # unknown: uniform over the bank's hypotheses (as the session's sensors init)
         core = registry.make_core(cfg.motion_core, params)
         sig_v = 0.05 if before else NO_REST_SIGMA_V_M_S
+        v0_n = np.zeros(3)
+        sig_p = self.sig_p
+        if not before:  # moving from the start: velocity from the fixes, position the newest fix carried forward
+            v0_n, sig_v = self._gnss_velocity_n(est.lat_rad, est.lon_rad)
+            t_f, p_f, R_f = self._fixes[-1]
+            lat, lon, h = earth.ecef_to_geodetic(p_f + earth.C_n_e(est.lat_rad, est.lon_rad) @ v0_n * (t0 - t_f))
+            est.lat_rad, est.lon_rad, est.h_m = lat, lon, h
+            sig_p = math.hypot(math.sqrt(max(np.trace(R_f) / 3.0, 0.0)), sig_v * abs(t0 - t_f))
         self.gyro_bias_prior = None
         if n_blocks * REST_BLOCK_S >= cfg.gyro_rest_min_s and core.supports_gyro_bias_prior:
             sig_lvl = math.sqrt(max(P[0, 0], P[1, 1], 0.0))
@@ -429,7 +449,7 @@ class AutoCore(AlignmentCore):
                 cfg.gyro_bias_rw_deg_h_sqrt_h * math.sqrt(imu_grade.BIAS_RW_HORIZON_H), sig_lvl,
                 math.sqrt(max(P[2, 2], 0.0)) if self.heading_trusted else 0.0)
         try:
-            core.initialize(t0, est.lat_rad, est.lon_rad, est.h_m, est.C_b_n, np.zeros(3), P, sig_v, self.sig_p)
+            core.initialize(t0, est.lat_rad, est.lon_rad, est.h_m, est.C_b_n, v0_n, P, sig_v, sig_p)
             if self.gyro_bias_prior is not None:
                 core.set_gyro_bias_prior(*self.gyro_bias_prior)
             for (ts, w, f) in self.hist:
@@ -447,6 +467,60 @@ class AutoCore(AlignmentCore):
                f"heading unknown: {cfg.unknown_heading_hypotheses} yaw hypotheses")
         self._set_state(t, "in motion", f"motion since {since_s:.2f} s: {cfg.motion_core} from the static solution at "
                                         f"{t0:.2f} s ({how})")
+
+    def observe_gnss(self, fix: GnssFix) -> None:
+        """Static: the GNSS speed over >= ``GNSS_SPEED_BASE_S`` from the fixes (position difference, per-axis sigma
+        from both fixes' covariances) goes to the motion detector: a car cruising at constant speed on a smooth road
+        looks parked to the IMU (docs/motion_detector.md), and after a re-initialisation while driving the static
+        core would otherwise take zero-velocity updates at 15 m/s."""
+        t = float(fix.stamp_s)
+        p, R = np.asarray(fix.p_e, float), np.asarray(fix.R_e, float)
+        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(R))):
+            return
+        while self._fixes and (t - self._fixes[0][0] > 3.0 * GNSS_SPEED_BASE_S or t <= self._fixes[-1][0]):
+            self._fixes.popleft() if t - self._fixes[0][0] > 3.0 * GNSS_SPEED_BASE_S else self._fixes.pop()
+        old = [f for f in self._fixes if t - f[0] >= GNSS_SPEED_BASE_S]
+        self._fixes.append((t, p, R))
+        if not old or self.detector is None:
+            return
+        t0, p0, R0 = old[-1]
+        dt = t - t0
+        sigma = math.sqrt(max(np.trace(R + R0) / 3.0, 1e-12)) / dt
+        self.detector.push_gnss_speed(t, float(np.linalg.norm(p - p0)) / dt, sigma)
+
+    def _moving_level(self, t: float) -> tuple[np.ndarray, float]:
+        """Moving from the start: C_b_n (yaw 0) levelled from the mean specific force of the last second of IMU
+        samples and its honest level 1-sigma [rad], as the session's sensors initialisation of an in-motion core:
+        1 deg (accelerometer bias) + the vehicle acceleration (second difference of the fixes seen + 0.5 m/s^2, else
+        ``NO_REST_ACC_M_S2``) over g + the spread."""
+        F = np.array([f for (ts, _, f) in self.hist if ts > t - 1.0])
+        fm = F.mean(axis=0)
+        g = max(float(np.linalg.norm(fm)), 1.0)
+        a = NO_REST_ACC_M_S2
+        fx = list(self._fixes)
+        if len(fx) >= 3 and fx[-1][0] - fx[-3][0] <= 3.0:
+            (t0, p0, _), (t1, p1, _), (t2, p2, _) = fx[-3:]
+            a = float(np.linalg.norm((p2 - p1) / (t2 - t1) - (p1 - p0) / (t1 - t0))) / (0.5 * (t2 - t0)) + 0.5
+        spread = float(np.linalg.norm(F.std(axis=0))) / g
+        sig = math.sqrt((1.0 * D2R) ** 2 + (a / g) ** 2 + spread ** 2)
+        roll, pitch = math.atan2(fm[1], fm[2]), math.atan2(-fm[0], math.hypot(fm[1], fm[2]))
+        return earth.C_b_n_from_rpy(roll, pitch, 0.0), sig
+
+    def _gnss_velocity_n(self, lat_rad: float, lon_rad: float) -> tuple[np.ndarray, float] | None:
+        """ENU velocity [m/s] from the last two fixes >= GNSS_SPEED_BASE_S apart and its 1-sigma: the fixes' noise
+        plus NO_REST_ACC_M_S2 x (the base + the age of the newest fix) for the change since (None: no such pair)."""
+        if len(self._fixes) < 2:
+            return None
+        t1, p1, R1 = self._fixes[-1]
+        old = [f for f in self._fixes if t1 - f[0] >= GNSS_SPEED_BASE_S]
+        if not old:
+            return None
+        t0, p0, R0 = old[-1]
+        dt = t1 - t0
+        v_n = earth.C_n_e(lat_rad, lon_rad).T @ ((p1 - p0) / dt)
+        sig = math.sqrt(max(np.trace(R1 + R0) / 3.0, 0.0)) / dt
+        age = max(0.0, (self._t or t1) - t1) + dt
+        return v_n, math.hypot(sig, NO_REST_ACC_M_S2 * age)
 
     def update_gnss(self, fix: GnssFix) -> UpdateResult:
         if self.motion is None:
