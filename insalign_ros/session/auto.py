@@ -49,6 +49,9 @@ NO_REST_LEVEL_SIGMA_DEG = 5.0
 NO_REST_SIGMA_V_M_S = 20.0
 #: ... the vehicle acceleration [m/s^2] assumed when the fixes do not give it (the session's init_accel_m_s2)
 NO_REST_ACC_M_S2 = 1.0
+#: in motion above this speed [m/s] the motion detector is not run (checked every SPEED_CHECK_PERIOD_S [s])
+DETECTOR_SKIP_SPEED_M_S = 3.0
+SPEED_CHECK_PERIOD_S = 0.5
 #: the GNSS speed for the motion detector is a position difference over at least this long [s]
 GNSS_SPEED_BASE_S = 0.9
 #: block length of the rest-window gyro means [s] (:func:`rest_rate_mean`)
@@ -225,6 +228,11 @@ class AutoCore(AlignmentCore):
         self.sig_p = 1.0
         self.lat = 0.0
         self._hold_p_e: np.ndarray | None = None
+        #: driving faster than DETECTOR_SKIP_SPEED_M_S (the in-motion core's speed, checked every
+        #: SPEED_CHECK_PERIOD_S): the motion detector is not fed (half of the auto core's time); below, it restarts
+        #: its windows (a stop is declared only under stop_speed_max_m_s anyway)
+        self.detector_skipped = False
+        self._next_speed_check_t = -math.inf
         self._fixes: deque = deque()  # (t, p_e, R_e) of the fixes seen while static (GNSS speed for the detector)
         self._next_hold_t = -math.inf
         self.counters = {"handovers": 0, "stops": 0, "stop_holds": 0, "zupt_rejected_moving": 0, "zero_rate_updates": 0,
@@ -298,7 +306,11 @@ class AutoCore(AlignmentCore):
     def propagate(self, imu: ImuSample) -> None:
         t = float(imu.stamp_s)
         w, f = np.asarray(imu.omega_ib_b, float), np.asarray(imu.f_ib_b, float)
-        dec = self._detect(t, w, f)
+        if self.motion is not None and self.state == "in motion" and t >= self._next_speed_check_t:
+            self._next_speed_check_t = t + SPEED_CHECK_PERIOD_S
+            self.detector_skipped = self._speed() > DETECTOR_SKIP_SPEED_M_S
+        skip = self.detector_skipped and self.motion is not None and self.state == "in motion"
+        dec = None if skip else self._detect(t, w, f)
         t_prev, self._t = self._t, t
         self.hist.append((t, w, f))
         while self.hist and self.hist[0][0] < t - 6.0:
@@ -561,6 +573,7 @@ class AutoCore(AlignmentCore):
         d = {"state": self.state, "state_reason": self.reason,
              "heading_floor_deg": f"{self.heading_floor_deg:.3f}",
              "heading_trusted": str(self.heading_trusted).lower(),
+             "motion_detector_skipped": str(self.detector_skipped).lower(),
              **{k: str(v) for k, v in self.counters.items()}}
         if self.gyro_bias_prior is not None:  # the in-motion core's start: the bias measured at rest [deg/h]
             b, P = self.gyro_bias_prior
