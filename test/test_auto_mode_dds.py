@@ -45,7 +45,7 @@ def test_auto_core_goes_through_the_states_in_order_over_dds(tmp_path, ros_env):
                             m.node.count_publishers("/alignment_node/pose"), m.diag_count) >= 1)
         assert mon.wait_for(up, 30.0), "alignment_node did not come up"
         th.start()
-        drv.stream(msgs_per_s=500.0)
+        drv.stream()  # 1000 msgs/s (10x real time): the auto core keeps up since it skips the detector at speed
         assert mon.wait_for(lambda m: int(m.diag.get("buffered_imu", "1")) == 0
                             and int(m.diag.get("imu_received", "0")) > 0.9 * d.n, 20.0), mon.diag
         time.sleep(0.5)
