@@ -16,8 +16,8 @@ __version__ = "0.1.0"
 __all__ = ["align", "read_bag", "simulate", "AlignmentSession", "SessionConfig", "core_names"]
 
 
-def align(source, core: str = "iekf", **kwargs):
-    """See :func:`insalign_ros.session.offline.align`."""
+def align(source, core: str | None = None, **kwargs):
+    """See :func:`insalign_ros.session.offline.align` (``core`` None: SessionConfig's default, ``auto``)."""
     from .session.offline import align as _align
 
     return _align(source, core=core, **kwargs)

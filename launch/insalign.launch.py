@@ -1,10 +1,10 @@
 """Launch imu_sim_node and alignment_node, for users with a ROS 2 Jazzy install:
 
-    ros2 launch insalign_ros insalign.launch.py [core:=iekf] [scenario:=ship] [rate_factor:=1.0]
+    ros2 launch insalign_ros insalign.launch.py [core:=auto|iekf|...] [scenario:=ship] [rate_factor:=1.0]
         [source:=scenario|bag] [bag_path:=/path/to/bag] [init_from_ground_truth:=true] [init_rpy_error_deg:=...]
         [imu_grade:=unknown_mems|paper_ship|industrial_mems|...]
 
-The alignment node starts with its own defaults (core iekf, no ground-truth initialisation: what works on a real
+The alignment node starts with its own defaults (core auto, no ground-truth initialisation: what works on a real
 recording without truth); ``init_from_ground_truth:=true`` (a simulated scenario or a bag with truth) initialises from
 the truth plus ``init_rpy_error_deg``. test/test_install_honesty.py checks these defaults against the node's.
 
@@ -49,7 +49,7 @@ def _nodes(context):
 
 def generate_launch_description():
     return LaunchDescription([
-        DeclareLaunchArgument("core", default_value="iekf", description="alignment core (config/<core>.yaml)"),
+        DeclareLaunchArgument("core", default_value="auto", description="alignment core (config/<core>.yaml)"),
         DeclareLaunchArgument("source", default_value="scenario", description="scenario | bag"),
         DeclareLaunchArgument("scenario", default_value="ship", description="ship | car | static | two_position"),
         DeclareLaunchArgument("bag_path", default_value="", description="contract rosbag2 for source:=bag"),

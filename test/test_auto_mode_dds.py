@@ -1,5 +1,5 @@
-"""core: auto over real DDS (issue 14): alignment_node with `core: auto`, the scenario's imu_grade and otherwise
-default parameters, fed a park_drive stream the driver way (test_node_driver_style.Driver: best-effort QoS, driver frame ids, stamp jitter,
+"""core: auto over real DDS (issue 14): alignment_node with default parameters (core auto, imu_grade unknown_mems)
+plus topic remaps, fed a park_drive stream the driver way (test_node_driver_style.Driver: best-effort QoS, driver frame ids, stamp jitter,
 fixes 150 ms late, no truth, no guess), passes through the states in order and ends aligned."""
 
 import threading
@@ -8,7 +8,6 @@ import time
 import pytest
 
 from insalign_ros.cli.bringup import start_node, stop_nodes
-from insalign_ros.filters.imu_grade import SCENARIO_IMU_GRADE
 from test_node_driver_style import ALIGN, Driver
 
 pytestmark = pytest.mark.ros
@@ -20,12 +19,12 @@ def test_auto_core_goes_through_the_states_in_order_over_dds(tmp_path, ros_env):
     from insalign_ros.sim.scenarios import make_scenario
 
     park = 26.0
-    d = make_scenario("park_drive", seed=4, duration_s=park + 30.0, rate_hz=100.0, park_s=park, door_at_s=5.0,
+    # 40 s of driving: with the default unknown_mems grade (360 deg/h, 5 mg priors on a 5 deg/h, 1 mg IMU) the flag
+    # comes up 34 s after the drive-off (offline, the same data: 60.0 s), the gyro bias measured while parked
+    # carried across the hand-over (docs/session.md)
+    d = make_scenario("park_drive", seed=4, duration_s=park + 40.0, rate_hz=100.0, park_s=park, door_at_s=5.0,
                       heading_deg=150.0)
-    # the IMU grade that matches the simulated IMU (as the driver-style test (c)); with the default unknown_mems the
-    # in-motion core does not claim its heading within 30 s of driving
-    node = start_node(ALIGN, ros_env, params={"core": "auto", "diagnostics_period_s": 0.05,
-                                              "imu_grade": SCENARIO_IMU_GRADE["park_drive"]}, log_dir=tmp_path,
+    node = start_node(ALIGN, ros_env, params={"diagnostics_period_s": 0.05}, log_dir=tmp_path,
                       remaps={"imu/data": "/imu/data_raw", "gps/fix": "/fix"})
     mon = AlignmentMonitor()
     drv = Driver(d)
@@ -46,7 +45,7 @@ def test_auto_core_goes_through_the_states_in_order_over_dds(tmp_path, ros_env):
                             m.node.count_publishers("/alignment_node/pose"), m.diag_count) >= 1)
         assert mon.wait_for(up, 30.0), "alignment_node did not come up"
         th.start()
-        drv.stream(msgs_per_s=500.0)
+        drv.stream()  # 1000 msgs/s (10x real time): the auto core keeps up since it skips the detector at speed
         assert mon.wait_for(lambda m: int(m.diag.get("buffered_imu", "1")) == 0
                             and int(m.diag.get("imu_received", "0")) > 0.9 * d.n, 20.0), mon.diag
         time.sleep(0.5)
@@ -65,6 +64,7 @@ def test_auto_core_goes_through_the_states_in_order_over_dds(tmp_path, ros_env):
         # the flag at the newest data (the watchdog lowers "aligned" once the stream has ended)
         assert diag["aligned_at_last_output"] == "true" and diag["core.state"] == "in motion", diag
         assert diag["core.handovers"] == "1" and int(diag["core_faults"]) == 0, diag
+        assert diag["core"] == "auto", diag  # the default
     finally:
         stop.set()
         drv.close()

@@ -220,7 +220,8 @@ def test_align_cli_reads_the_velocity_topic(tmp_path, capsys):
     from insalign_ros.io.bag import write_bag
 
     bag = write_bag(make_scenario("car", seed=6, duration_s=12.0, gnss_vel_sigma_m_s=0.1), tmp_path / "b")
-    common = ["--no-plot", "--no-progress", "--out-dir", str(tmp_path), "--param", "gnss_lever_arm_b_m=[0, 0, 0]"]
+    common = ["--core", "iekf", "--no-plot", "--no-progress", "--out-dir", str(tmp_path), "--param",
+              "gnss_lever_arm_b_m=[0, 0, 0]"]  # the iekf itself (its metrics file name)
     assert main([str(bag), "--vel-topic", "/gps/vel", *common]) == 0
     c = json.loads((tmp_path / "b_iekf_metrics.json").read_text())["counters"]
     assert c["gnss_vel_accepted"] == 13 and c["gnss_vel_rejected"] == 0

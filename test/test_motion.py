@@ -5,20 +5,26 @@ import math
 import numpy as np
 import pytest
 
+from insalign_ros.filters.imu_grade import DEFAULT_IMU_GRADE, GRADES, SCENARIO_IMU_GRADE
 from insalign_ros.session.motion import MotionConfig, MotionDetector, detect_motion
 from insalign_ros.sim.scenarios import make_scenario
 
 SHORT_PARK = dict(duration_s=40.0, park_s=30.0, door_at_s=10.0)  # person gets in at 10 s, drive-off at 30 s
 
 
-def _run(name, seed=0, **kw):
+def _run(name, seed=0, grade=None, **kw):
+    """The detector with the thresholds of ``grade`` (default: the preset matching the scenario's IMU)."""
     sc = make_scenario(name, seed=seed, **kw)
-    return sc, detect_motion(sc.t_s, sc.omega_ib_b, sc.f_ib_b, MotionConfig.from_imu_spec(sc.imu_spec))
+    cfg = MotionConfig.from_imu_grade(grade or SCENARIO_IMU_GRADE[name], sc.imu_spec.rate_hz)
+    return sc, detect_motion(sc.t_s, sc.omega_ib_b, sc.f_ib_b, cfg)
 
 
-@pytest.mark.parametrize("name", ["park_drive", "park_drive_navgrade"])
-def test_park_then_drive_off_within_1_s(name):
-    sc, tr = _run(name, seed=4, **SHORT_PARK)
+@pytest.mark.parametrize("name,grade", [("park_drive", None), ("park_drive_navgrade", None),
+                                        ("park_drive", DEFAULT_IMU_GRADE), ("park_drive_navgrade", DEFAULT_IMU_GRADE)])
+def test_park_then_drive_off_within_1_s(name, grade):
+    """Thresholds from the matching grade and from the default unknown_mems (ARW 2 deg/sqrt(h), VRW 0.2 m/s/sqrt(h):
+    higher bounds, the same decisions)."""
+    sc, tr = _run(name, seed=4, grade=grade, **SHORT_PARK)
     t_go = sc.params["motion_start_s"]
     dec = tr.declarations()
     # at rest declared once the windows are full (2 s) plus the 2 s leave hold, never motion during the park,
@@ -31,9 +37,10 @@ def test_park_then_drive_off_within_1_s(name):
     assert np.nanmax(tr.dv_h[door]) < tr.thresholds["dv_h_m_s"]
 
 
-def test_at_rest_during_the_stop_and_moving_again():
+@pytest.mark.parametrize("grade", [None, DEFAULT_IMU_GRADE])
+def test_at_rest_during_the_stop_and_moving_again(grade):
     kw = dict(duration_s=95.0, park_s=5.0, stop_at_s=62.0, stop_s=20.0, door_at_s=70.0)
-    sc, tr = _run("drive_stop_drive", seed=2, **kw)
+    sc, tr = _run("drive_stop_drive", seed=2, grade=grade, **kw)
     dec = tr.declarations()
     assert [m for _, m in dec] == [False, True, False, True], dec
     assert 62.0 < dec[2][0] < 62.0 + 5.0  # at rest within 5 s of the stop
@@ -45,7 +52,7 @@ def test_gnss_speed_keeps_motion_on_a_smooth_road_and_sees_the_stop():
     kw = dict(duration_s=95.0, park_s=5.0, stop_at_s=62.0, stop_s=20.0, door_at_s=-1.0, road_acc_m_s2=0.0,
               road_ang_deg=0.0)
     sc = make_scenario("drive_stop_drive", seed=2, **kw)
-    cfg = MotionConfig.from_imu_spec(sc.imu_spec)
+    cfg = MotionConfig.from_imu_grade(SCENARIO_IMU_GRADE["drive_stop_drive"], sc.imu_spec.rate_hz)
     imu_only = detect_motion(sc.t_s, sc.omega_ib_b, sc.f_ib_b, cfg)
     rng = np.random.default_rng(0)
     g = np.arange(0, len(sc.t_s), int(sc.imu_spec.rate_hz))  # 1 Hz, Doppler sigma 0.05 m/s per axis
@@ -60,7 +67,7 @@ def test_gnss_speed_keeps_motion_on_a_smooth_road_and_sees_the_stop():
 
 def test_per_sample_path_gives_the_same_decisions():
     sc = make_scenario("park_drive", seed=7, duration_s=14.0, park_s=8.0, door_at_s=2.0)
-    cfg = MotionConfig.from_imu_spec(sc.imu_spec)
+    cfg = MotionConfig.from_imu_grade(DEFAULT_IMU_GRADE, sc.imu_spec.rate_hz)
     gt, gs, gsig = np.arange(0.5, 14.0, 1.0), np.zeros(14), np.full(14, 0.05)
     gs[9:] = 5.0
     tr = detect_motion(sc.t_s, sc.omega_ib_b, sc.f_ib_b, cfg, gt, gs, gsig)
@@ -96,6 +103,13 @@ def test_thresholds_follow_the_imu_grade():
     assert not tr.moving.any() and tr.decided[-1]
     worse = MotionConfig(**{**cfg.to_dict(), "acc_vrw_m_s_sqrt_h": 0.2}).thresholds()
     assert math.isclose(worse["spread_f_m_s2"], 2 * thr["spread_f_m_s2"])
+    # from the datasheet model: the grade's ARW and VRW, whatever the preset
+    for name, g in GRADES.items():
+        c = MotionConfig.from_imu_grade(name, 200.0, vib_acc_rms_m_s2=0.0)
+        assert (c.gyro_arw_deg_sqrt_h, c.acc_vrw_m_s_sqrt_h, c.rate_hz) == (g.gyro_arw_deg_sqrt_h, g.acc_vrw_m_s_sqrt_h,
+                                                                              200.0)
+    with pytest.raises(ValueError, match="imu_grade"):
+        MotionConfig.from_imu_grade("no_such_imu", 100.0)
 
 
 def test_bad_input_is_rejected_and_counted():

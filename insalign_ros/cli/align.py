@@ -1,6 +1,6 @@
 """insalign-align: offline alignment of a contract bag or a simulated scenario with any registered core.
 
-    insalign-align BAG --core iekf [--rpy-error 10 10 60 | --initial-rpy R P Y] [--duration 300] [--out-dir out]
+    insalign-align BAG [--core auto|iekf|...] [--rpy-error 10 10 60 | --initial-rpy R P Y] [--duration 300] [--out-dir out]
     insalign-align --scenario ship --seed 0 --core pi_liekf --rpy-error 10 10 60 --imu-grade paper_ship
     insalign-align --scenario static --core pkf --param zupt_rate_hz=10
     insalign-align --scenario park_drive --core auto --session-param init_mode=sensors   (parked, then driving)
@@ -47,7 +47,8 @@ def main(argv=None) -> int:
     ap.add_argument("bag", nargs="?", help="contract bag (insalign_ros.io.bag), or a directory of bags (a fleet)")
     ap.add_argument("--scenario", help="simulate instead: ship, car, static, ...")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--core", default="iekf", help="any registered core (insalign_ros.core_names())")
+    ap.add_argument("--core", default="auto", help="any registered core (insalign_ros.core_names()); default auto "
+                                                   "(static while parked, in-motion iekf once it moves)")
     ap.add_argument("--rpy-error", nargs=3, type=float, default=None, metavar=("R", "P", "Y"),
                     help="initial Euler error added to the truth [deg] (data with truth; default 10 10 60)")
     ap.add_argument("--initial-rpy", nargs=3, type=float, metavar=("R", "P", "Y"),

@@ -87,6 +87,11 @@ class AlignmentCore(ABC):
     #: ``propagate_arrays`` gives exactly the numbers of one ``propagate`` per sample (the session's fast path
     #: relies on it; a core whose array path differs says False and the session feeds it sample by sample)
     propagate_arrays_matches_propagate: bool = True
+    #: ``set_gyro_bias_prior`` works (cores with gyro bias states: the hand-over of ``core: auto`` starts them from
+    #: the bias measured at rest instead of the grade prior)
+    supports_gyro_bias_prior: bool = False
+    #: ``update_zero_rate`` works (a zero-angular-rate update at a stop: the gyros read bias + Earth rate)
+    supports_zero_rate: bool = False
     #: the core runs its own zero-velocity updates (earth_iekf's ``auto_zupt_period_s``: its backward passes need
     #: them inside the passes); the session then schedules none for it
     schedules_own_zero_velocity: bool = False
@@ -126,6 +131,10 @@ class AlignmentCore(ABC):
         """Fuse a GNSS position fix (at the core's current time; the caller propagates first)."""
         return UpdateResult(False, reason=f"{self.name} does not use GNSS")
 
+    def observe_gnss(self, fix: GnssFix) -> None:
+        """A fix the core does not fuse (``supports_gnss`` False now), at its stamp in the session's order: cores that
+        use it otherwise (``core: auto``'s motion detector takes the GNSS speed) override this; default: ignore."""
+
     def predict_gnss(self, fix: GnssFix) -> UpdateResult:
         """The innovation (``innovation``, ``S``, ``nis``) a fix would have now, with nothing changed (the session's
         outlier gate). Cores without it return a result with an empty ``S`` (no gate)."""
@@ -144,6 +153,16 @@ class AlignmentCore(ABC):
     def update_zero_velocity(self, stamp_s: float, sigma_v_m_s: float) -> UpdateResult:
         """Fuse the zero-velocity condition (vehicle at rest relative to Earth) with std sigma_v [m/s]."""
         return UpdateResult(False, reason=f"{self.name} does not use zero-velocity updates")
+
+    def set_gyro_bias_prior(self, b_g_b: np.ndarray, P_b_g_b: np.ndarray) -> None:
+        """Optional (``supports_gyro_bias_prior``): right after ``initialize``, replace the gyro bias estimate
+        [rad/s, body] and its 3x3 covariance [rad^2/s^2] (no correlation with the other states)."""
+        raise NotImplementedError(f"{self.name} has no gyro bias prior")
+
+    def update_zero_rate(self, omega_mean_b: np.ndarray, R_b: np.ndarray) -> UpdateResult:
+        """Optional (``supports_zero_rate``): the vehicle was at rest (relative to Earth) over a window ending now
+        and the gyros' mean over it was ``omega_mean_b`` [rad/s] with covariance ``R_b`` [rad^2/s^2]."""
+        return UpdateResult(False, reason=f"{self.name} does not use zero-angular-rate updates")
 
     def propagate_backward(self, imu: ImuSample, t_prev_s: float) -> None:
         """Optional (``supports_backtracking``): inverse step from ``imu.stamp_s`` (the core's current time) back

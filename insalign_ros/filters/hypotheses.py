@@ -55,6 +55,8 @@ class YawHypothesisBank(AlignmentCore):
         self.supports_gnss = proto.supports_gnss
         self.supports_gnss_velocity = proto.supports_gnss_velocity
         self.supports_zero_velocity = proto.supports_zero_velocity
+        self.supports_gyro_bias_prior = proto.supports_gyro_bias_prior
+        self.supports_zero_rate = proto.supports_zero_rate
         self.supports_backtracking = False
         self.att_index, self.vel_index, self.pos_index = proto.att_index, proto.vel_index, proto.pos_index
         self._proto_sigmas = proto.default_initial_sigmas()
@@ -102,6 +104,11 @@ class YawHypothesisBank(AlignmentCore):
         self.n_updates = 0
         self.collapsed_at_s = None
         self._init = True
+
+    def set_gyro_bias_prior(self, b_g_b, P_b_g_b) -> None:
+        """Every hypothesis starts from the same body-frame gyro bias prior (the bias does not depend on the yaw)."""
+        for h in self.hyps:
+            h.set_gyro_bias_prior(b_g_b, P_b_g_b)
 
     @property
     def initialized(self) -> bool:
@@ -176,6 +183,12 @@ class YawHypothesisBank(AlignmentCore):
 
     def update_zero_velocity(self, stamp_s: float, sigma_v_m_s: float) -> UpdateResult:
         return self._update([h.update_zero_velocity(stamp_s, sigma_v_m_s) for h in self.hyps])
+
+    def update_zero_rate(self, omega_mean_b, R_b) -> UpdateResult:
+        """Every hypothesis fuses it; the weights do not move (the innovation differs between hypotheses only by
+        the horizontal Earth rate, 10 deg/h: no heading evidence worth the risk of a wrong noise model)."""
+        results = [h.update_zero_rate(omega_mean_b, R_b) for h in self.hyps]
+        return results[int(np.argmax(self.logw))]
 
     def _update(self, results: list[UpdateResult]) -> UpdateResult:
         best_before = int(np.argmax(self.logw))

@@ -19,9 +19,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core import earth
+from ..core.lie import hat3
 from ..sim.error_model import deg_h_to_rad_s, mg_to_m_s2
+from .base import UpdateResult
 from .config import IekfConfig
-from .liekf import BatchedEciCore, liekf_transition_batch
+from .liekf import BatchedEciCore, joseph_update, liekf_transition_batch
 
 _I3 = np.eye(3)
 
@@ -51,6 +54,49 @@ class ImperfectIekf(BatchedEciCore):
         P[9:12, 9:12] = deg_h_to_rad_s(self.cfg.init_sigma_gyro_bias_deg_h) ** 2 * _I3
         P[12:15, 12:15] = mg_to_m_s2(self.cfg.init_sigma_acc_bias_mg) ** 2 * _I3
         return P
+
+    # ---- bias initialisation and zero-rate API (core: auto's hand-over and stops, session/auto.py) ----
+    supports_gyro_bias_prior = True
+
+    def set_gyro_bias_prior(self, b_g_b, P_b_g_b) -> None:
+        """Right after ``initialize`` (nothing propagated yet): gyro bias estimate [rad/s] and its 3x3 covariance
+        [rad^2/s^2] instead of zero and the grade's ``init_sigma_gyro_bias_deg_h`` (cross-covariances zero)."""
+        if not self._init or self._buf_t or self.t_s != self.t0_s:
+            raise RuntimeError("set_gyro_bias_prior: only right after initialize()")
+        P_b_g_b = np.asarray(P_b_g_b, float)
+        if P_b_g_b.shape != (3, 3) or not np.all(np.isfinite(P_b_g_b)) or np.any(np.linalg.eigvalsh(P_b_g_b) <= 0):
+            raise ValueError("set_gyro_bias_prior: P_b_g_b must be a finite 3x3 positive definite matrix")
+        self.b_g = np.asarray(b_g_b, float).reshape(3).copy()
+        self.P[9:12, :] = 0.0
+        self.P[:, 9:12] = 0.0
+        self.P[9:12, 9:12] = 0.5 * (P_b_g_b + P_b_g_b.T)
+
+    supports_zero_rate = True
+    #: NIS gate of the zero-angular-rate update (chi-square, 3 dof, p = 1e-5): a person getting in is rejected
+    zero_rate_nis_gate = 25.9
+
+    def update_zero_rate(self, omega_mean_b, R_b) -> UpdateResult:
+        """Zero-angular-rate update at rest: the gyros read ``b_g + C_b_i^T Omega_ie_i``. With the left-invariant
+        error ``C = C_hat exp(phi)``: ``z = omega_mean - b_g_hat - w_hat = db_g + [w_hat]x phi`` (w_hat the Earth rate
+        in the estimated body frame). Joseph form; NIS gate ``zero_rate_nis_gate``; no fading memory."""
+        if not self._init:
+            return UpdateResult(False, reason="not initialised")
+        self.flush()
+        w = self.C.T @ earth.OMEGA_IE_E
+        z = np.asarray(omega_mean_b, float) - self.b_g - w
+        H = np.zeros((3, 15))
+        H[:, 0:3] = hat3(w)
+        H[:, 9:12] = _I3
+        L, P_new, S = joseph_update(self.P, H, np.asarray(R_b, float))
+        nis = float(z @ np.linalg.solve(S, z))
+        if not nis <= self.zero_rate_nis_gate:
+            self.counters["zero_rate_rejected"] = self.counters.get("zero_rate_rejected", 0) + 1
+            return UpdateResult(False, z, S, nis, f"zero rate: NIS {nis:.1f} above gate {self.zero_rate_nis_gate}")
+        self.P = P_new
+        self._inject(L @ z)
+        self.counters["zero_rate"] = self.counters.get("zero_rate", 0) + 1
+        return UpdateResult(True, z, S, nis, "")
+    # ---- end of the bias initialisation / zero-rate API ----
 
     def _noise_diag(self, dt):
         d = super()._noise_diag(dt)

@@ -108,7 +108,8 @@ _CORE_DOC = {"gnss_lever_arm_b_m": "GNSS antenna position in the body frame FLU 
                                    "y left, z up): the fix and gps/vel models predict the antenna"}
 #: node parameters: name -> (default, description, read_only)
 NODE_PARAMS = {
-    "core": ("iekf", "alignment core (filters/registry.py; auto: session/auto.py); read-only after start", True),
+    "core": ("auto", "alignment core (filters/registry.py): auto (default: static while parked, in-motion iekf once "
+                     "it moves; session/auto.py) or one core; read-only after start", True),
     "imu_grade": (SessionConfig().imu_grade, "IMU noise model, one of " + ", ".join(GRADES) + " (docs/imu_grades.md): "
                   "the defaults of the core's noise and bias parameters; an explicit core parameter overrides it. "
                   "Read-only after start", True),

@@ -12,12 +12,13 @@ A state machine around two cores and the motion detector (session/motion.py), se
   status is WAITING_FOR_MOTION and the reason says "heading needs motion (floor X deg)";
 * **in motion**: when the motion detector declares motion, the in-motion core (``motion_core``, default iekf) is
   initialised from a snapshot of the static solution taken before the onset of the motion (level, heading if
-  trusted, their 3x3 covariance, the position, zero velocity) and the buffered IMU samples since the snapshot are
-  replayed into it; a bank of ``unknown_heading_hypotheses`` yaw hypotheses when the heading is not trusted. From
+  trusted, their 3x3 covariance, the position, zero velocity, and the gyro bias measured over the rest window:
+  :func:`gyro_bias_from_rest`) and the buffered IMU samples since the snapshot are replayed into it; a bank of ``unknown_heading_hypotheses`` yaw hypotheses when the heading is not trusted. From
   then on ``supports_gnss`` is True: the session fuses the fixes, gates them and stops its zero-velocity updates;
 * **stopped**: the detector declares rest again: the in-motion core keeps running (no reset) and takes a
   zero-velocity constraint at 10 Hz as a position hold (a pseudo-fix at the position where it stopped, 1-sigma
-  ``stop_hold_sigma_m``; the in-motion cores have no velocity update) besides the real fixes;
+  ``stop_hold_sigma_m``; the in-motion cores have no velocity update) besides the real fixes, and a
+  zero-angular-rate update per 1-s gyro mean (the z gyro bias is observable at rest);
 * **aligned**: the session's flag (one meaning of "aligned").
 
 docs/session.md ("core: auto") gives the decisions and the measured behaviour.
@@ -27,9 +28,11 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 
 import numpy as np
+
+from scipy.stats import chi2
 
 from ..core import earth
 from ..core.types import GnssFix, ImuSample
@@ -44,6 +47,15 @@ D2R = math.pi / 180.0
 #: hand-over without a snapshot at rest (moving from the start): level and velocity 1-sigma [deg, m/s]
 NO_REST_LEVEL_SIGMA_DEG = 5.0
 NO_REST_SIGMA_V_M_S = 20.0
+#: ... the vehicle acceleration [m/s^2] assumed when the fixes do not give it (the session's init_accel_m_s2)
+NO_REST_ACC_M_S2 = 1.0
+#: in motion above this speed [m/s] the motion detector is not run (checked every SPEED_CHECK_PERIOD_S [s])
+DETECTOR_SKIP_SPEED_M_S = 3.0
+SPEED_CHECK_PERIOD_S = 0.5
+#: the GNSS speed for the motion detector is a position difference over at least this long [s]
+GNSS_SPEED_BASE_S = 0.9
+#: block length of the rest-window gyro means [s] (:func:`rest_rate_mean`)
+REST_BLOCK_S = 1.0
 #: state names (``AutoCore.state``), in the order a parked-then-driving run passes through them
 STATES = ("static, levelling", "static, fine", "in motion", "stopped")
 
@@ -67,6 +79,8 @@ class AutoConfig(ConfigDict):
     #: in-motion core: floor of the fix sigma [m] (its ``gnss_sigma_floor_m``; e.g. 1 m for KITTI's RT3003, which
     #: reports centimetres)
     gnss_sigma_floor_m: float = 0.0
+    #: in-motion core: GNSS antenna position in the body frame FLU relative to the IMU [m] (its ``gnss_lever_arm_b_m``)
+    gnss_lever_arm_b_m: list = field(default_factory=lambda: [0.0, 0.0, 0.0])
     #: gyrocompassing is trusted for the heading only where the azimuth floor eps/(omega_ie cos lat) is below this
     heading_floor_max_deg: float = 1.0
     #: ... and the static yaw 1-sigma at the hand-over below this (else the yaw bank is used)
@@ -75,9 +89,15 @@ class AutoConfig(ConfigDict):
     unknown_heading_hypotheses: int = 8
     #: the static snapshot the in-motion core starts from is at least this long before the motion onset [s]
     handover_margin_s: float = 0.3
+    #: the in-motion core starts from the gyro bias measured at rest (:func:`gyro_bias_from_rest`) when the rest
+    #: window before the hand-over is at least this long [s]; else from the grade's bias prior
+    gyro_rest_min_s: float = 10.0
     #: zero-velocity constraint of the in-motion core at stops: position hold 1-sigma [m] and rate [Hz]
     stop_hold_sigma_m: float = 0.05
     stop_hold_rate_hz: float = 10.0
+    #: stops: zero-angular-rate updates from 1-s gyro means once this many blocks of the stop are in (their spread
+    #: is the update's noise); 0 turns them off
+    stop_zero_rate_min_blocks: int = 5
     #: ... only when the in-motion core's own horizontal speed agrees: below this [m/s] (the IMU-only detector can
     #: take a smooth constant acceleration for rest: a position hold while driving would wreck the attitude)
     stop_speed_max_m_s: float = 0.5
@@ -89,6 +109,9 @@ class AutoConfig(ConfigDict):
             v = values[name]
             if v == "auto" or v not in registry.CORES:
                 raise ValueError(f"{name}: unknown core {v!r}; choose one of {sorted(set(registry.CORES) - {'auto'})}")
+        if self.stop_zero_rate_min_blocks in (1, 2):
+            raise ValueError("stop_zero_rate_min_blocks: 0 (off) or >= 3 (the spread needs blocks), got "
+                             f"{self.stop_zero_rate_min_blocks}")
         if not 2 <= self.unknown_heading_hypotheses <= 36:
             raise ValueError(f"unknown_heading_hypotheses: must be in [2, 36], got {self.unknown_heading_hypotheses}")
         for name in ("heading_floor_max_deg", "heading_trust_sigma_deg", "stop_hold_sigma_m", "stop_hold_rate_hz",
@@ -105,6 +128,8 @@ class AutoConfig(ConfigDict):
                  "gyro_bias_rw_deg_h_sqrt_h": self.gyro_bias_rw_deg_h_sqrt_h,
                  "acc_bias_rw_mg_sqrt_h": self.acc_bias_rw_mg_sqrt_h, "gnss_sigma_floor_m": self.gnss_sigma_floor_m}
         known = {f.name for f in fields(registry.CORES[core][1])}
+        if any(self.gnss_lever_arm_b_m):
+            grade["gnss_lever_arm_b_m"] = list(self.gnss_lever_arm_b_m)
         return {k: v for k, v in grade.items() if k in known}
 
     def static_params(self) -> dict:
@@ -120,6 +145,55 @@ class AutoConfig(ConfigDict):
         return math.inf if c <= 1e-12 else self.gyro_bias_deg_h * D2R / 3600.0 / c
 
 
+def block_variance(block_means_b: np.ndarray) -> np.ndarray:
+    """Per-axis variance [rad^2/s^2] of one block mean from n block means (n, 3): the MAD's robust sigma squared at
+    the 95 % upper chi-square bound of a variance from n samples (a few blocks of a person getting in do not
+    inflate it)."""
+    x = np.asarray(block_means_b, float)
+    n = x.shape[0]
+    s = 1.4826 * np.median(np.abs(x - np.median(x, axis=0)), axis=0)
+    return (s * s) * (n - 1) / chi2.ppf(0.05, n - 1)
+
+
+def rest_rate_mean(block_means_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Robust mean angular rate over a rest window from its ``REST_BLOCK_S`` block means (n, 3) [rad/s]: the
+    per-axis median, and the variance of that median [rad^2/s^2] (:func:`block_variance` / n, x pi/2 for a median).
+
+    Blocks average the engine and sway vibration; the median drops the few blocks of a person getting in (the
+    load step tilts the body by ~0.5 deg: in a plain mean over 40 s that is a 45 deg/h bias error)."""
+    x = np.asarray(block_means_b, float)
+    return np.median(x, axis=0), block_variance(x) * (0.5 * math.pi) / x.shape[0]
+
+
+def gyro_bias_from_rest(omega_mean_b: np.ndarray, var_mean_b: np.ndarray, C_b_n: np.ndarray, lat_rad: float,
+                        heading_trusted: bool, gyro_bias_instability_deg_h: float, sigma_level_rad: float = 0.0,
+                        sigma_yaw_rad: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Gyro bias [rad/s, body] and its 3x3 covariance [rad^2/s^2] from the mean rate over a rest window.
+
+    At rest the gyros measure ``omega_mean_b = b_g + C_b_n^T Omega_ie_n`` + noise, with
+    ``Omega_ie_n = Omega [0, cos L, sin L]`` (ENU). The Up component (``Omega sin L``) is known from the latitude and
+    the level; the horizontal one (magnitude ``Omega cos L``, towards North) only when the heading is trusted.
+    Subtracted: the known part. Covariance: the variance of the mean ``var_mean_b`` (per body axis; white noise
+    alone: ``ARW^2 / T``, see :func:`rest_rate_mean`), the bias instability (the Allan-deviation floor: averaging
+    longer does not beat it), the Earth-rate projection error of the attitude uncertainty, and (heading not
+    trusted) the horizontal Earth rate itself: North uniform on the horizontal circle, variance
+    ``(Omega cos L)^2 / 2`` per horizontal axis.
+    """
+    C_b_n = np.asarray(C_b_n, float)
+    w_ie_n = earth.omega_ie_n(lat_rad)
+    known_n = w_ie_n if heading_trusted else np.array([0.0, 0.0, w_ie_n[2]])
+    b = np.asarray(omega_mean_b, float) - C_b_n.T @ known_n
+    var = np.asarray(var_mean_b, float) + (gyro_bias_instability_deg_h * D2R / 3600.0) ** 2
+    Om = earth.OMEGA_IE_RAD_S
+    var += (Om * sigma_level_rad) ** 2  # the Up axis is tilted by the level error
+    P_n = np.zeros((3, 3))
+    if heading_trusted:
+        var += (Om * math.cos(lat_rad) * sigma_yaw_rad) ** 2
+    else:
+        P_n[0, 0] = P_n[1, 1] = 0.5 * (Om * math.cos(lat_rad)) ** 2
+    return b, np.diag(var) + C_b_n.T @ P_n @ C_b_n
+
+
 class AutoCore(AlignmentCore):
     """The ``auto`` state machine (module docstring). ``state`` is one of :data:`STATES`; ``transitions`` lists
     (stamp [s], state, reason) at every change."""
@@ -130,6 +204,7 @@ class AutoCore(AlignmentCore):
     def __init__(self, cfg: AutoConfig):
         self.cfg = cfg
         self.supports_gnss = False  # the session reads it per call: True from the hand-over on
+        self.supports_gnss_velocity = False  # ... and the in-motion core's from the hand-over on
         self.static: AlignmentCore | None = None
         self.motion: AlignmentCore | None = None
         self.state = "waiting for data"
@@ -139,15 +214,29 @@ class AutoCore(AlignmentCore):
         self._dts: list[float] = []
         self._t: float | None = None
         self.hist: deque = deque()  # (t, omega, f): the IMU samples the hand-over may replay
-        self.snaps: deque = deque()  # (t, AlignmentEstimate) of the static core at rest
+        #: (t, AlignmentEstimate, number of rest blocks done) of the static core at rest
+        self.snaps: deque = deque()
+        self._blocks: list[np.ndarray] = []  # REST_BLOCK_S means of the gyro rate since the static core started
+        self._block_int_w, self._block_T = np.zeros(3), 0.0
+        self._stop_blocks: list[np.ndarray] = []  # REST_BLOCK_S gyro means of the current stop
+        self._stop_applied = 0  # ... of which fused (zero-angular-rate updates)
+        self._stop_block_ok = True
+        self.gyro_bias_prior: tuple[np.ndarray, np.ndarray] | None = None  # (b_g_b, P) given at the hand-over
         self.heading_trusted = False
         self.heading_floor_deg = math.nan
         self.grade_allows_heading = False
         self.sig_p = 1.0
         self.lat = 0.0
         self._hold_p_e: np.ndarray | None = None
+        #: driving faster than DETECTOR_SKIP_SPEED_M_S (the in-motion core's speed, checked every
+        #: SPEED_CHECK_PERIOD_S): the motion detector is not fed (half of the auto core's time); below, it restarts
+        #: its windows (a stop is declared only under stop_speed_max_m_s anyway)
+        self.detector_skipped = False
+        self._next_speed_check_t = -math.inf
+        self._fixes: deque = deque()  # (t, p_e, R_e) of the fixes seen while static (GNSS speed for the detector)
         self._next_hold_t = -math.inf
-        self.counters = {"handovers": 0, "stops": 0, "stop_holds": 0, "zupt_rejected_moving": 0}
+        self.counters = {"handovers": 0, "stops": 0, "stop_holds": 0, "zupt_rejected_moving": 0, "zero_rate_updates": 0,
+                         "zero_rate_rejected": 0}
         with_static = registry.make_core(cfg.static_core, cfg.static_params())
         self._static_sigmas = with_static.default_initial_sigmas()
         with_static.close()
@@ -217,17 +306,29 @@ class AutoCore(AlignmentCore):
     def propagate(self, imu: ImuSample) -> None:
         t = float(imu.stamp_s)
         w, f = np.asarray(imu.omega_ib_b, float), np.asarray(imu.f_ib_b, float)
-        dec = self._detect(t, w, f)
-        self._t = t
+        if self.motion is not None and self.state == "in motion" and t >= self._next_speed_check_t:
+            self._next_speed_check_t = t + SPEED_CHECK_PERIOD_S
+            self.detector_skipped = self._speed() > DETECTOR_SKIP_SPEED_M_S
+        skip = self.detector_skipped and self.motion is not None and self.state == "in motion"
+        dec = None if skip else self._detect(t, w, f)
+        t_prev, self._t = self._t, t
         self.hist.append((t, w, f))
         while self.hist and self.hist[0][0] < t - 6.0:
             self.hist.popleft()
         if self.motion is None:
+            if t_prev is not None and t > t_prev:  # the sample is the mean rate over (t_prev, t]
+                self._block_int_w += w * (t - t_prev)
+                self._block_T += t - t_prev
+                if self._block_T >= REST_BLOCK_S:
+                    self._blocks.append(self._block_int_w / self._block_T)
+                    self._block_int_w, self._block_T = np.zeros(3), 0.0
             self.static.propagate(imu)
             if dec is not None and dec.moving:
                 self._handover(t, dec.since_s)
             return
         self.motion.propagate(imu)
+        if self.state == "stopped" and t_prev is not None and t > t_prev:
+            self._stop_block(t - t_prev, w, dec is not None and dec.decided and not dec.moving)
         if dec is None or not dec.decided:
             return
         if dec.moving and self.state == "stopped":
@@ -237,13 +338,39 @@ class AutoCore(AlignmentCore):
             self.counters["stops"] += 1
             self._hold_p_e = self._position_e()
             self._next_hold_t = t
-            self._set_state(t, "stopped", f"stopped since {dec.since_s:.2f} s: zero-velocity updates (position hold)")
+            self._stop_blocks, self._stop_applied = [], 0
+            self._block_int_w, self._block_T, self._stop_block_ok = np.zeros(3), 0.0, True
+            self._set_state(t, "stopped", f"stopped since {dec.since_s:.2f} s: zero-velocity updates (position hold) "
+                                          "and zero-angular-rate updates")
         if self.state == "stopped" and t >= self._next_hold_t and self._hold_p_e is not None:
             self._next_hold_t = t + 1.0 / self.cfg.stop_hold_rate_hz - 1e-9
             if not (isinstance(self.motion, YawHypothesisBank) and len(self.motion.hyps) > 1):
                 # one pseudo-fix for a bank that has not collapsed would move its weights: the fixes do it
                 res = self.motion.update_gnss(GnssFix(t, self._hold_p_e, np.eye(3) * self.cfg.stop_hold_sigma_m ** 2))
                 self.counters["stop_holds"] += int(res.accepted)
+
+    def _stop_block(self, dt: float, w: np.ndarray, at_rest: bool) -> None:
+        """Stopped: 1-s gyro means; from ``stop_zero_rate_min_blocks`` on, each one is a zero-angular-rate update of
+        the in-motion core (the z gyro bias is observable at rest: the yaw 3-sigma stops growing) with the per-block
+        variance of :func:`block_variance` over the stop so far. Blocks with the detector not at rest are dropped."""
+        self._block_int_w += w * dt
+        self._block_T += dt
+        self._stop_block_ok &= at_rest
+        if self._block_T < REST_BLOCK_S:
+            return
+        if self._stop_block_ok:
+            self._stop_blocks.append(self._block_int_w / self._block_T)
+        self._block_int_w, self._block_T, self._stop_block_ok = np.zeros(3), 0.0, True
+        n = len(self._stop_blocks)
+        if self.cfg.stop_zero_rate_min_blocks == 0 or n < self.cfg.stop_zero_rate_min_blocks \
+                or not self.motion.supports_zero_rate:
+            return
+        arw2 = (self.cfg.gyro_arw_deg_sqrt_h * D2R / 60.0) ** 2 / REST_BLOCK_S
+        R = np.diag(np.maximum(block_variance(np.array(self._stop_blocks)), 1e-4 * arw2))
+        for k in range(self._stop_applied, n):
+            res = self.motion.update_zero_rate(self._stop_blocks[k], R)
+            self.counters["zero_rate_updates" if res.accepted else "zero_rate_rejected"] += 1
+        self._stop_applied = n
 
     def _motion_evidence(self) -> bool:
         """No zero-velocity update now: moving, undecided, or the detector's rest evidence fails (horizontal velocity
@@ -268,7 +395,7 @@ class AutoCore(AlignmentCore):
             return UpdateResult(False, reason="motion evidence: no zero-velocity update")
         res = self.static.update_zero_velocity(stamp_s, sigma_v_m_s)
         est = self.static.estimate()
-        self.snaps.append((float(stamp_s), est))
+        self.snaps.append((float(stamp_s), est, len(self._blocks)))
         while len(self.snaps) > 2 and self.snaps[1][0] < stamp_s - 5.0:
             self.snaps.popleft()
         self._static_state(stamp_s, est)
@@ -294,14 +421,21 @@ class AutoCore(AlignmentCore):
         """Motion declared: start the in-motion core from the static solution before ``since_s`` and replay."""
         cfg = self.cfg
         before = [s for s in self.snaps if s[0] <= since_s - cfg.handover_margin_s]
+        if not before and (len(self._fixes) < 3 or self._fixes[-1][0] - self._fixes[-3][0] > 3.0):
+            # moving from the start: as the session's sensors initialisation of an in-motion core, wait for three
+            # fixes within 3 s (velocity and acceleration); the static core takes no zero-velocity update meanwhile
+            self._set_state(t, self.state, f"moving since {since_s:.2f} s: waiting for three GNSS fixes within 3 s "
+                                           "(initial velocity)")
+            return
         if before:
-            t0, est = before[-1]
-        else:  # no snapshot at rest (moving from the start): the static core now, velocity unknown
-            t0, est = self._t, self.static.estimate()
+            t0, est, n_blocks = before[-1]
+        else:  # no snapshot at rest (moving from the start): the static core now, velocity from the fixes or unknown
+            t0, est, n_blocks = self._t, self.static.estimate(), 0
         P = np.array(est.P_att_n, float)
         if not before:  # level from accelerometers that were accelerating: as the session's sensors init, >= 5 deg
+            est.C_b_n, sig_lvl = self._moving_level(t0)
             for i in (0, 1):
-                P[i, i] = max(P[i, i], (NO_REST_LEVEL_SIGMA_DEG * D2R) ** 2)
+                P[i, i] = max(P[i, i], sig_lvl ** 2)
         yaw_sigma = math.sqrt(max(P[2, 2], 0.0))
         self.heading_trusted = self.grade_allows_heading and yaw_sigma <= cfg.heading_trust_sigma_deg * D2R
         params = cfg.grade_params(cfg.motion_core)
@@ -311,8 +445,25 @@ class AutoCore(AlignmentCore):
             P[2, 2] = (1e4 * D2R) ** 2  # unknown: uniform over the bank's hypotheses (as the session's sensors init)
         core = registry.make_core(cfg.motion_core, params)
         sig_v = 0.05 if before else NO_REST_SIGMA_V_M_S
+        v0_n = np.zeros(3)
+        sig_p = self.sig_p
+        if not before:  # moving from the start: velocity from the fixes, position the newest fix carried forward
+            v0_n, sig_v = self._gnss_velocity_n(est.lat_rad, est.lon_rad)
+            t_f, p_f, R_f = self._fixes[-1]
+            lat, lon, h = earth.ecef_to_geodetic(p_f + earth.C_n_e(est.lat_rad, est.lon_rad) @ v0_n * (t0 - t_f))
+            est.lat_rad, est.lon_rad, est.h_m = lat, lon, h
+            sig_p = math.hypot(math.sqrt(max(np.trace(R_f) / 3.0, 0.0)), sig_v * abs(t0 - t_f))
+        self.gyro_bias_prior = None
+        if n_blocks * REST_BLOCK_S >= cfg.gyro_rest_min_s and core.supports_gyro_bias_prior:
+            sig_lvl = math.sqrt(max(P[0, 0], P[1, 1], 0.0))
+            self.gyro_bias_prior = gyro_bias_from_rest(
+                *rest_rate_mean(np.array(self._blocks[:n_blocks])), est.C_b_n, est.lat_rad, self.heading_trusted,
+                cfg.gyro_bias_rw_deg_h_sqrt_h * math.sqrt(imu_grade.BIAS_RW_HORIZON_H), sig_lvl,
+                math.sqrt(max(P[2, 2], 0.0)) if self.heading_trusted else 0.0)
         try:
-            core.initialize(t0, est.lat_rad, est.lon_rad, est.h_m, est.C_b_n, np.zeros(3), P, sig_v, self.sig_p)
+            core.initialize(t0, est.lat_rad, est.lon_rad, est.h_m, est.C_b_n, v0_n, P, sig_v, sig_p)
+            if self.gyro_bias_prior is not None:
+                core.set_gyro_bias_prior(*self.gyro_bias_prior)
             for (ts, w, f) in self.hist:
                 if ts > t0:
                     core.propagate(ImuSample(ts, w, f))
@@ -321,12 +472,67 @@ class AutoCore(AlignmentCore):
             raise
         self.motion = core
         self.supports_gnss = True
+        self.supports_gnss_velocity = core.supports_gnss_velocity
         self.counters["handovers"] += 1
         self.static.close()
         how = ("heading from gyrocompassing" if self.heading_trusted else
                f"heading unknown: {cfg.unknown_heading_hypotheses} yaw hypotheses")
         self._set_state(t, "in motion", f"motion since {since_s:.2f} s: {cfg.motion_core} from the static solution at "
                                         f"{t0:.2f} s ({how})")
+
+    def observe_gnss(self, fix: GnssFix) -> None:
+        """Static: the GNSS speed over >= ``GNSS_SPEED_BASE_S`` from the fixes (position difference, per-axis sigma
+        from both fixes' covariances) goes to the motion detector: a car cruising at constant speed on a smooth road
+        looks parked to the IMU (docs/motion_detector.md), and after a re-initialisation while driving the static
+        core would otherwise take zero-velocity updates at 15 m/s."""
+        t = float(fix.stamp_s)
+        p, R = np.asarray(fix.p_e, float), np.asarray(fix.R_e, float)
+        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(R))):
+            return
+        while self._fixes and (t - self._fixes[0][0] > 3.0 * GNSS_SPEED_BASE_S or t <= self._fixes[-1][0]):
+            self._fixes.popleft() if t - self._fixes[0][0] > 3.0 * GNSS_SPEED_BASE_S else self._fixes.pop()
+        old = [f for f in self._fixes if t - f[0] >= GNSS_SPEED_BASE_S]
+        self._fixes.append((t, p, R))
+        if not old or self.detector is None:
+            return
+        t0, p0, R0 = old[-1]
+        dt = t - t0
+        sigma = math.sqrt(max(np.trace(R + R0) / 3.0, 1e-12)) / dt
+        self.detector.push_gnss_speed(t, float(np.linalg.norm(p - p0)) / dt, sigma)
+
+    def _moving_level(self, t: float) -> tuple[np.ndarray, float]:
+        """Moving from the start: C_b_n (yaw 0) levelled from the mean specific force of the last second of IMU
+        samples and its honest level 1-sigma [rad], as the session's sensors initialisation of an in-motion core:
+        1 deg (accelerometer bias) + the vehicle acceleration (second difference of the fixes seen + 0.5 m/s^2, else
+        ``NO_REST_ACC_M_S2``) over g + the spread."""
+        F = np.array([f for (ts, _, f) in self.hist if ts > t - 1.0])
+        fm = F.mean(axis=0)
+        g = max(float(np.linalg.norm(fm)), 1.0)
+        a = NO_REST_ACC_M_S2
+        fx = list(self._fixes)
+        if len(fx) >= 3 and fx[-1][0] - fx[-3][0] <= 3.0:
+            (t0, p0, _), (t1, p1, _), (t2, p2, _) = fx[-3:]
+            a = float(np.linalg.norm((p2 - p1) / (t2 - t1) - (p1 - p0) / (t1 - t0))) / (0.5 * (t2 - t0)) + 0.5
+        spread = float(np.linalg.norm(F.std(axis=0))) / g
+        sig = math.sqrt((1.0 * D2R) ** 2 + (a / g) ** 2 + spread ** 2)
+        roll, pitch = math.atan2(fm[1], fm[2]), math.atan2(-fm[0], math.hypot(fm[1], fm[2]))
+        return earth.C_b_n_from_rpy(roll, pitch, 0.0), sig
+
+    def _gnss_velocity_n(self, lat_rad: float, lon_rad: float) -> tuple[np.ndarray, float] | None:
+        """ENU velocity [m/s] from the last two fixes >= GNSS_SPEED_BASE_S apart and its 1-sigma: the fixes' noise
+        plus NO_REST_ACC_M_S2 x (the base + the age of the newest fix) for the change since (None: no such pair)."""
+        if len(self._fixes) < 2:
+            return None
+        t1, p1, R1 = self._fixes[-1]
+        old = [f for f in self._fixes if t1 - f[0] >= GNSS_SPEED_BASE_S]
+        if not old:
+            return None
+        t0, p0, R0 = old[-1]
+        dt = t1 - t0
+        v_n = earth.C_n_e(lat_rad, lon_rad).T @ ((p1 - p0) / dt)
+        sig = math.sqrt(max(np.trace(R1 + R0) / 3.0, 0.0)) / dt
+        age = max(0.0, (self._t or t1) - t1) + dt
+        return v_n, math.hypot(sig, NO_REST_ACC_M_S2 * age)
 
     def update_gnss(self, fix: GnssFix) -> UpdateResult:
         if self.motion is None:
@@ -335,6 +541,16 @@ class AutoCore(AlignmentCore):
         if self._hold_p_e is not None:  # stopped: hold where the fix put the core (holds and fixes do not fight)
             self._hold_p_e = self._position_e()
         return res
+
+    def update_gnss_velocity(self, vel) -> UpdateResult:
+        if self.motion is None:
+            return UpdateResult(False, reason="static: GNSS velocities are not used while parked")
+        return self.motion.update_gnss_velocity(vel)
+
+    def predict_gnss_velocity(self, vel) -> UpdateResult:
+        if self.motion is None:
+            return super().predict_gnss_velocity(vel)
+        return self.motion.predict_gnss_velocity(vel)
 
     def _position_e(self) -> np.ndarray:
         e = self.motion.estimate()
@@ -357,7 +573,13 @@ class AutoCore(AlignmentCore):
         d = {"state": self.state, "state_reason": self.reason,
              "heading_floor_deg": f"{self.heading_floor_deg:.3f}",
              "heading_trusted": str(self.heading_trusted).lower(),
+             "motion_detector_skipped": str(self.detector_skipped).lower(),
              **{k: str(v) for k, v in self.counters.items()}}
+        if self.gyro_bias_prior is not None:  # the in-motion core's start: the bias measured at rest [deg/h]
+            b, P = self.gyro_bias_prior
+            k = 180.0 / math.pi * 3600.0
+            d["rest_gyro_bias_deg_h"] = " ".join(f"{x * k:.2f}" for x in b)
+            d["rest_gyro_bias_sigma_deg_h"] = " ".join(f"{math.sqrt(x) * k:.2f}" for x in np.diag(P))
         if self.detector is not None:
             d.update({f"motion.{k}": v for k, v in self.detector.diagnostics().items()})
         if self.active is not None:

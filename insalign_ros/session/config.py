@@ -16,8 +16,9 @@ NAN3 = [float("nan")] * 3
 class SessionConfig:
     """What the session does around the core: initialisation, time-line hygiene, schedule, outputs."""
 
-    #: alignment core (filters/registry.py)
-    core: str = "iekf"
+    #: alignment core (filters/registry.py). Default ``auto`` (session/auto.py): static while parked, the in-motion
+    #: iekf (a yaw bank when the heading is unknown) once it moves, whatever the vehicle does at start-up
+    core: str = "auto"
     #: IMU noise model (filters/imu_grade.py, docs/imu_grades.md): the core's process noise and bias priors come from
     #: this preset; an explicit core parameter overrides it. Default: a conservative prior for an unknown MEMS IMU
     imu_grade: str = "unknown_mems"

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
+from ..filters import imu_grade
 from ..filters.config import ConfigDict
 from ..sim import error_model
 
@@ -43,7 +44,8 @@ GAP_FACTOR = 1.5  #: a stamp step over this many nominal intervals restarts the 
 
 @dataclass
 class MotionConfig(ConfigDict):
-    """Motion-detector parameters. Noise densities are the IMU grade's (``from_imu_spec``)."""
+    """Motion-detector parameters. Noise densities are the IMU grade's (``from_imu_grade``; ``from_imu_spec`` for a
+    simulated IMU's own numbers)."""
 
     #: IMU sample rate [Hz] (windows are counted in samples of 1 / rate_hz)
     rate_hz: float = 100.0
@@ -72,6 +74,15 @@ class MotionConfig(ConfigDict):
         """Config for an IMU grade (sim.types.ImuSpec or anything with arw_deg_sqrt_h, vrw_m_s_sqrt_h, rate_hz)."""
         base = dict(rate_hz=float(spec.rate_hz), gyro_arw_deg_sqrt_h=float(spec.arw_deg_sqrt_h),
                     acc_vrw_m_s_sqrt_h=float(spec.vrw_m_s_sqrt_h))
+        return cls.from_dict({**base, **overrides})
+
+    @classmethod
+    def from_imu_grade(cls, grade, rate_hz: float, **overrides) -> "MotionConfig":
+        """Config for an IMU grade (a preset name of filters/imu_grade.py or an ImuGrade): its ARW and VRW set the
+        white-noise part of every threshold (what ``core: auto`` uses: the session's ``imu_grade``)."""
+        g = imu_grade.get_grade(grade)
+        base = dict(rate_hz=float(rate_hz), gyro_arw_deg_sqrt_h=float(g.gyro_arw_deg_sqrt_h),
+                    acc_vrw_m_s_sqrt_h=float(g.acc_vrw_m_s_sqrt_h))
         return cls.from_dict({**base, **overrides})
 
     def validate(self) -> None:

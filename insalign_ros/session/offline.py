@@ -195,16 +195,16 @@ def _run_session_arrays(session: AlignmentSession, data: ScenarioData, fix_delay
     return out
 
 
-def align(source, core: str = "iekf", duration_s: float | None = None, seed: int = 0,
+def align(source, core: str | None = None, duration_s: float | None = None, seed: int = 0,
           core_params: dict | None = None, criteria: dict | None = None, fix_delay_s: float = 0.0,
           progress=None, reader_kwargs: dict | None = None, **session_params) -> AlignResult:
     """Align ``source`` (a bag path, a scenario name or a ScenarioData) with one core; return arrays and metrics.
 
     ``session_params``: fields of :class:`SessionConfig` (e.g. ``init_mode="truth"``, ``init_rpy_error_deg``,
     ``initial_rpy_deg``, ``output_period_s``); ``core_params``: the core's config fields; ``criteria``: the
-    aligned-flag criteria (eval/aligned.py). A source without truth cannot use ``init_mode="truth"``."""
+    aligned-flag criteria (eval/aligned.py); ``core`` None: SessionConfig's default (``auto``). A source without truth cannot use ``init_mode="truth"``."""
     data = load_source(source, duration_s, seed, **(reader_kwargs or {}))
-    cfg = SessionConfig.from_dict({"core": core, **session_params})
+    cfg = SessionConfig.from_dict({**({} if core is None else {"core": core}), **session_params})
     if cfg.init_mode == "truth" and not data.has_truth:
         raise ValueError("init_mode 'truth': the data have no truth; give initial_rpy_deg (init_mode 'guess')")
     session = AlignmentSession(cfg, core_params, AlignedCriteria(**(criteria or {})))

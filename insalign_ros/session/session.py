@@ -773,6 +773,7 @@ class AlignmentSession:
         core = self.core
         if not core.supports_gnss:
             self.counters["gnss_unused"] += 1
+            core.observe_gnss(fix)  # (core: auto's motion detector takes the GNSS speed)
             return
         gate = self.cfg.gnss_gate_nis
         jump = self._fix_jump(fix)
