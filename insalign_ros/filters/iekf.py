@@ -61,7 +61,7 @@ class ImperfectIekf(BatchedEciCore):
     def set_gyro_bias_prior(self, b_g_b, P_b_g_b) -> None:
         """Right after ``initialize`` (nothing propagated yet): gyro bias estimate [rad/s] and its 3x3 covariance
         [rad^2/s^2] instead of zero and the grade's ``init_sigma_gyro_bias_deg_h`` (cross-covariances zero)."""
-        if not self._init or self._buf_t or self.t_s != self.t0_s:
+        if not self._init or self._buf.n or self.t_s != self.t0_s:
             raise RuntimeError("set_gyro_bias_prior: only right after initialize()")
         P_b_g_b = np.asarray(P_b_g_b, float)
         if P_b_g_b.shape != (3, 3) or not np.all(np.isfinite(P_b_g_b)) or np.any(np.linalg.eigvalsh(P_b_g_b) <= 0):
