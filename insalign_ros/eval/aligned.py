@@ -178,9 +178,18 @@ def euler_3sigma_deg(C_b_n: np.ndarray, P_att_n: np.ndarray) -> np.ndarray:
     ``d(rpy)/d(psi) = E^-1`` (:func:`euler_rate_matrix`), so roll and pitch are about the body axes, not East and
     North. Closed form (test_session.py checks it against central differences); singular at pitch +-90 deg,
     where the roll/yaw split is undefined and the result is infinite."""
-    E = euler_rate_matrix(C_b_n)
-    if abs(E[2, 0]) > 1.0 - 1e-12 or abs(np.linalg.det(E)) < 1e-12:
+    C = np.asarray(C_b_n, float)
+    sp = max(-1.0, min(1.0, float(C[2, 0])))  # sin(pitch) = -C[2, 0]: only its magnitude and tan matter below
+    cp = math.sqrt(1.0 - sp * sp)  # det(E) = cos(pitch)
+    if abs(sp) > 1.0 - 1e-12 or cp < 1e-12:
         return np.full(3, np.inf)
-    J = np.linalg.inv(E)
-    cov = J @ np.asarray(P_att_n, float) @ J.T
-    return 3.0 * np.degrees(np.sqrt(np.clip(np.diag(cov), 0.0, None)))
+    yaw = math.atan2(C[1, 0], C[0, 0])
+    cy, sy, tp = math.cos(yaw), math.sin(yaw), -sp / cp
+    # E^-1 in closed form (per output this runs at the output rate; np.linalg.inv's errstate costs ~30 us):
+    # rows (cy/cp, sy/cp, 0), (-sy, cy, 0), (cy tp, sy tp, 1)
+    (a, b, c), (_, d, e), (_, _, f) = np.asarray(P_att_n, float).tolist()
+    # u P u' of a row u = (ux, uy, uz): the covariance of one Euler angle
+    def quad(ux, uy, uz):
+        return ux * ux * a + uy * uy * d + uz * uz * f + 2.0 * (ux * uy * b + ux * uz * c + uy * uz * e)
+    var = (quad(cy / cp, sy / cp, 0.0), quad(-sy, cy, 0.0), quad(cy * tp, sy * tp, 1.0))
+    return np.array([3.0 * math.degrees(math.sqrt(v)) if v > 0.0 else 0.0 for v in var])
