@@ -19,28 +19,12 @@ pytestmark = pytest.mark.ros
 
 ALIGN = "insalign_ros.nodes.alignment_node"
 T0 = 1000.0  # stamp of data time 0 [s]
-MAX_LEAD = 1000  # Imu messages the feed may be ahead of the node's imu_received counter (20 s of data at 50 Hz)
-
-
-class _CountedPublisher:
-    """A publisher that counts the messages it published (the feed's backpressure compares the count with the
-    node's imu_received counter, which counts every message received, rejected ones included)."""
-
-    def __init__(self, pub):
-        self.pub, self.n = pub, 0
-
-    def publish(self, msg) -> None:
-        self.pub.publish(msg)
-        self.n += 1
-
-    def get_subscription_count(self) -> int:
-        return self.pub.get_subscription_count()
 
 
 class Feeder:
     """Publishes a ScenarioData stream (and bad messages) from the test process over DDS."""
 
-    def __init__(self, data, mon):
+    def __init__(self, data):
         import rclpy
         from geometry_msgs.msg import PoseStamped
         from rclpy.node import Node
@@ -54,7 +38,7 @@ class Feeder:
         # deeper than the whole stream (13,000 Imu): reliable keep-last loses nothing even when the node lags under
         # load, so the gap/reject counters below are exact (a 2,000-deep history lost samples at load 5 on 2 cores)
         qos = QoSProfile(depth=20000, reliability=ReliabilityPolicy.RELIABLE)
-        self.pub_imu = _CountedPublisher(self.node.create_publisher(Imu, "imu/data", qos))
+        self.pub_imu = self.node.create_publisher(Imu, "imu/data", qos)
         self.pub_fix = self.node.create_publisher(NavSatFix, "gps/fix", qos)
         self.pub_truth = self.node.create_publisher(PoseStamped, "ground_truth/pose", qos)
         self.Imu, self.NavSatFix, self.PoseStamped = Imu, NavSatFix, PoseStamped
@@ -63,7 +47,6 @@ class Feeder:
         self.quat = Rotation.from_matrix(data.C_b_n).as_quat()
         self.anchor = (data.lat_rad[0], data.lon_rad[0], data.h_m[0])
         self.sent = 0
-        self.mon = mon
 
     @staticmethod
     def stamp(msg, t):
@@ -101,18 +84,13 @@ class Feeder:
         m.pose.orientation.x, m.pose.orientation.y, m.pose.orientation.z, m.pose.orientation.w = (float(x) for x in q)
         return m
 
-    def pace(self, sleep_s=0.0):
+    def pace(self):
         self.sent += 1
         if self.sent % 100 == 0:
-            time.sleep(sleep_s)
-            # backpressure on the node's state, not a fixed rate that assumes an idle CPU: at most MAX_LEAD Imu
-            # messages ahead of what the node has received (the reliable 20,000-deep histories hold the lead)
-            assert self.mon.wait_for(lambda m: self.pub_imu.n - m.counter("imu_received") <= MAX_LEAD, 60.0), (
-                self.pub_imu.n, self.mon.diag)
+            time.sleep(0.15)  # ~650 messages/s (the machine is shared; throughput is benchmarks/node_latency.py)
 
-    def stream(self, k0, k1, t_offset=0.0, gps=True, inject=None, sleep_s=0.0):
-        """Publish samples k0..k1-1 (truth every 5th, fixes at their stamps); inject(k) may publish extras; sleep
-        sleep_s [s wall] after every 100 samples."""
+    def stream(self, k0, k1, t_offset=0.0, gps=True, inject=None):
+        """Publish samples k0..k1-1 (truth every 5th, fixes at their stamps); inject(k) may publish extras."""
         d = self.d
         j = int(np.searchsorted(d.gnss_t_s, d.t_s[k0]))
         for k in range(k0, k1):
@@ -125,7 +103,7 @@ class Feeder:
                 j += 1
             if inject is not None:
                 inject(k)
-            self.pace(sleep_s)
+            self.pace()
 
     def close(self):
         self.node.destroy_node()
@@ -167,10 +145,10 @@ def test_bad_input_is_rejected_counted_and_the_node_keeps_aligning(tmp_path, ros
     node = start_node(ALIGN, ros_env, log_dir=tmp_path, params={
         "core": "liekf", "init_from_ground_truth": True, "init_rpy_error_deg": "[3.0, -3.0, 30.0]",
         "imu_grade": "paper_ship", "gnss_frame_id": "gps_link", "imu_frame_id": "imu_link", "imu_qos": "reliable", "imu_qos_depth": 20000, "gnss_qos": "reliable",
-        "gnss_qos_depth": 5000, "log_throttle_s": 5.0, "pose_rate_hz": 10.0, "diagnostics_period_s": 0.25,
+        "gnss_qos_depth": 5000, "log_throttle_s": 5.0, "pose_rate_hz": 10.0,
         "imu_timeout_s": 0.0})  # the feed pauses between segments; the watchdog has its own test
     mon = AlignmentMonitor()
-    feed = Feeder(data, mon)
+    feed = Feeder(data)
     expected: dict[str, int] = {}
 
     def count(name, n=1):
@@ -225,9 +203,8 @@ def test_bad_input_is_rejected_counted_and_the_node_keeps_aligning(tmp_path, ros
         # segment A, 0-60 s: bad messages interleaved, an IMU dropout (0.3 s)
         kA = int(60 * rate)
         k_drop = int(16 * rate)
-        # at ~650 messages/s as before: the throttled log lines counted below depend on this segment's wall time
-        feed.stream(0, k_drop, inject=inject, sleep_s=0.15)
-        feed.stream(k_drop + 15, kA, inject=inject, sleep_s=0.15)  # 15 samples = 0.3 s lost
+        feed.stream(0, k_drop, inject=inject)
+        feed.stream(k_drop + 15, kA, inject=inject)  # 15 samples = 0.3 s lost
         count("imu_gaps")
         assert mon.wait_for(lambda m: m.aligned is True, 15.0), (mon.diag, mon.aligned_history)
         # segment B, 60-200 s: no GNSS for 140 s (the flag must fall: no fresh update)
