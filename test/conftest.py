@@ -1,6 +1,9 @@
 """Shared fixtures of the DDS tests; the full core registry for every test module."""
 
+import fcntl
 import json
+import os
+import tempfile
 
 import pytest
 
@@ -25,3 +28,27 @@ def sim_summary(node) -> dict:
         if line.startswith("SIM_SUMMARY "):
             return json.loads(line[len("SIM_SUMMARY "):])
     return {}
+
+
+@pytest.fixture(autouse=True)
+def _wallclock_tests_run_alone(request):
+    """Under pytest-xdist (scripts/test runs the suite on 2 workers) a test marked ``wallclock`` (it compares wall
+    time with a budget) runs alone: it holds an exclusive lock that every other test holds shared, so no test of the
+    other worker runs beside it. A turnstile lock keeps a waiting wallclock test from being starved by the other
+    worker's next tests. Without xdist: nothing to do."""
+    run = os.environ.get("PYTEST_XDIST_TESTRUNUID")
+    if not run:
+        yield
+        return
+    base = os.path.join(tempfile.gettempdir(), f"insalign-pytest-{run}")
+    exclusive = request.node.get_closest_marker("wallclock") is not None
+    with open(base + ".turnstile", "a") as turn, open(base + ".lock", "a") as lock:
+        fcntl.flock(turn, fcntl.LOCK_EX)
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+        finally:
+            fcntl.flock(turn, fcntl.LOCK_UN)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)

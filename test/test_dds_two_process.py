@@ -129,6 +129,24 @@ def test_isolated_env_adds_to_the_environment_and_never_removes():
     assert set(base) <= set(env)
 
 
+def test_domain_ids_of_xdist_workers_are_disjoint_slices_of_1_to_100(monkeypatch):
+    """Concurrent tests on different pytest-xdist workers never draw the same ROS_DOMAIN_ID."""
+    from insalign_ros.cli.bringup import domain_id_range
+
+    assert domain_id_range({}) == (1, 100)
+    assert domain_id_range({"PYTEST_XDIST_WORKER": "gw5", "PYTEST_XDIST_WORKER_COUNT": "2"}) == (1, 100)
+    for n in (1, 2, 3, 7, 100):
+        slices = [domain_id_range({"PYTEST_XDIST_WORKER": f"gw{k}", "PYTEST_XDIST_WORKER_COUNT": str(n)})
+                  for k in range(n)]
+        ids = [i for lo, hi in slices for i in range(lo, hi + 1)]
+        assert sorted(ids) == list(range(1, 101))  # disjoint, and together all of 1..100
+    monkeypatch.setenv("PYTEST_XDIST_WORKER_COUNT", "2")
+    for worker, (lo, hi) in (("gw0", (1, 50)), ("gw1", (51, 100))):
+        monkeypatch.setenv("PYTEST_XDIST_WORKER", worker)
+        drawn = {int(isolated_ros_env(base={})["ROS_DOMAIN_ID"]) for _ in range(200)}
+        assert lo <= min(drawn) and max(drawn) <= hi and len(drawn) > 10  # still random inside the slice
+
+
 @pytest.mark.timeout(60)
 def test_config_file_matches_the_declared_parameters(monkeypatch):
     """config/imu_sim.yaml sets only parameters imu_sim_node declares, and the node takes their values."""

@@ -44,9 +44,11 @@ def test_replayed_bag_reaches_aligned_with_yaw_error_below_1_deg(tmp_path, monke
     nodes = []
     try:
         nodes.append(_start_align(env, tmp_path, imu_qos="reliable"))
+        # paced by the node's pose (at most 2 s of data ahead): as fast as the node, whatever the machine's load
         sim = start_node("insalign_ros.nodes.imu_sim_node", env, log_dir=tmp_path, params={
-            "source": "bag", "bag_path": str(bag), "rate_factor": 8.0, "wait_for_subscribers": 1,
-            "wait_timeout_s": 30.0, "start_stamp_s": 1.7e9, "qos_depth": 1000})
+            "source": "bag", "bag_path": str(bag), "rate_factor": 20.0, "wait_for_subscribers": 1,
+            "wait_timeout_s": 30.0, "start_stamp_s": 1.7e9, "qos_depth": 1000,
+            "pace_topic": "/alignment_node/pose", "max_lead_s": 2.0})
         nodes.append(sim)
         assert wait_for_exit(sim, 90.0) == 0, sim.output()[-2000:]
         assert "truth yes" in sim.output(), sim.output()[-2000:]

@@ -23,7 +23,7 @@ ALIGN = "insalign_ros.nodes.alignment_node"
 
 
 
-def _run(tmp_path, ros_env, bag, node_params, fix_delay_s=0.0, name="alignment_node"):
+def _run(tmp_path, ros_env, bag, node_params, fix_delay_s=0.0, name="alignment_node", sim_params=None):
     from insalign_ros.nodes.monitor import AlignmentMonitor
 
     mon = AlignmentMonitor(keep_poses=100000)
@@ -37,7 +37,8 @@ def _run(tmp_path, ros_env, bag, node_params, fix_delay_s=0.0, name="alignment_n
                             30.0), "alignment_node never published diagnostics"
         sim = start_node(SIM, ros_env, log_dir=tmp_path, name=f"sim_{name}", params={
             "source": "bag", "bag_path": str(bag), "rate_factor": 10.0, "wait_for_subscribers": 1,
-            "wait_timeout_s": 30.0, "qos": "reliable", "qos_depth": 20000, "fix_delay_s": fix_delay_s})
+            "wait_timeout_s": 30.0, "qos": "reliable", "qos_depth": 20000, "fix_delay_s": fix_delay_s,
+            **(sim_params or {})})
         nodes.append(sim)
         assert wait_for_exit(sim, 90.0) == 0, sim.output()[-2000:]
         summary = sim_summary(sim)
@@ -83,7 +84,9 @@ def test_node_over_dds_equals_the_offline_api(tmp_path, ros_env, core, scenario)
     assert ref.counters["imu_processed"] >= d.n - 2
     mon, nodes, summary = _run(tmp_path, ros_env, bag, {
         "core": core, "init_mode": "guess", "initial_rpy_deg": str(rpy0), "initial_velocity_enu_m_s": str(v0), "pose_rate_hz": 10.0,
-        "imu_timeout_s": 0.0, "imu_grade": SCENARIO_IMU_GRADE[scenario]})
+        "imu_timeout_s": 0.0, "imu_grade": SCENARIO_IMU_GRADE[scenario]},
+        # no watchdog here: replay as fast as the node, paced by its pose (at most 2 s of data ahead)
+        sim_params={"rate_factor": 40.0, "pace_topic": "/alignment_node/pose", "max_lead_s": 2.0})
     try:
         diffs, n_pub, n_off = _compare(mon, summary, ref, float(d.t_s[0]))
         print(f"{core}: {len(diffs)} common stamps of {n_pub} published / {n_off} offline; max difference "

@@ -112,6 +112,7 @@ def _eq18_window_product(window, H, k_P, k_I):
     return Pi
 
 
+@pytest.mark.wallclock  # a wall-time budget or measurement: alone under xdist (conftest.py)
 def test_window_lmi_is_feasible_on_the_ship_and_its_gains_stabilise_the_exact_loop():
     from insalign_ros.sim.scenarios import make_scenario
 
@@ -174,6 +175,7 @@ def _timed_core(mode, solver):
     return core
 
 
+@pytest.mark.wallclock  # a wall-time budget or measurement: alone under xdist (conftest.py)
 def test_async_lmi_never_blocks_an_update_and_swaps_the_gains_in_later():
     from insalign_ros.sim.scenarios import make_scenario
 
@@ -198,6 +200,7 @@ def test_async_lmi_never_blocks_an_update_and_swaps_the_gains_in_later():
     assert slow_sync.calls >= 1 and max(core_sync.update_wall_s) >= 0.05
 
 
+@pytest.mark.wallclock  # a wall-time budget or measurement: alone under xdist (conftest.py)
 def test_offline_default_is_synchronous_and_reproducible():
     from insalign_ros.sim.scenarios import make_scenario
 
@@ -212,6 +215,7 @@ def test_offline_default_is_synchronous_and_reproducible():
     assert np.linalg.norm(runs[0][1]) > 0
 
 
+@pytest.mark.wallclock  # a wall-time budget or measurement: alone under xdist (conftest.py)
 def test_certified_gains_on_the_ship_exact_loop_and_rejected_candidates():
     """Default formulation: eq. (20) as an analysis LMI on the exact window product of eq. (18)."""
     from insalign_ros.sim.scenarios import make_scenario
@@ -242,6 +246,7 @@ def test_certified_gains_on_the_ship_exact_loop_and_rejected_candidates():
     assert np.allclose(est[50].C_b_n, est_lk[50].C_b_n, atol=1e-12)  # identical before the first solve
 
 
+@pytest.mark.wallclock  # a wall-time budget or measurement: alone under xdist (conftest.py)
 def test_async_core_can_be_deep_copied():
     """The backtracking aligner deep-copies the live core: the worker thread and a pending solve are not copied."""
     import copy
@@ -302,6 +307,7 @@ def _lmi_threads():
     return [t for t in threading.enumerate() if t.name == "pi_liekf_lmi"]
 
 
+@pytest.mark.wallclock  # a wall-time budget or measurement: alone under xdist (conftest.py)
 def test_sync_solve_waits_at_most_the_budget_and_a_late_result_never_overwrites_newer_gains():
     """The first solve overruns (1.5 s, k_I = 0.05) a 0.3-s budget: the update returns after ~0.3 s with the safe
     gains and the reason; the next solves wait behind it or miss; once the worker is free a fresh solve (0.07)
@@ -327,6 +333,7 @@ def test_sync_solve_waits_at_most_the_budget_and_a_late_result_never_overwrites_
     core.close()
 
 
+@pytest.mark.wallclock  # a wall-time budget or measurement: alone under xdist (conftest.py)
 def test_async_solve_that_overruns_the_budget_is_discarded_and_counted():
     from insalign_ros.sim.scenarios import make_scenario
 
@@ -344,6 +351,7 @@ def test_async_solve_that_overruns_the_budget_is_discarded_and_counted():
     core.close()
 
 
+@pytest.mark.wallclock  # a wall-time budget or measurement: alone under xdist (conftest.py)
 def test_a_slow_lmi_on_a_weakly_excited_ship_is_cut_at_the_budget():
     """Reproduction of a slow solve: a ship at 4 m/s in low waves, whose first window (t = 61 s) no candidate
     certifies. CLARABEL fails there (rejected at once); SCS iterates near infeasibility (as the SCS fallback did:
@@ -371,6 +379,7 @@ def test_a_slow_lmi_on_a_weakly_excited_ship_is_cut_at_the_budget():
     core.close()
 
 
+@pytest.mark.wallclock  # a wall-time budget or measurement: alone under xdist (conftest.py)
 def test_close_is_idempotent_safe_at_any_time_and_leaves_no_thread():
     import threading
 

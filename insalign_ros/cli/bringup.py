@@ -21,15 +21,31 @@ def isolated_ros_env(domain_id: int | None = None, base: dict | None = None) -> 
     """The current environment plus a private ROS_DOMAIN_ID and localhost-only discovery.
 
     Domain ids 1..100 are used (Fast DDS derives UDP ports from the id; ids above ~101 collide with the
-    ephemeral range on Linux). The id is drawn from the pid and the clock so that parallel runs differ.
+    ephemeral range on Linux). The id is drawn from the pid and the clock so that parallel runs differ; under
+    pytest-xdist it is drawn from the worker's own share of 1..100 (``domain_id_range``), so that tests running
+    at the same time on different workers never share a domain.
     """
     env = dict(os.environ if base is None else base)
     if domain_id is None:
-        domain_id = random.Random(os.getpid() * 7919 + time.monotonic_ns()).randint(1, 100)
+        lo, hi = domain_id_range()
+        domain_id = random.Random(os.getpid() * 7919 + time.monotonic_ns()).randint(lo, hi)
     env["ROS_DOMAIN_ID"] = str(int(domain_id))
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     env.setdefault("PYTHONUNBUFFERED", "1")
     return env
+
+
+def domain_id_range(env: dict | None = None) -> tuple[int, int]:
+    """Inclusive range of ROS_DOMAIN_IDs this process may draw from: 1..100, or under pytest-xdist
+    (PYTEST_XDIST_WORKER=gw<k>, PYTEST_XDIST_WORKER_COUNT=n) the k-th of n disjoint slices of 1..100."""
+    env = os.environ if env is None else env
+    worker, count = env.get("PYTEST_XDIST_WORKER", ""), env.get("PYTEST_XDIST_WORKER_COUNT", "")
+    if not (worker.startswith("gw") and worker[2:].isdigit() and count.isdigit()):
+        return 1, 100
+    k, n = int(worker[2:]), int(count)
+    if not 0 <= k < n <= 100:
+        return 1, 100
+    return 1 + k * 100 // n, (k + 1) * 100 // n
 
 
 def ros_args(params: dict | None = None, remaps: dict | None = None, param_files: list | None = None) -> list[str]:
