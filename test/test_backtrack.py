@@ -36,6 +36,7 @@ def test_make_backtrackable():
         make_backtrackable(make_core("ekf"))
 
 
+@pytest.mark.wallclock  # max_step_s is wall time: runs alone under pytest-xdist
 def test_driver_live_feed_budgeted_passes_handover_and_catch_up():
     """Live feed with small background budgets: output keeps coming, the worker catches up and takes over at the
     newest sample; the handed-over estimate is at least as good as the live one (two_position, 60-s window)."""

@@ -21,6 +21,7 @@ pytestmark = pytest.mark.ros
 
 
 @pytest.mark.timeout(120)
+@pytest.mark.wallclock  # the node's publish gaps are wall time: runs alone under pytest-xdist
 def test_node_backtracking_two_position_keeps_publishing_and_ends_aligned(monkeypatch):
     import rclpy
     from sensor_msgs.msg import Imu

@@ -11,10 +11,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial.transform import Rotation
-from scipy.stats import chi2
 
 from ..core import earth
 from ..filters.base import AlignmentEstimate
+from .aligned import chi2_ppf
 
 
 @dataclass
@@ -73,7 +73,7 @@ def steady_state_deg(t_s: np.ndarray, err_deg: np.ndarray, last_s: float = 60.0)
 def nees_band(n_runs: int, dof: int = 3, conf: float = 0.95) -> tuple[float, float]:
     """Two-sided chi-square band of the NEES averaged over n_runs independent runs."""
     a = (1.0 - conf) / 2.0
-    return chi2.ppf(a, dof * n_runs) / n_runs, chi2.ppf(1.0 - a, dof * n_runs) / n_runs
+    return chi2_ppf(a, dof * n_runs) / n_runs, chi2_ppf(1.0 - a, dof * n_runs) / n_runs
 
 
 def summary(r: RunResult, rmse_from_s: float = -math.inf, nees_from_s: float = 30.0,

@@ -32,10 +32,9 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from scipy.stats import chi2
-
 from ..core import earth
 from ..core.types import GnssFix, ImuSample
+from ..eval.aligned import chi2_ppf
 from ..filters import imu_grade, registry
 from ..filters.base import AlignmentCore, AlignmentEstimate, AlignmentStatus, UpdateResult
 from ..filters.config import ConfigDict
@@ -152,7 +151,7 @@ def block_variance(block_means_b: np.ndarray) -> np.ndarray:
     x = np.asarray(block_means_b, float)
     n = x.shape[0]
     s = 1.4826 * np.median(np.abs(x - np.median(x, axis=0)), axis=0)
-    return (s * s) * (n - 1) / chi2.ppf(0.05, n - 1)
+    return (s * s) * (n - 1) / chi2_ppf(0.05, n - 1)
 
 
 def rest_rate_mean(block_means_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -32,8 +32,8 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
 
+from ..eval.aligned import chi2_ppf
 from ..filters import imu_grade
 from ..filters.config import ConfigDict
 from ..sim import error_model
@@ -107,14 +107,14 @@ class MotionConfig(ConfigDict):
         arw = error_model.deg_sqrt_h_to_rad_sqrt_s(self.gyro_arw_deg_sqrt_h)
         vrw = error_model.m_s_sqrt_h_to_m_s_sqrt_s(self.acc_vrw_m_s_sqrt_h)
         W = n["window"]
-        q = chi2.ppf(1.0 - self.p_false_alarm, 3 * (W - 1)) / W  # bound on s^2 / sigma_sample^2
+        q = chi2_ppf(1.0 - self.p_false_alarm, 3 * (W - 1)) / W  # bound on s^2 / sigma_sample^2
         Tv, Tr = n["dv"] * dt, n["ref"] * dt
         dv_noise = math.hypot(vrw * math.sqrt(Tv + Tv**2 / Tr), G_M_S2 * arw * math.sqrt(Tr + Tv) * Tv)
         return {
             "spread_f_m_s2": math.sqrt(vrw**2 / dt * q + self.vib_acc_rms_m_s2**2),
             "spread_omega_rad_s": math.sqrt(arw**2 / dt * q + math.radians(self.vib_gyro_rms_deg_s) ** 2),
-            "dv_h_m_s": math.sqrt(chi2.ppf(1.0 - self.p_false_alarm, 2)) * dv_noise + self.dv_margin_m_s,
-            "gnss_speed_per_sigma": math.sqrt(chi2.ppf(1.0 - self.p_false_alarm, 3)),
+            "dv_h_m_s": math.sqrt(chi2_ppf(1.0 - self.p_false_alarm, 2)) * dv_noise + self.dv_margin_m_s,
+            "gnss_speed_per_sigma": math.sqrt(chi2_ppf(1.0 - self.p_false_alarm, 3)),
         }
 
 
