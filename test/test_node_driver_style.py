@@ -102,12 +102,17 @@ def _flag_intervals(log: str):
 
 
 @pytest.mark.timeout(240)
-@pytest.mark.parametrize("scenario,duration_s,overrides,bound_deg", [
-    ("car", 150.0, {"heading_deg": -120.0}, 1.0),  # (a) already moving at 15 m/s at start-up
-    ("ship", 240.0, {}, 2.0),  # (b) a ship, moving from the start
-    ("park_drive", 105.0, {"heading_deg": 150.0, "park_s": 40.0}, 1.0),  # (c) parked 40 s, then driving
+@pytest.mark.parametrize("scenario,duration_s,overrides,bound_deg,grade", [
+    ("car", 150.0, {"heading_deg": -120.0}, 1.0, None),  # (a) already moving at 15 m/s at start-up
+    ("ship", 240.0, {}, 2.0, None),  # (b) a ship, moving from the start
+    ("park_drive", 105.0, {"heading_deg": 150.0, "park_s": 40.0}, 1.0, None),  # (c) parked 40 s, then driving
+    # the second run of each: the imu_grade matching the IMU (offline, fixes 150 ms late: flag at 32 / 59 / 59 s)
+    ("car", 90.0, {"heading_deg": -120.0}, 1.0, "industrial_mems"),
+    ("ship", 105.0, {}, 2.0, "paper_ship"),
+    ("park_drive", 105.0, {"heading_deg": 150.0, "park_s": 40.0}, 1.0, "industrial_mems"),
 ])
-def test_driver_style_stream_with_default_parameters(tmp_path, ros_env, scenario, duration_s, overrides, bound_deg):
+def test_driver_style_stream_with_default_parameters(tmp_path, ros_env, scenario, duration_s, overrides, bound_deg,
+                                                     grade):
     """Default parameters only (core auto, imu_grade unknown_mems: a MEMS prior of 360 deg/h and 5 mg on the car's
     5 deg/h, 1 mg IMU and on the ship's 25 deg/h, 0.2 mg one): flag up, never up with |yaw error| > 3 deg, final
     |yaw error| under the bound and inside its 3-sigma. Offline on the same data (docs/imu_grades.md): the flag first
@@ -118,7 +123,8 @@ def test_driver_style_stream_with_default_parameters(tmp_path, ros_env, scenario
     from insalign_ros.sim.scenarios import make_scenario
 
     d = make_scenario(scenario, seed=4, duration_s=duration_s, rate_hz=100.0, **overrides)
-    node = start_node(ALIGN, ros_env, log_dir=tmp_path, remaps={"imu/data": "/imu/data_raw", "gps/fix": "/fix"})
+    node = start_node(ALIGN, ros_env, log_dir=tmp_path, remaps={"imu/data": "/imu/data_raw", "gps/fix": "/fix"},
+                      params={"imu_grade": grade} if grade else None)
     mon = AlignmentMonitor(keep_poses=100000)
     drv = Driver(d)
     try:
@@ -144,7 +150,7 @@ def test_driver_style_stream_with_default_parameters(tmp_path, ros_env, scenario
         flag = np.zeros(len(t), bool)
         for a, b in _flag_intervals(log):
             flag |= (t >= a - 1e-6) & (t < b - 1e-6)
-        print(f"{scenario} (default parameters, core {diag.get('core')}): {len(t)} poses, flag intervals {_flag_intervals(log)}, final yaw error {yaw_err[-1]:+.3f} "
+        print(f"{scenario} (default parameters{' + imu_grade ' + grade if grade else ''}, core {diag.get('core')}): {len(t)} poses, flag intervals {_flag_intervals(log)}, final yaw error {yaw_err[-1]:+.3f} "
               f"deg, received {diag.get('imu_received')}/{d.n} Imu, gaps {diag.get('imu_gaps')}, "
               f"gnss accepted {diag.get('gnss_accepted')}/{len(d.gnss_t_s)}, stale {diag.get('gnss_stale')}")
         assert "from sensors" in log and "Imu frame_id 'imu' seen" in log, log[-2000:]
