@@ -179,7 +179,11 @@ def test_config_file_matches_the_declared_parameters(monkeypatch):
 def test_demo_prints_what_crossed_and_exits_0(tmp_path, capsys):
     from insalign_ros.cli.demo import main
 
-    assert main(["--count", "40", "--rate-hz", "200", "--timeout-s", "20", "--log-dir", str(tmp_path)]) == 0
+    # reliable on both sides: the default best-effort subscription may lose a sample when the CPU is starved (seen
+    # once in a CI-style run with two burners and two test workers: 39 of 40), which the demo rightly reports as a
+    # failure; this test is about what the demo prints, so it asks for delivery
+    assert main(["--count", "40", "--rate-hz", "200", "--timeout-s", "20", "--sub-qos", "reliable",
+                 "--log-dir", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "messages received            40 / 40" in out
     assert "first / last stamp [s]" in out and "data rate [Hz]               200.000" in out
