@@ -248,6 +248,18 @@ def rpy_from_C_b_n(C_b_n: np.ndarray) -> np.ndarray:
                      np.arctan2(C[..., 1, 0], C[..., 0, 0])], axis=-1)
 
 
+def level_from_specific_force(f_ib_b: np.ndarray, accel_m_s2: float) -> tuple[float, float, float]:
+    """(roll, pitch, level 1-sigma) [rad] from specific-force samples f_ib_b (N, 3) [m/s^2] of a vehicle that may be
+    accelerating by up to ``accel_m_s2``: the mean's direction is up; the 1-sigma is honest rather than small: 1 deg
+    for an unknown accelerometer bias, the acceleration over g, and the samples' spread over g."""
+    F = np.asarray(f_ib_b, float)
+    fm = F.mean(axis=0)
+    g = max(float(np.linalg.norm(fm)), 1.0)
+    spread = float(np.linalg.norm(F.std(axis=0))) / g
+    sig = math.sqrt(math.radians(1.0) ** 2 + (accel_m_s2 / g) ** 2 + spread ** 2)
+    return math.atan2(fm[1], fm[2]), math.atan2(-fm[0], math.hypot(fm[1], fm[2])), sig
+
+
 def wrap_angle_rad(a):
     """Wrap angle(s) to (-pi, pi]."""
     return -((-np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi)

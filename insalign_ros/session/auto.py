@@ -504,17 +504,12 @@ class AutoCore(AlignmentCore):
         samples and its honest level 1-sigma [rad], as the session's sensors initialisation of an in-motion core:
         1 deg (accelerometer bias) + the vehicle acceleration (second difference of the fixes seen + 0.5 m/s^2, else
         ``NO_REST_ACC_M_S2``) over g + the spread."""
-        F = np.array([f for (ts, _, f) in self.hist if ts > t - 1.0])
-        fm = F.mean(axis=0)
-        g = max(float(np.linalg.norm(fm)), 1.0)
         a = NO_REST_ACC_M_S2
         fx = list(self._fixes)
         if len(fx) >= 3 and fx[-1][0] - fx[-3][0] <= 3.0:
             (t0, p0, _), (t1, p1, _), (t2, p2, _) = fx[-3:]
             a = float(np.linalg.norm((p2 - p1) / (t2 - t1) - (p1 - p0) / (t1 - t0))) / (0.5 * (t2 - t0)) + 0.5
-        spread = float(np.linalg.norm(F.std(axis=0))) / g
-        sig = math.sqrt((1.0 * D2R) ** 2 + (a / g) ** 2 + spread ** 2)
-        roll, pitch = math.atan2(fm[1], fm[2]), math.atan2(-fm[0], math.hypot(fm[1], fm[2]))
+        roll, pitch, sig = earth.level_from_specific_force([f for (ts, _, f) in self.hist if ts > t - 1.0], a)
         return earth.C_b_n_from_rpy(roll, pitch, 0.0), sig
 
     def _gnss_velocity_n(self, lat_rad: float, lon_rad: float) -> tuple[np.ndarray, float] | None:

@@ -1212,12 +1212,7 @@ class AlignmentSession:
             self.status = AlignmentStatus.WAITING_FOR_DATA
             self.reason = f"collecting accelerometer data for the level ({len(win)} samples)"
             return
-        F = np.asarray([f_ for _, f_ in win])
-        fm = F.mean(axis=0)
-        g = float(np.linalg.norm(fm))
-        roll, pitch = math.atan2(fm[1], fm[2]), math.atan2(-fm[0], math.hypot(fm[1], fm[2]))
-        spread = float(np.linalg.norm(F.std(axis=0))) / max(g, 1.0)
-        sig_level = math.sqrt((1.0 * D2R) ** 2 + (a_est / max(g, 1.0)) ** 2 + spread ** 2)
+        roll, pitch, sig_level = earth.level_from_specific_force([f_ for _, f_ in win], a_est)
         # -- divergence guard: the lost filter's level (carried by the gyros) when it agrees with the accelerometers
         kept, level_from = self._kept_level_now(t), "accelerometers"
         if kept is not None and max(abs(earth.wrap_angle_rad(kept[0] - roll)), abs(kept[1] - pitch)) \
