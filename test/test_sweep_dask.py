@@ -55,3 +55,30 @@ def test_first_difference_finds_a_changed_number_and_skips_wall_times():
     b[0][0]["rmse"][0] = np.nextafter(1.0, 2.0)
     assert sweep.first_difference(a, b) == "[0][0].rmse"
     assert sweep._at(b, "[0][0].rmse")[0] == np.nextafter(1.0, 2.0)
+
+
+def _worker_env(name):
+    import os
+
+    return os.environ.get(name)  # the worker's environment (os.environ.get itself would pickle this process's)
+
+
+@pytest.mark.timeout(60)
+def test_local_cluster_workers_run_one_solver_thread(monkeypatch):
+    """A LocalCluster worker gets WORKER_ENVIRON (clarabel's rayon pool on one thread: one worker per CPU is the
+    parallelism); a value the user set in the environment wins."""
+    from insalign_ros.eval.parallel import WORKER_ENVIRON, make_client
+
+    assert WORKER_ENVIRON["RAYON_NUM_THREADS"] == "1"
+    for preset, expected in ((None, "1"), ("3", "3")):
+        if preset is None:
+            monkeypatch.delenv("RAYON_NUM_THREADS", raising=False)
+        else:
+            monkeypatch.setenv("RAYON_NUM_THREADS", preset)
+        client, cluster = make_client(1)
+        try:
+            got = list(client.run(_worker_env, "RAYON_NUM_THREADS").values())
+        finally:
+            client.close()
+            cluster.close()
+        assert got == [expected]
