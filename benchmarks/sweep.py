@@ -27,9 +27,18 @@ def add_arguments(ap) -> None:
     g.add_argument("--speedup", action="store_true",
                    help="run the tasks twice, serially then on Dask, back to back: print both wall times, the "
                         "speed-up, the load average around each, and whether the results are identical")
+    g.add_argument("--spawn-workers", action="store_true",
+                   help="start each LocalCluster worker as a fresh interpreter (Dask's default) instead of forking "
+                        "it from one process that imported the packages the runs use (PRELOAD)")
     g.add_argument("--stage-timing", action="store_true",
                    help="time the stages of every run (read/convert, input, propagate, update, outputs, session) "
                         "and print their sums (adds ~1 us per sample)")
+
+
+#: what an ``ia.align`` run imports (the cores, the session, numba's kernels, the LMI solver): imported once before
+#: a LocalCluster's workers are forked (insalign_ros.eval.parallel.make_client), not by each worker's first runs
+PRELOAD = ("insalign_ros", "insalign_ros.session.offline", "insalign_ros.filters.registry",
+           "insalign_ros.core.mechanization_numba", "insalign_ros.filters.lmi", "cvxpy", "sweep")
 
 
 @functools.lru_cache(maxsize=4)
@@ -112,7 +121,8 @@ def run_tasks(fn, tasks: list[tuple], args, desc: str = "runs", cost=None) -> li
                                         f"LocalCluster, {getattr(args, 'workers', 0) or os.cpu_count()} workers")
         load0, st = loadavg(), {}
         out = run(fn, tasks, workers=getattr(args, "workers", 0), scheduler=getattr(args, "scheduler", ""),
-                  serial=serial, desc=f"{desc} ({mode})", upload=(__file__,), cost=cost, stats=st)
+                  serial=serial, desc=f"{desc} ({mode})", upload=(__file__,), cost=cost, stats=st,
+                  preload=() if getattr(args, "spawn_workers", False) else PRELOAD)
         e = efficiency(st)
         e["line"] = f"{e['wall_s']:.1f} s wall ({mode}; load average {load0} -> {loadavg()})"
         print(f"[{desc}] {e['line']}: " + format_efficiency(e), file=sys.stderr, flush=True)

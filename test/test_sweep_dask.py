@@ -24,8 +24,9 @@ def test_four_run_yaw_sweep_on_two_workers_equals_serial():
              for seed in (0, 1) for core in ("liekf", "iekf")]
     serial = sweep.run_tasks(yaw_sweep.sweep_task, tasks, argparse.Namespace(serial=True), desc="serial")
     st: dict = {}
+    # the workers forked from a server that imported the runs' packages, as the benchmarks start them
     dask = run_tasks(yaw_sweep.sweep_task, tasks, workers=2, desc="dask", upload=(sweep.__file__,),
-                     cost=[yaw_sweep.task_cost(t[1]) for t in tasks], stats=st)
+                     cost=[yaw_sweep.task_cost(t[1]) for t in tasks], stats=st, preload=sweep.PRELOAD)
     assert len(serial) == len(dask) == 4
     for (s1, (t1, e1), (_, n1), _), (s2, (t2, e2), (_, n2), _) in zip(serial, dask):
         np.testing.assert_array_equal(t1, t2)
@@ -66,16 +67,16 @@ def _worker_env(name):
 @pytest.mark.timeout(60)
 def test_local_cluster_workers_run_one_solver_thread(monkeypatch):
     """A LocalCluster worker gets WORKER_ENVIRON (clarabel's rayon pool on one thread: one worker per CPU is the
-    parallelism); a value the user set in the environment wins."""
+    parallelism), spawned or forked from the preloaded server; a value the user set in the environment wins."""
     from insalign_ros.eval.parallel import WORKER_ENVIRON, make_client
 
     assert WORKER_ENVIRON["RAYON_NUM_THREADS"] == "1"
-    for preset, expected in ((None, "1"), ("3", "3")):
+    for preset, expected, preload in ((None, "1", ()), ("3", "3", ()), (None, "1", sweep.PRELOAD)):
         if preset is None:
             monkeypatch.delenv("RAYON_NUM_THREADS", raising=False)
         else:
             monkeypatch.setenv("RAYON_NUM_THREADS", preset)
-        client, cluster = make_client(1)
+        client, cluster = make_client(1, preload=preload)
         try:
             got = list(client.run(_worker_env, "RAYON_NUM_THREADS").values())
         finally:
