@@ -179,7 +179,6 @@ def run_tasks(fn, tasks: list[tuple], workers: int = 0, scheduler: str = "", ser
                 futures.append(client.submit(_timed_with_shared, fn, at, *args, pure=False,
                                              priority=len(tasks) - rank))
             del shared  # the scheduler keeps each value while a task still needs it, then frees it
-            t_sub, c_sub = time.time(), time.process_time()
             index = {f.key: i for f, i in zip(futures, order)}
             out = [None] * len(tasks)
             shared_recs = set()
@@ -192,7 +191,6 @@ def run_tasks(fn, tasks: list[tuple], workers: int = 0, scheduler: str = "", ser
             records.extend(("shared", -1) + r for r in shared_recs)
             if stats is not None:
                 stats["cluster_start_s"] = t_ready - t0
-                stats["submit_s"], stats["submit_cpu_s"] = t_sub - t_ready, c_sub - c0
                 # CPU outside the runs: the client, and with a LocalCluster its scheduler and nannies (this
                 # process); each worker process's whole CPU (imports, Dask's own threads, the runs)
                 stats["client_cpu_s"] = time.process_time() - c0
