@@ -138,8 +138,7 @@ class Output:
 class _Pending:
     """Time-ordered input buffer (IMU and fixes in stamp order; truth by stamp)."""
 
-    imu_t: list = field(default_factory=list)
-    imu: list = field(default_factory=list)  # (t, omega (3,), f (3,))
+    imu: "_ImuBuffer" = field(default_factory=lambda: _ImuBuffer())  # t, omega (3,), f (3,) as array blocks
     fix_t: list = field(default_factory=list)
     fix: list = field(default_factory=list)
     truth: dict = field(default_factory=lambda: _TruthDict())  # stamp -> TruthSample
@@ -212,8 +211,8 @@ class AlignmentSession:
         self.fault_reason = ""
         self.newest_imu_t: float | None = None
         self.processed_t: float | None = None  # stamp of the last processed IMU sample (= the core's time)
-        self.recent_stamps: deque = deque(maxlen=4096)
-        self._recent_set: set = set()
+        self.recent_stamps = _RecentStamps(4096)
+        self._recent_set: set = self.recent_stamps.set
         self.fix_stamps: deque = deque(maxlen=256)
         self.jump_candidates: list = []
         self.dts: deque = deque(maxlen=101)
@@ -231,9 +230,9 @@ class AlignmentSession:
         self._cusum_llr = 0.0  # divergence guard: CUSUM of the NIS log-likelihood ratio while the attitude is claimed
         self._kept_level = None  # divergence guard: (t, C_b_n, level 1-sigma) of the lost filter, if it claimed its level
         self.pre_init: deque = deque(maxlen=4000)  # IMU samples before the initialisation (level from sensors)
-        self.hist_t: deque = deque(maxlen=1000)  # recent processed samples (gap bridging statistics)
-        self.hist_w: deque = deque(maxlen=1000)
-        self.hist_f: deque = deque(maxlen=1000)
+        self.hist_t = _Ring(1000)  # recent processed samples (gap bridging statistics)
+        self.hist_w = _Ring(1000, 3)
+        self.hist_f = _Ring(1000, 3)
         self._batch: tuple[list, int] = ([], 0)  # the batch being processed and the index in it (gap look-ahead)
         self.init_t: float | None = None
         self.anchor: tuple[float, float, float] | None = None
@@ -260,9 +259,13 @@ class AlignmentSession:
         reason = _check_imu(t, w, f, self.cfg.max_rate_rad_s, self.cfg.max_acc_m_s2)
         if reason:
             return self._reject_imu("imu_invalid", reason)
+        w, f = np.asarray(w, float), np.asarray(f, float)
+        if w.shape != (3,) or f.shape != (3,):  # (the array buffer holds (3,) rows)
+            return self._reject_imu("imu_invalid", f"angular_velocity/linear_acceleration: shapes {w.shape}, {f.shape} "
+                                                   "instead of (3,)")
         if wall_s is not None:
             self.last_imu_wall = wall_s  # the watchdog counts valid samples only
-        if t in self._recent_set:
+        if t in self.recent_stamps:
             return self._reject_imu("imu_duplicate", f"duplicate stamp {t + self.stamp_offset_s:.6f}")
         newest = self.newest_imu_t
         if newest is not None and (t - newest > self.cfg.max_gap_s or newest - t > self.cfg.max_gap_s):
@@ -272,19 +275,20 @@ class AlignmentSession:
             return self._reject_imu("imu_out_of_order", f"stamp {t + self.stamp_offset_s:.6f} is {self.processed_t - t:.3f} s before "
                                                         "the filter time (beyond the fusion delay)")
         self._remember(t)
-        item = (t, np.asarray(w, float), np.asarray(f, float))
         if newest is None or t > newest:
-            self.buf.imu_t.append(t)
-            self.buf.imu.append(item)
+            self.buf.imu.append(t, w, f)
             self.newest_imu_t = t
         else:
             c["imu_reordered"] += 1
-            i = bisect.bisect(self.buf.imu_t, t)
-            self.buf.imu_t.insert(i, t)
-            self.buf.imu.insert(i, item)
-        if len(self.buf.imu_t) > self.MAX_BUFFER:
-            self._overflow_out += self._process(until=self.buf.imu_t[len(self.buf.imu_t) - self.MAX_BUFFER])
+            self.buf.imu.insert(t, w, f)
+        self._check_overflow()
         return True
+
+    def _check_overflow(self) -> None:
+        """More than MAX_BUFFER samples held: the oldest are processed at once (outputs handed out later)."""
+        b = self.buf.imu
+        if len(b) > self.MAX_BUFFER:
+            self._overflow_out += self._process(until=b.t_at(len(b) - self.MAX_BUFFER))
 
     def push_imu_arrays(self, t_s, omega_ib_b, f_ib_b, wall_s: float | None = None) -> int:
         """``push_imu`` for arrays of samples (t_s (N,) [s], omega_ib_b (N, 3) [rad/s], f_ib_b (N, 3) [m/s^2], body
@@ -331,21 +335,11 @@ class AlignmentSession:
         self._touch(wall_s)
         if wall_s is not None:
             self.last_imu_wall = wall_s
-        tl = t.tolist()
-        rs, rset = self.recent_stamps, self._recent_set
-        drop = len(rs) + m - rs.maxlen
-        if drop >= len(rs):
-            rset.clear()
-        elif drop > 0:
-            for k in range(drop):
-                rset.discard(rs[k])
-        rs.extend(tl)
-        rset.update(tl[-rs.maxlen:])
-        self.buf.imu_t.extend(tl)
-        self.buf.imu.extend(zip(tl, list(w), list(f)))
-        self.newest_imu_t = tl[-1]
-        if len(self.buf.imu_t) > self.MAX_BUFFER:
-            self._overflow_out += self._process(until=self.buf.imu_t[len(self.buf.imu_t) - self.MAX_BUFFER])
+        t, w, f = t.copy(), w.copy(), f.copy()  # the caller may reuse its arrays
+        self.recent_stamps.add_block(t)
+        self.buf.imu.extend(t, w, f)
+        self.newest_imu_t = float(t[m - 1])
+        self._check_overflow()
 
     def push_fix(self, fix: GnssFix, wall_s: float | None = None) -> bool:
         """Validate and buffer one GNSS position fix (ECEF p_e [m], R_e [m^2]). False if rejected."""
@@ -420,10 +414,7 @@ class AlignmentSession:
             self.last_input_wall = wall_s
 
     def _remember(self, t: float) -> None:
-        if len(self.recent_stamps) == self.recent_stamps.maxlen:
-            self._recent_set.discard(self.recent_stamps[0])
-        self.recent_stamps.append(t)
-        self._recent_set.add(t)
+        self.recent_stamps.add(t)
 
     def _reject(self, topic: str, what: str, counter: str, reason: str) -> bool:
         """Count a rejected input under its own counter and the topic's total; a throttled log line; False."""
@@ -460,8 +451,7 @@ class AlignmentSession:
         # the earlier candidates were counted as rejected; the run starts the new time line
         for s in run:
             self._remember(s.stamp_s)
-            self.buf.imu_t.append(float(s.stamp_s))
-            self.buf.imu.append((float(s.stamp_s), np.asarray(s.omega_ib_b, float), np.asarray(s.f_ib_b, float)))
+            self.buf.imu.append(float(s.stamp_s), np.asarray(s.omega_ib_b, float), np.asarray(s.f_ib_b, float))
         self.newest_imu_t = float(run[-1].stamp_s)
         return True
 
@@ -499,13 +489,15 @@ class AlignmentSession:
     def _process(self, until: float) -> list[Output]:
         out: list[Output] = []
         b = self.buf
-        n = bisect.bisect_right(b.imu_t, until)
+        n = b.imu.count_until(until)
         if n == 0:
             self._apply_due_fixes(out)
             return out
-        items = b.imu[:n]
-        del b.imu[:n], b.imu_t[:n]
-        plan = _FastPlan(self, items, b.imu[0] if b.imu else None) if self.fast_path and n >= 8 else None
+        T, W, F = b.imu.take(n)
+        Tl = T.tolist()
+        arrs = (Tl, W, F)
+        after = b.imu.first()
+        plan = _FastPlan(self, T, W, F, after) if self.fast_path and n >= 8 else None
         i = 0
         while i < n:
             if plan is not None and self.core is not None and self.bt is None:
@@ -513,9 +505,9 @@ class AlignmentSession:
                 if j > i:
                     i = j
                     continue
-            t, w, f = items[i]
-            self._batch = (items, i)
-            nxt = items[i + 1] if i + 1 < n else (b.imu[0] if b.imu else None)
+            t, w, f = Tl[i], W[i], F[i]
+            self._batch = (arrs, i)
+            nxt = (Tl[i + 1], W[i + 1], F[i + 1]) if i + 1 < n else after
             i += 1
             if self._spike(t, w, f, nxt):
                 continue
@@ -528,7 +520,7 @@ class AlignmentSession:
         return out
 
     def _fast_run(self, plan: "_FastPlan", i: int) -> int:
-        """Process ``plan.items[i:j]`` in one batch when none of them needs per-sample attention; return ``j``
+        """Process samples ``i:j`` of the plan in one batch when none of them needs per-sample attention; return ``j``
         (``i``: nothing done, the caller takes the per-sample path).
 
         A sample needs attention when a fix, a zero-velocity update or an output falls due at it, when its interval
@@ -597,14 +589,13 @@ class AlignmentSession:
             if q < m:
                 due = q + (m - 1 - q) // 100 * 100
             if due is not None:
-                self._spread = _LazySpread(list(self.hist_w), list(self.hist_f), plan.W[i:i + due], plan.F[i:i + due],
-                                           self.hist_w.maxlen)
+                self._spread = _LazySpread(np.asarray(self.hist_w), np.asarray(self.hist_f), plan.W[i:i + due],
+                                           plan.F[i:i + due], self.hist_w.maxlen)
         self.processed_t = float(T[j - 1])
         self.counters["imu_processed"] += m
-        run = plan.items[i:j]
-        self.hist_t.extend(T[i:j].tolist())
-        self.hist_w.extend([it[1] for it in run])
-        self.hist_f.extend([it[2] for it in run])
+        self.hist_t.extend(T[i:j])
+        self.hist_w.extend(plan.W[i:j])
+        self.hist_f.extend(plan.F[i:j])
         try:
             if core.propagate_arrays_matches_propagate:
                 core.propagate_arrays(T[i:j], plan.W[i:j], plan.F[i:j])
@@ -734,15 +725,14 @@ class AlignmentSession:
     def _lookahead(self, until: float):
         """The IMU samples not processed yet (the rest of the batch being processed, then the buffer), up to the
         stamp ``until`` [s]: data the gap bridge may use after the gap."""
-        items, i = self._batch
-        for it in items[i + 1:]:
-            if it[0] > until:
-                return
-            yield it
-        for it in self.buf.imu:
-            if it[0] > until:
-                return
-            yield it
+        arrs, i = self._batch
+        if arrs:
+            Tl, W, F = arrs
+            for k in range(i + 1, len(Tl)):
+                if Tl[k] > until:
+                    return
+                yield Tl[k], W[k], F[k]
+        yield from self.buf.imu.iter_until(until)
 
     def _feed(self, event) -> None:
         if self.bt is not None:
@@ -1412,7 +1402,7 @@ class AlignmentSession:
             d["gnss_age_s"] = f"{self.processed_t - self.last_accepted_fix_t:.2f}"
         if self._median_dt is not None:
             d["imu_period_median_ms"] = f"{self._median_dt * 1e3:.3f}"
-        d["buffered_imu"] = str(len(self.buf.imu_t))
+        d["buffered_imu"] = str(len(self.buf.imu))
         d["buffered_fixes"] = str(len(self.buf.fix_t))
         if self.watchdog_reason:
             d["watchdog"] = self.watchdog_reason
@@ -1504,16 +1494,11 @@ class _FastPlan:
     """Arrays of one ``_process`` batch for ``AlignmentSession._fast_run``: stamps, rates, specific forces, the
     intervals, and the samples that could be spikes (off both neighbours by more than the configured bounds)."""
 
-    def __init__(self, session: AlignmentSession, items: list, nxt) -> None:
-        n = len(items)
-        self.items = items
-        self.T = np.fromiter((it[0] for it in items), float, n)
-        self.W = np.array([it[1] for it in items], dtype=float)
-        self.F = np.array([it[2] for it in items], dtype=float)
+    def __init__(self, session: AlignmentSession, T: np.ndarray, W: np.ndarray, F: np.ndarray, nxt) -> None:
+        n = T.shape[0]
+        self.n = n
+        self.T, self.W, self.F = T, W, F
         self.n_fast = n if nxt is not None else n - 1  # the last sample of the buffer: per sample (no neighbour)
-        if self.W.shape != (n, 3) or self.F.shape != (n, 3):
-            self.n_fast = 0
-            return
         self.dT = np.diff(self.T)
         self.dnext = np.append(self.dT, (nxt[0] - self.T[-1]) if nxt is not None else math.inf)
         cfg = session.cfg
@@ -1537,10 +1522,10 @@ class _FastPlan:
         self.cand = np.flatnonzero(bad) + 1
 
     def next_candidate(self, k: int) -> int:
-        """Index of the first possible spike at or after ``k`` (``len(items)`` when none)."""
+        """Index of the first possible spike at or after ``k`` (``n`` when none)."""
         c = self.cand
         i = int(np.searchsorted(c, k))
-        return int(c[i]) if i < c.shape[0] else len(self.items)
+        return int(c[i]) if i < c.shape[0] else self.n
 
     def candidate_at(self, k: int, w_prev, f_prev) -> bool:
         """Could sample ``k`` be a spike, with ``w_prev``, ``f_prev`` the last processed sample before it?"""
@@ -1548,6 +1533,212 @@ class _FastPlan:
         df = min(math.dist(self.F[k].tolist(), np.asarray(f_prev, float).tolist()), float(self.dn_f[k]))
         return bool((self.bound_w > 0 and dw > self.bound_w * (1.0 - 1e-9))
                     or (self.bound_f > 0 and df > self.bound_f * (1.0 - 1e-9)))
+
+
+class _ImuBuffer:
+    """IMU samples waiting to be processed, in stamp order, held as array blocks: ``(T (m,) [s], W (m, 3) [rad/s],
+    F (m, 3) [m/s^2])`` with a read offset into the first block, then a growing block of single pushes (``push_imu``
+    from the node). A block pushed as arrays reaches the core as views, without a Python object per sample."""
+
+    __slots__ = ("blocks", "off", "n", "_t", "_w", "_f")
+
+    def __init__(self) -> None:
+        self.blocks: list = []
+        self.off = 0
+        self.n = 0
+        self._t: list = []
+        self._w: list = []
+        self._f: list = []
+
+    def __len__(self) -> int:
+        return self.n
+
+    def _seal(self) -> None:
+        if self._t:
+            m = len(self._t)
+            self.blocks.append((np.array(self._t, float), np.array(self._w, float).reshape(m, 3),
+                                np.array(self._f, float).reshape(m, 3)))
+            self._t, self._w, self._f = [], [], []
+
+    def append(self, t: float, w: np.ndarray, f: np.ndarray) -> None:
+        """One sample stamped after every buffered one (``w``, ``f`` of shape (3,))."""
+        self._t.append(t)
+        self._w.append(w)
+        self._f.append(f)
+        self.n += 1
+
+    def extend(self, T: np.ndarray, W: np.ndarray, F: np.ndarray) -> None:
+        """A block of increasing stamps after every buffered one (held as it is: the caller passes its own copy)."""
+        self._seal()
+        self.blocks.append((T, W, F))
+        self.n += T.shape[0]
+
+    def insert(self, t: float, w: np.ndarray, f: np.ndarray) -> None:
+        """One sample among the buffered ones (out of order): after those stamped at or before it."""
+        T, W, F = self.take(self.n)
+        k = int(np.searchsorted(T, t, side="right"))
+        self.blocks = [(np.insert(T, k, t), np.insert(W, k, w, axis=0), np.insert(F, k, f, axis=0))]
+        self.n = T.shape[0] + 1
+
+    def count_until(self, until: float) -> int:
+        """How many buffered samples are stamped at or before ``until``."""
+        self._seal()
+        c, off = 0, self.off
+        for T, _, _ in self.blocks:
+            k = int(np.searchsorted(T, until, side="right"))
+            if k < T.shape[0]:
+                return c + max(k - off, 0)
+            c += T.shape[0] - off
+            off = 0
+        return c
+
+    def take(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The first ``n`` samples as arrays (views when they lie in one block), removed from the buffer."""
+        self._seal()
+        parts = []
+        need = n
+        while need > 0:
+            T, W, F = self.blocks[0]
+            a = self.off
+            k = min(T.shape[0] - a, need)
+            parts.append((T[a:a + k], W[a:a + k], F[a:a + k]))
+            need -= k
+            self.off = a + k
+            if self.off == T.shape[0]:
+                del self.blocks[0]
+                self.off = 0
+        self.n -= n
+        if len(parts) == 1:
+            return parts[0]
+        if not parts:
+            return np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3))
+        return tuple(np.concatenate(x) for x in zip(*parts))
+
+    def first(self):
+        """(t, w, f) of the first buffered sample, or None."""
+        if self.n == 0:
+            return None
+        if self.blocks:
+            T, W, F = self.blocks[0]
+            return float(T[self.off]), W[self.off], F[self.off]
+        return self._t[0], self._w[0], self._f[0]
+
+    def t_at(self, k: int) -> float:
+        """Stamp of the ``k``-th buffered sample (0-based)."""
+        self._seal()
+        k += self.off
+        for T, _, _ in self.blocks:
+            if k < T.shape[0]:
+                return float(T[k])
+            k -= T.shape[0]
+        raise IndexError(k)
+
+    def iter_until(self, until: float):
+        """(t, w, f) of the buffered samples stamped at or before ``until``, in order (not removed)."""
+        self._seal()
+        off = self.off
+        for T, W, F in self.blocks:
+            for k in range(off, T.shape[0]):
+                if T[k] > until:
+                    return
+                yield float(T[k]), W[k], F[k]
+            off = 0
+
+
+class _Ring:
+    """The last ``maxlen`` values or rows appended (a deque held in one array of twice that length): rows or blocks
+    in, one view out. Views are read at once, never kept (a later append may move the rows)."""
+
+    __slots__ = ("maxlen", "a", "e")
+
+    def __init__(self, maxlen: int, width: int = 0) -> None:
+        self.maxlen = maxlen
+        self.a = np.empty((2 * maxlen, width) if width else 2 * maxlen)
+        self.e = 0  # rows a[max(e - maxlen, 0):e] are held
+
+    def __len__(self) -> int:
+        return min(self.e, self.maxlen)
+
+    def _shift(self) -> None:
+        k = min(self.e, self.maxlen)
+        self.a[:k] = self.a[self.e - k:self.e]
+        self.e = k
+
+    def append(self, x) -> None:
+        if self.e == self.a.shape[0]:
+            self._shift()
+        self.a[self.e] = x
+        self.e += 1
+
+    def extend(self, X: np.ndarray) -> None:
+        m = X.shape[0]
+        if m >= self.maxlen:
+            self.a[:self.maxlen] = X[m - self.maxlen:]
+            self.e = self.maxlen
+            return
+        if self.e + m > self.a.shape[0]:
+            self._shift()
+        self.a[self.e:self.e + m] = X
+        self.e += m
+
+    def view(self) -> np.ndarray:
+        return self.a[max(self.e - self.maxlen, 0):self.e]
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        return np.array(self.view(), dtype=dtype)
+
+    def __getitem__(self, k: int):
+        if k != -1 or self.e == 0:
+            raise IndexError(k)
+        return self.a[self.e - 1]
+
+
+class _RecentStamps:
+    """The last ``maxlen`` IMU stamps taken into the buffer (``push_imu``'s duplicate check): single stamps in a
+    deque and the set ``set``; runs pushed as arrays (increasing, after every stamp held) kept as arrays and moved
+    into the set only when a single stamp is checked or added (never on the offline path)."""
+
+    __slots__ = ("rs", "set", "pending", "n_pending")
+
+    def __init__(self, maxlen: int) -> None:
+        self.rs: deque = deque(maxlen=maxlen)
+        self.set: set = set()
+        self.pending: list = []
+        self.n_pending = 0
+
+    def add(self, t: float) -> None:
+        if self.pending:
+            self._flush()
+        rs = self.rs
+        if len(rs) == rs.maxlen:
+            self.set.discard(rs[0])
+        rs.append(t)
+        self.set.add(t)
+
+    def add_block(self, T: np.ndarray) -> None:
+        self.pending.append(T)
+        self.n_pending += T.shape[0]
+        if self.n_pending > 8 * self.rs.maxlen:  # only the newest maxlen can matter
+            keep = np.concatenate(self.pending)[-self.rs.maxlen:]
+            self.pending, self.n_pending = [keep], keep.shape[0]
+
+    def __contains__(self, t: float) -> bool:
+        if self.pending:
+            self._flush()
+        return t in self.set
+
+    def _flush(self) -> None:
+        rs, rset = self.rs, self.set
+        tl = np.concatenate(self.pending)[-rs.maxlen:].tolist()
+        self.pending, self.n_pending = [], 0
+        drop = len(rs) + len(tl) - rs.maxlen
+        if drop >= len(rs):
+            rset.clear()
+        elif drop > 0:
+            for k in range(drop):
+                rset.discard(rs[k])
+        rs.extend(tl)
+        rset.update(tl)
 
 
 class _LazySpread:
