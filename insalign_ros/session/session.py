@@ -154,6 +154,8 @@ class AlignmentSession:
     MAX_BUFFER = 200_000
     #: process runs of IMU samples between events as arrays (``_fast_run``); False: one ``_step`` per sample
     fast_path: bool = True
+    #: (core, its estimate) while the core's state has not changed since (``_estimate``)
+    _est_memo: tuple | None = None
 
     def __init__(self, config: SessionConfig | dict | None = None, core_params: dict | None = None,
                  criteria: AlignedCriteria | None = None, log=None) -> None:
@@ -497,11 +499,11 @@ class AlignmentSession:
         Tl = T.tolist()
         arrs = (Tl, W, F)
         after = b.imu.first()
-        plan = _FastPlan(self, T, W, F, after) if self.fast_path and n >= 8 else None
+        plan = _FastPlan(self, T, W, F, after, Tl) if self.fast_path and n >= 8 else None
         i = 0
         while i < n:
             if plan is not None and self.core is not None and self.bt is None:
-                j = self._fast_run(plan, i)
+                j = self._fast_run(plan, i, out)
                 if j > i:
                     i = j
                     continue
@@ -519,69 +521,68 @@ class AlignmentSession:
         self.timing["samples"] += n
         return out
 
-    def _fast_run(self, plan: "_FastPlan", i: int) -> int:
-        """Process samples ``i:j`` of the plan in one batch when none of them needs per-sample attention; return ``j``
-        (``i``: nothing done, the caller takes the per-sample path).
+    def _fast_run(self, plan: "_FastPlan", i: int, out: list[Output]) -> int:
+        """Process samples ``i:j`` of the plan in one batch when none of them needs per-sample attention, the last
+        one possibly a sample at which events fall due (fixes, a zero-velocity update, an output: handled after the
+        batch, as ``_step`` does after that sample); return ``j`` (``i``: nothing done, the caller takes the per-sample
+        path).
 
-        A sample needs attention when a fix, a zero-velocity update or an output falls due at it, when its interval
-        could be a gap or make the spike check return early (bounded with a lower bound of the running median
-        interval), or when it could be a spike (off both neighbours by more than the configured bounds, which the
-        adaptive bound never undercuts). Everything else ``_step`` does per sample is done here for the run at once
-        (period tracking, counters, history, ``core.propagate_arrays``), with the same result (docs/speed.md)."""
+        A sample needs attention when its interval could be a gap or make the spike check return early (bounded with
+        a lower bound of the running median interval), or when it could be a spike (off both neighbours by more than
+        the configured bounds, which the adaptive bound never undercuts). Everything else ``_step`` does per sample
+        is done here for the run at once (period tracking, counters, history, ``core.propagate_arrays``), with the
+        same result (docs/speed.md)."""
         core, cfg = self.core, self.cfg
         prev = self.processed_t
         if prev is None or self._median_dt is None or not self.hist_w or i >= plan.n_fast:
             return i
-        T = plan.T
-        # events: fixes, outputs, zero-velocity updates (stamps increase along the buffer)
+        Tl = plan.Tl
+        # events: fixes, outputs, zero-velocity updates (stamps increase along the buffer); the run ends at the first
+        # sample at which one falls due
+        b = self.buf
         t_end = self.next_out_t - 1e-9
-        if self.buf.fix_t:
-            t_end = min(t_end, self.buf.fix_t[0])
-        if self.buf.vel_t:
-            t_end = min(t_end, self.buf.vel_t[0])
-        if self._zupt_due(math.inf):  # the session schedules zero-velocity updates for this core
-            t_end = min(t_end, self.next_zupt_t)
-        if not T[i] < t_end:  # an event at this very sample (the usual case right after a run)
-            return i
-        j = min(plan.n_fast, int(np.searchsorted(T, t_end, side="left")))
+        if b.fix_t and b.fix_t[0] < t_end:
+            t_end = b.fix_t[0]
+        if b.vel_t and b.vel_t[0] < t_end:
+            t_end = b.vel_t[0]
+        if self.next_zupt_t < t_end and self._zupt_due(math.inf):  # the session schedules zero-velocity updates
+            t_end = self.next_zupt_t
+        j = min(plan.n_fast, bisect.bisect_left(Tl, t_end, i) + 1)
         if plan.cand is not None:  # spike candidates after the first sample; the first against the history
             j = min(j, plan.next_candidate(i + 1))
-            if j - i < 2 or plan.candidate_at(i, self.hist_w[-1], self.hist_f[-1]):
+            if j == i or plan.candidate_at(i, self.hist_w[-1], self.hist_f[-1]):
                 return i
-        if j - i < 2:
-            return i
         # intervals: none may be a gap or exceed 3 medians (the spike check's early return), for any median the
         # running window can take during the run (>= the 51st smallest interval of the old window and the run)
-        d = np.empty(j - i)
-        d[0] = T[i] - prev
-        d[1:] = plan.dT[i:j - 1]
-        old = list(self.dts)
+        d = [Tl[i] - prev]
+        d += plan.dTl[i:j - 1]
         fac = min(3.0, cfg.gap_factor)
         # cheap bound first (the smallest interval anywhere; the median now may come from a window partly older than
-        # ``old``), the 51st smallest of the old window and the run when jitter makes the cheap one too tight
-        lb = min(min(old), float(d.min()), self._median_dt)
-        if float(d.max()) > fac * lb or plan.dnext[j - 1] > fac * lb:
-            alld = np.concatenate((old, d))
+        # the window now), the 51st smallest of the old window and the run when jitter makes the cheap one too tight
+        lb = min(min(self.dts), min(d), self._median_dt)
+        if max(d) > fac * lb or plan.dnextl[j - 1] > fac * lb:
+            old = list(self.dts)
+            alld = np.array(old + d)
             lb = float(alld.min()) if len(old) < self.dts.maxlen else float(np.partition(alld, 50)[50])
             lb = min(lb, self._median_dt)
             thr = fac * lb
-            over = np.flatnonzero(d > thr)
+            over = np.flatnonzero(np.array(d) > thr)
             if over.size:
                 j = i + int(over[0]) - 1  # the sample before the long interval is the last whose next one is short
                 d = d[:max(j - i, 0)]
-            elif plan.dnext[j - 1] > thr:
+            elif plan.dnextl[j - 1] > thr:
                 j -= 1
                 d = d[:j - i]
-            if j - i < 2:
+            if j - i < 1:
                 return i
         m = j - i
         # period tracking as _track_period per sample: the median at the last multiple of 20 intervals in the run
         c0 = self._dt_count
-        self.dts.extend(d.tolist())
-        self._dt_count = c0 + m
         p = (c0 + m) // 20 * 20
         if p > c0:
-            self._median_dt = _median((old + d[:p - c0].tolist())[-self.dts.maxlen:])
+            self._median_dt = _median((list(self.dts) + d[:p - c0])[-self.dts.maxlen:])
+        self.dts.extend(d)
+        self._dt_count = c0 + m
         # the spike check's spread statistic, due at sample k when its interval count % 100 == 1: lazily
         if cfg.imu_spike_rad_s > 0 or cfg.imu_spike_m_s2 > 0:
             due = None if self._spread is not None else 0
@@ -591,16 +592,21 @@ class AlignmentSession:
             if due is not None:
                 self._spread = _LazySpread(np.asarray(self.hist_w), np.asarray(self.hist_f), plan.W[i:i + due],
                                            plan.F[i:i + due], self.hist_w.maxlen)
-        self.processed_t = float(T[j - 1])
+        t = Tl[j - 1]
+        self.processed_t = t
         self.counters["imu_processed"] += m
-        self.hist_t.extend(T[i:j])
-        self.hist_w.extend(plan.W[i:j])
-        self.hist_f.extend(plan.F[i:j])
+        T, W, F = plan.T[i:j], plan.W[i:j], plan.F[i:j]
+        self.hist_t.extend(T)
+        self.hist_w.extend(W)
+        self.hist_f.extend(F)
+        self._est_memo = None
         try:
             if core.propagate_arrays_matches_propagate:
-                core.propagate_arrays(T[i:j], plan.W[i:j], plan.F[i:j])
+                core.propagate_arrays(T, W, F)
             else:
-                AlignmentCore.propagate_arrays(core, T[i:j], plan.W[i:j], plan.F[i:j])
+                AlignmentCore.propagate_arrays(core, T, W, F)
+            if t >= t_end:
+                self._events_at(t, out)
         except Exception as exc:  # noqa: BLE001 - a core failure is a fault; the alignment restarts
             self._fault(exc)
         return j
@@ -619,8 +625,9 @@ class AlignmentSession:
             self._spread = (float(np.linalg.norm(np.std(np.asarray(self.hist_w), axis=0))),
                             float(np.linalg.norm(np.std(np.asarray(self.hist_f), axis=0))))
         # off BOTH neighbours (the sample before a spike is off only one of them)
-        dw = min(float(np.linalg.norm(w - self.hist_w[-1])), float(np.linalg.norm(w - nxt[1])))
-        df = min(float(np.linalg.norm(f - self.hist_f[-1])), float(np.linalg.norm(f - nxt[2])))
+        wl, fl = w.tolist(), f.tolist()
+        dw = min(_dist3(wl, self.hist_w[-1].tolist()), _dist3(wl, nxt[1].tolist()))
+        df = min(_dist3(fl, self.hist_f[-1].tolist()), _dist3(fl, nxt[2].tolist()))
         if isinstance(self._spread, _LazySpread):  # fell due inside a fast run (_fast_run): computed when it matters
             if not ((cfg.imu_spike_rad_s > 0 and dw > cfg.imu_spike_rad_s)
                     or (cfg.imu_spike_m_s2 > 0 and df > cfg.imu_spike_m_s2)):
@@ -658,6 +665,11 @@ class AlignmentSession:
         self.hist_t.append(t)
         self.hist_w.append(w)
         self.hist_f.append(f)
+        self._events_at(t, out)
+
+    def _events_at(self, t: float, out: list[Output]) -> None:
+        """What falls due at the processed sample ``t``: fixes and GNSS velocities stamped up to it, a zero-velocity
+        update, an output."""
         self._apply_fixes_until(t, out)
         if self.core is None:  # a divergence restarted the session
             return
@@ -735,6 +747,7 @@ class AlignmentSession:
         yield from self.buf.imu.iter_until(until)
 
     def _feed(self, event) -> None:
+        self._est_memo = None
         if self.bt is not None:
             self.bt.feed(event)
         elif isinstance(event, ImuSample):
@@ -756,6 +769,7 @@ class AlignmentSession:
             if fix.stamp_s < self.init_t:
                 self.counters["gnss_before_init"] += 1
                 continue
+            self._est_memo = None
             self._fuse_fix(fix)
         self._apply_velocities_until(t)
 
@@ -868,7 +882,7 @@ class AlignmentSession:
                 reason, key = reason or (f"mean NIS {mean:.3g} of the last {len(self._nis_win)} fixes above "
                                f"{cfg.divergence_nis_mean:g} (chi-square(3) mean 3)"), "divergences_nis"
         if not reason:
-            P = self.core.estimate().P_att_n
+            P = self._estimate().P_att_n
             if self._level_bound_deg is None:  # an initialisation from sensors may start near the bound (a_est / g)
                 d = np.clip(np.diag(P)[:2], 0.0, None)
                 self._level_bound_deg = max(cfg.divergence_level_3sigma_deg, 2.0 * 3.0 * math.degrees(math.sqrt(max(d))))
@@ -947,6 +961,7 @@ class AlignmentSession:
             if vel.stamp_s < self.init_t:
                 self.counters["gnss_vel_before_init"] += 1
                 continue
+            self._est_memo = None
             self._fuse_velocity(vel)
 
     def _fuse_velocity(self, vel: GnssVelocity) -> None:
@@ -1037,6 +1052,7 @@ class AlignmentSession:
                 and self.cfg.zupt_rate_hz > 0 and t >= self.next_zupt_t)
 
     def _zupt(self, t: float) -> None:
+        self._est_memo = None
         res = self.core.update_zero_velocity(t, self.cfg.zupt_sigma_m_s)
         self.next_zupt_t = t + 1.0 / self.cfg.zupt_rate_hz - 1e-9
         if res.accepted:
@@ -1249,8 +1265,19 @@ class AlignmentSession:
         return coef[-2]
 
     # ------------------------------------------------------------------ outputs, flag, status
+    def _estimate(self) -> AlignmentEstimate:
+        """``core.estimate()`` once per core state: the divergence guard's covariance test after a fix and the output
+        at the same sample read the same one (the memo is dropped whenever the session hands the core a sample or an
+        update)."""
+        m, core = self._est_memo, self.core
+        if m is not None and m[0] is core:
+            return m[1]
+        est = core.estimate()
+        self._est_memo = (core, est)
+        return est
+
     def _output(self, t: float) -> Output:
-        est = self.core.estimate()
+        est = self._estimate()
         P = est.P_att_n
         if not (np.all(np.isfinite(P)) and np.all(np.isfinite(est.C_b_n)) and math.isfinite(est.lat_rad)):
             raise FloatingPointError("non-finite estimate")
@@ -1494,13 +1521,15 @@ class _FastPlan:
     """Arrays of one ``_process`` batch for ``AlignmentSession._fast_run``: stamps, rates, specific forces, the
     intervals, and the samples that could be spikes (off both neighbours by more than the configured bounds)."""
 
-    def __init__(self, session: AlignmentSession, T: np.ndarray, W: np.ndarray, F: np.ndarray, nxt) -> None:
+    def __init__(self, session: AlignmentSession, T: np.ndarray, W: np.ndarray, F: np.ndarray, nxt, Tl: list) -> None:
         n = T.shape[0]
         self.n = n
-        self.T, self.W, self.F = T, W, F
+        self.T, self.W, self.F, self.Tl = T, W, F, Tl
         self.n_fast = n if nxt is not None else n - 1  # the last sample of the buffer: per sample (no neighbour)
         self.dT = np.diff(self.T)
         self.dnext = np.append(self.dT, (nxt[0] - self.T[-1]) if nxt is not None else math.inf)
+        self.dTl = self.dT.tolist()
+        self.dnextl = self.dnext.tolist()
         cfg = session.cfg
         self.bound_w, self.bound_f = cfg.imu_spike_rad_s, cfg.imu_spike_m_s2
         self.cand = None
@@ -1519,13 +1548,13 @@ class _FastPlan:
             bad |= dw > self.bound_w * (1.0 - 1e-9)
         if self.bound_f > 0:
             bad |= df > self.bound_f * (1.0 - 1e-9)
-        self.cand = np.flatnonzero(bad) + 1
+        self.cand = (np.flatnonzero(bad) + 1).tolist()
 
     def next_candidate(self, k: int) -> int:
         """Index of the first possible spike at or after ``k`` (``n`` when none)."""
         c = self.cand
-        i = int(np.searchsorted(c, k))
-        return int(c[i]) if i < c.shape[0] else self.n
+        i = bisect.bisect_left(c, k)
+        return c[i] if i < len(c) else self.n
 
     def candidate_at(self, k: int, w_prev, f_prev) -> bool:
         """Could sample ``k`` be a spike, with ``w_prev``, ``f_prev`` the last processed sample before it?"""
@@ -1761,6 +1790,13 @@ def _median(x: list) -> float:
     s = sorted(x)
     h = len(s) // 2
     return float(s[h]) if len(s) % 2 else float((s[h - 1] + s[h]) / 2.0)
+
+
+def _dist3(a: list, b: list) -> float:
+    """|a - b| of two 3-vectors given as lists of floats: ``float(np.linalg.norm(a - b))`` bit for bit (the same
+    sum in the same order; test_speed_paths), without numpy's per-call overhead."""
+    x, y, z = a[0] - b[0], a[1] - b[1], a[2] - b[2]
+    return math.sqrt(x * x + y * y + z * z)
 
 
 def _row_norms(X: np.ndarray) -> np.ndarray:
