@@ -1279,7 +1279,7 @@ class AlignmentSession:
     def _output(self, t: float) -> Output:
         est = self._estimate()
         P = est.P_att_n
-        if not (np.all(np.isfinite(P)) and np.all(np.isfinite(est.C_b_n)) and math.isfinite(est.lat_rad)):
+        if not (math.isfinite(est.lat_rad) and _all_finite(P) and _all_finite(est.C_b_n)):
             raise FloatingPointError("non-finite estimate")
         was = self.flag.aligned
         now = self.flag.on_estimate(t, P) and not self.watchdog_reason
@@ -1469,6 +1469,8 @@ def _extrapolation_excess(prev, point, accel_m_s2: float) -> float:
 def _covariance_problem(P_att: np.ndarray, level_3sigma_deg: float) -> str:
     """Why an attitude covariance [rad^2, ENU] cannot be a filter's honest belief ("" when it can): not finite,
     not symmetric, not positive definite, or a roll/pitch (East/North) 3-sigma beyond ``level_3sigma_deg``."""
+    if _covariance_plainly_fine(P_att, level_3sigma_deg):
+        return ""
     P = np.asarray(P_att, float)
     if not np.all(np.isfinite(P)):
         return "attitude covariance is not finite"
@@ -1486,6 +1488,42 @@ def _covariance_problem(P_att: np.ndarray, level_3sigma_deg: float) -> str:
     if s_level > level_3sigma_deg:
         return f"level 3-sigma {s_level:.0f} deg beyond the physical bound {level_3sigma_deg:g} deg"
     return ""
+
+
+def _covariance_plainly_fine(P_att: np.ndarray, level_3sigma_deg: float) -> bool:
+    """A sufficient condition for :func:`_covariance_problem` to find nothing, in Python floats (it runs after every
+    fix; numpy's eigvalsh on 3x3 costs ~15 us): finite, positive diagonal, the correlation form symmetric within the
+    same 1e-6, the symmetrised correlation minus 1e-6 I has a Cholesky factor (so its smallest eigenvalue is above
+    1e-6 minus rounding, far from the -1e-9 limit), and the same level 3-sigma test. False: the full test decides."""
+    (p00, p01, p02), (p10, p11, p12), (p20, p21, p22) = np.asarray(P_att, float).tolist()
+    if not (math.isfinite(p00 + p01 + p02 + p10 + p11 + p12 + p20 + p21 + p22) and p00 > 0 and p11 > 0 and p22 > 0):
+        return False
+    c01, c10 = p01 / math.sqrt(p00 * p11), p10 / math.sqrt(p11 * p00)
+    c02, c20 = p02 / math.sqrt(p00 * p22), p20 / math.sqrt(p22 * p00)
+    c12, c21 = p12 / math.sqrt(p11 * p22), p21 / math.sqrt(p22 * p11)
+    if max(abs(c01 - c10), abs(c02 - c20), abs(c12 - c21)) > 1e-6:
+        return False
+    s01, s02, s12 = 0.5 * (c01 + c10), 0.5 * (c02 + c20), 0.5 * (c12 + c21)
+    delta = 1e-6
+    a = p00 / math.sqrt(p00 * p00) - delta
+    if not a > 0:
+        return False
+    l00 = math.sqrt(a)
+    l10, l20 = s01 / l00, s02 / l00
+    a = p11 / math.sqrt(p11 * p11) - delta - l10 * l10
+    if not a > 0:
+        return False
+    l11 = math.sqrt(a)
+    l21 = (s12 - l20 * l10) / l11
+    if not p22 / math.sqrt(p22 * p22) - delta - l20 * l20 - l21 * l21 > 0:
+        return False
+    return not 3.0 * math.degrees(math.sqrt(max(p00, p11))) > level_3sigma_deg
+
+
+def _all_finite(X: np.ndarray) -> bool:
+    """``np.all(np.isfinite(X))`` for a small array, without numpy's per-call overhead (the sum of finite numbers
+    overflows only beyond 1e308: then numpy decides)."""
+    return math.isfinite(sum(X.ravel().tolist())) or bool(np.all(np.isfinite(X)))
 
 
 def _check_velocity(t: float, v_n, R_n) -> str:
