@@ -164,14 +164,20 @@ def _run_session_arrays(session: AlignmentSession, data: ScenarioData, fix_delay
     jv = 0
     stops.update(np.flatnonzero(imu_ok & (n_valid % chunk == 0)).tolist())
     stops.add(data.n - 1)
+    # the valid rows, checked once (the checks are row-wise: a push's are the slice of these)
+    vi = np.flatnonzero(imu_ok)
+    tv = np.ascontiguousarray(t[vi], float)
+    wv = np.ascontiguousarray(data.omega_ib_b[vi], float)
+    fv = np.ascontiguousarray(data.f_ib_b[vi], float)
+    ok, cont = session._imu_array_checks(tv, wv, fv)
     j = 0
     a = 0
     for b in sorted(stops):
         if truth is not None:
             session.push_truth_table(truth, a, b + 1)
-        sel = np.flatnonzero(imu_ok[a:b + 1]) + a
-        if sel.size:
-            session.push_imu_arrays(t[sel], data.omega_ib_b[sel], data.f_ib_b[sel])
+        p, q = int(n_valid[a] - imu_ok[a]), int(n_valid[b])  # the valid rows a..b
+        if q > p:
+            session._push_imu_checked(tv[p:q], wv[p:q], fv[p:q], ok[p:q], cont[p:q - 1])
         if imu_ok[b] and n_valid[b] % chunk == 0:
             out += session.process()
             if progress is not None:

@@ -94,11 +94,67 @@ class TruthTable:
 
 class _TruthDict(dict):
     """stamp -> TruthSample; rows pushed from a :class:`TruthTable` are held as an integer reference and built on
-    first read (``[]``, ``get``)."""
+    first read (``[]``, ``get``).
+
+    Row ranges pushed from a table (``add_block``) stay pending, after every stamp of the dict: the output's truth
+    look-up (:meth:`around`, :meth:`drop_pending_before`) reads them in the table; any other read (``[]``, ``get``,
+    ``in``) first moves them into the dict and the sorted stamps ``tt`` (the session's ``truth_t``)."""
 
     def __init__(self) -> None:
         super().__init__()
         self.tables: list = []
+        self.tt: list = []  # the sorted stamps of the dict (linked to _Pending.truth_t)
+        self.pending: list = []  # [table, lo, hi]: rows lo:hi of a table, in stamp order
+        self.n_pending = 0
+
+    def add_block(self, table: "TruthTable", lo: int, hi: int) -> None:
+        """Rows ``lo:hi`` of ``table`` (valid, increasing, after every stamp held)."""
+        self.pending.append([table, lo, hi])
+        self.n_pending += hi - lo
+
+    def last_stamp(self) -> float | None:
+        if self.pending:
+            tb, _, hi = self.pending[-1]
+            return float(tb.t_s[hi - 1])
+        return self.tt[-1] if self.tt else None
+
+    def sync(self) -> None:
+        """Move the pending rows into the dict and ``tt``."""
+        blocks, self.pending, self.n_pending = self.pending, [], 0
+        for tb, lo, hi in blocks:
+            ts = tb.t_s[lo:hi].tolist()
+            self.add_rows(ts, tb, lo)
+            self.tt.extend(ts)
+
+    def drop_pending_before(self, t0: float) -> None:
+        """Forget the pending rows stamped before ``t0`` (what the look-up forgets in the dict)."""
+        while self.pending:
+            blk = self.pending[0]
+            tb, lo, hi = blk
+            k = lo + int(np.searchsorted(tb.t_s[lo:hi], t0, side="left"))
+            self.n_pending -= k - lo
+            if k < hi:
+                blk[1] = k
+                return
+            del self.pending[0]
+
+    def around(self, x: float):
+        """``(before, after)``: (stamp, C_b_n) of the last pose stamped before ``x`` and of the first at or after it
+        (None where there is none), over the dict and the pending rows, without moving them."""
+        tt = self.tt
+        i = bisect.bisect_left(tt, x)
+        if i < len(tt):
+            return ((tt[i - 1], self._sample(tt[i - 1]).C_b_n) if i else None), (tt[i], self._sample(tt[i]).C_b_n)
+        before = (tt[-1], self._sample(tt[-1]).C_b_n) if tt else None
+        for tb, lo, hi in self.pending:
+            T = tb.t_s
+            k = lo + int(np.searchsorted(T[lo:hi], x, side="left"))
+            if k < hi:
+                if k > lo:
+                    before = (float(T[k - 1]), tb.C_b_n[k - 1])
+                return before, (float(T[k]), tb.C_b_n[k])
+            before = (float(T[hi - 1]), tb.C_b_n[hi - 1])
+        return before, None
 
     def add_rows(self, stamps: list, table: TruthTable, start: int) -> None:
         if not self.tables or self.tables[-1] is not table:
@@ -111,11 +167,23 @@ class _TruthDict(dict):
         dict.__setitem__(self, t, tr)
         return tr
 
-    def __getitem__(self, t):
+    def _sample(self, t):
         v = dict.__getitem__(self, t)
         return self._build(t, v) if type(v) is int else v
 
+    def __getitem__(self, t):
+        if self.pending:
+            self.sync()
+        return self._sample(t)
+
+    def __contains__(self, t) -> bool:
+        if self.pending:
+            self.sync()
+        return dict.__contains__(self, t)
+
     def get(self, t, default=None):
+        if self.pending:
+            self.sync()
         v = dict.get(self, t, default)
         return self._build(t, v) if type(v) is int else v
 
@@ -145,6 +213,10 @@ class _Pending:
     truth_t: list = field(default_factory=list)  # sorted stamps of ``truth``
     vel_t: list = field(default_factory=list)  # GNSS velocities in stamp order (push_velocity)
     vel: list = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.truth, _TruthDict):
+            self.truth.tt = self.truth_t
 
 
 class AlignmentSession:
@@ -303,6 +375,13 @@ class AlignmentSession:
         n = t.shape[0] if t.ndim == 1 else -1
         if n < 0 or w.shape != (n, 3) or f.shape != (n, 3):
             return sum(self.push_imu(ImuSample(float(t[k]), w[k], f[k]), wall_s) for k in range(len(t)))
+        ok, cont = self._imu_array_checks(t, w, f)
+        return self._push_imu_checked(t, w, f, ok, cont, wall_s)
+
+    def _imu_array_checks(self, t: np.ndarray, w: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``push_imu``'s checks of arrays of samples, at once: ``ok`` (N,) rows valid; ``cont`` (N - 1,) row k + 1 is
+        valid and after row k by at most ``max_gap_s`` (it continues a bulk run). Row-wise: the checks of a slice are
+        the slice of the checks (``run_session`` checks a whole recording once)."""
         cfg = self.cfg
         with np.errstate(invalid="ignore", over="ignore"):
             nw = _row_norms(w)
@@ -313,6 +392,13 @@ class AlignmentSession:
             dt = np.diff(t)
             # a row continues the bulk run when valid and after its predecessor by at most max_gap_s
             cont = ok[1:] & (dt > 0.0) & ~(dt > cfg.max_gap_s)
+        return ok, cont
+
+    def _push_imu_checked(self, t: np.ndarray, w: np.ndarray, f: np.ndarray, ok: np.ndarray, cont: np.ndarray,
+                          wall_s: float | None = None) -> int:
+        """``push_imu_arrays`` with the checks of :meth:`_imu_array_checks` done (for these rows, this config)."""
+        cfg = self.cfg
+        n = t.shape[0]
         brk = np.flatnonzero(~cont) + 1  # rows that cannot continue the run of their predecessor
         accepted = 0
         s = 0
@@ -389,16 +475,18 @@ class AlignmentSession:
         if m <= 0:
             return
         T = table.t_s[start:stop]
+        last = b.truth.last_stamp() if isinstance(b.truth, _TruthDict) else None
         if not isinstance(b.truth, _TruthDict) or not (np.isfinite(table.C_b_n[start:stop]).all()
                                                        and np.isfinite(T).all()) \
-                or (m > 1 and not bool(np.all(np.diff(T) > 0))) or (b.truth_t and not T[0] > b.truth_t[-1]):
+                or (m > 1 and not bool(np.all(np.diff(T) > 0))) or (last is not None and not T[0] > last):
             for k in range(start, stop):
                 self.push_truth(table.sample(k))
             return
         self.counters["truth_received"] += m
-        ts = T.tolist()
-        b.truth.add_rows(ts, table, start)
-        b.truth_t.extend(ts)
+        b.truth.add_block(table, start, stop)  # read in the table until a reader needs them in the dict
+        if len(b.truth_t) + b.truth.n_pending <= 5000:
+            return
+        b.truth.sync()
         k = len(b.truth_t) - 5000
         if k > 0:
             for x in b.truth_t[:k]:
@@ -1311,14 +1399,20 @@ class AlignmentSession:
             for k in tt[:n_old]:
                 del b.truth[k]
             del tt[:n_old]
-        i = bisect.bisect_left(tt, t - 1e-6)
-        if i < len(tt) and abs(tt[i] - t) <= 1e-6:
-            return np.asarray(b.truth[tt[i]].C_b_n, float)
-        if 0 < i < len(tt) and tt[i] - tt[i - 1] <= 0.25:
+        if isinstance(b.truth, _TruthDict):
+            if not tt:  # the pending rows come after every stamp in the dict
+                b.truth.drop_pending_before(t - 2.0)
+            before, after = b.truth.around(t - 1e-6)
+        else:
+            i = bisect.bisect_left(tt, t - 1e-6)
+            before = (tt[i - 1], b.truth[tt[i - 1]].C_b_n) if 0 < i <= len(tt) else None
+            after = (tt[i], b.truth[tt[i]].C_b_n) if i < len(tt) else None
+        if after is not None and abs(after[0] - t) <= 1e-6:
+            return np.asarray(after[1], float)
+        if before is not None and after is not None and after[0] - before[0] <= 0.25:
             from scipy.spatial.transform import Rotation, Slerp
 
-            a, c = tt[i - 1], tt[i]
-            sl = Slerp([a, c], Rotation.from_matrix([b.truth[a].C_b_n, b.truth[c].C_b_n]))
+            sl = Slerp([before[0], after[0]], Rotation.from_matrix([before[1], after[1]]))
             return sl([t]).as_matrix()[0]
         return None
 
