@@ -18,6 +18,7 @@ from ..eval.aligned import AlignedCriteria
 from ..sim.types import ScenarioData
 from .config import SessionConfig
 from .session import AlignmentSession, Output, TruthSample, TruthTable  # noqa: F401  (TruthSample re-exported)
+from .session import truth_table_valid
 
 
 @dataclass
@@ -170,11 +171,12 @@ def _run_session_arrays(session: AlignmentSession, data: ScenarioData, fix_delay
     wv = np.ascontiguousarray(data.omega_ib_b[vi], float)
     fv = np.ascontiguousarray(data.f_ib_b[vi], float)
     ok, cont = session._imu_array_checks(tv, wv, fv)
+    truth_ok = truth is not None and truth_table_valid(truth)
     j = 0
     a = 0
     for b in sorted(stops):
         if truth is not None:
-            session.push_truth_table(truth, a, b + 1)
+            session.push_truth_table(truth, a, b + 1, checked=truth_ok)
         p, q = int(n_valid[a] - imu_ok[a]), int(n_valid[b])  # the valid rows a..b
         if q > p:
             session._push_imu_checked(tv[p:q], wv[p:q], fv[p:q], ok[p:q], cont[p:q - 1])

@@ -92,6 +92,14 @@ class TruthTable:
         return tr
 
 
+def truth_table_valid(table: TruthTable, start: int = 0, stop: int | None = None) -> bool:
+    """Rows ``start:stop`` of ``table`` are finite and strictly increasing in time (what ``push_truth_table`` takes in
+    bulk)."""
+    T = table.t_s[start:stop]
+    return bool(np.isfinite(table.C_b_n[start:stop]).all() and np.isfinite(T).all()
+                and (T.shape[0] < 2 or np.all(np.diff(T) > 0)))
+
+
 class _TruthDict(dict):
     """stamp -> TruthSample; rows pushed from a :class:`TruthTable` are held as an integer reference and built on
     first read (``[]``, ``get``).
@@ -465,10 +473,12 @@ class AlignmentSession:
         while len(self.buf.truth_t) > 5000:
             del self.buf.truth[self.buf.truth_t.pop(0)]
 
-    def push_truth_table(self, table: "TruthTable", start: int = 0, stop: int | None = None) -> None:
+    def push_truth_table(self, table: "TruthTable", start: int = 0, stop: int | None = None,
+                         checked: bool = False) -> None:
         """``push_truth`` for rows ``start:stop`` of a :class:`TruthTable` (the offline path): one vectorised check,
         and a :class:`TruthSample` is built only for the stamps the session reads (initialisation, outputs). Rows that
-        are not all valid, new and after the buffered poses go through ``push_truth`` one by one."""
+        are not all valid, new and after the buffered poses go through ``push_truth`` one by one. ``checked``: the
+        caller found the whole table valid (:func:`truth_table_valid`) and does not change it."""
         b = self.buf
         stop = len(table.t_s) if stop is None else stop
         m = stop - start
@@ -476,9 +486,8 @@ class AlignmentSession:
             return
         T = table.t_s[start:stop]
         last = b.truth.last_stamp() if isinstance(b.truth, _TruthDict) else None
-        if not isinstance(b.truth, _TruthDict) or not (np.isfinite(table.C_b_n[start:stop]).all()
-                                                       and np.isfinite(T).all()) \
-                or (m > 1 and not bool(np.all(np.diff(T) > 0))) or (last is not None and not T[0] > last):
+        if not isinstance(b.truth, _TruthDict) or not (checked or truth_table_valid(table, start, stop)) \
+                or (last is not None and not T[0] > last):
             for k in range(start, stop):
                 self.push_truth(table.sample(k))
             return
@@ -1690,8 +1699,8 @@ class _FastPlan:
 
     def candidate_at(self, k: int, w_prev, f_prev) -> bool:
         """Could sample ``k`` be a spike, with ``w_prev``, ``f_prev`` the last processed sample before it?"""
-        dw = min(math.dist(self.W[k].tolist(), np.asarray(w_prev, float).tolist()), float(self.dn_w[k]))
-        df = min(math.dist(self.F[k].tolist(), np.asarray(f_prev, float).tolist()), float(self.dn_f[k]))
+        dw = min(_dist3(self.W[k].tolist(), np.asarray(w_prev, float).tolist()), float(self.dn_w[k]))
+        df = min(_dist3(self.F[k].tolist(), np.asarray(f_prev, float).tolist()), float(self.dn_f[k]))
         return bool((self.bound_w > 0 and dw > self.bound_w * (1.0 - 1e-9))
                     or (self.bound_f > 0 and df > self.bound_f * (1.0 - 1e-9)))
 
