@@ -54,6 +54,10 @@ def _assert_same(ref, fast, bound_rad=1e-9):
         scale = np.abs(a.estimate.P).max()
         assert np.abs(a.estimate.P - b.estimate.P).max() <= 1e-9 * scale
         assert a.aligned == b.aligned and a.reason == b.reason
+        # the fast path's Euler errors are computed in one call at the end (Output.euler_error_deg, deferred)
+        assert (a.euler_error_deg is None) == (b.euler_error_deg is None)
+        if a.euler_error_deg is not None:
+            assert np.abs(a.euler_error_deg - b.euler_error_deg).max() <= 10.0 * np.degrees(bound_rad)
     assert ref.counters == fast.counters
 
 

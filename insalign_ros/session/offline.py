@@ -123,7 +123,11 @@ def run_session(session: AlignmentSession, data: ScenarioData, fix_delay_s: floa
     (a fix) or the loop processes (every ``chunk`` samples): the same arrival order and processing points as one
     push per sample, so the same numbers (test/test_speed_paths.py)."""
     if session.fast_path and data.n > 0 and bool(np.all(np.diff(data.t_s) > 0)):
-        return _run_session_arrays(session, data, fix_delay_s, chunk, progress)
+        session._deferred_errors = []  # the outputs' Euler errors in one call at the end
+        try:
+            return _run_session_arrays(session, data, fix_delay_s, chunk, progress)
+        finally:
+            session._fill_deferred_errors()
     out: list[Output] = []
     n_imu = 0
     for kind, item in events_in_arrival_order(data, fix_delay_s):

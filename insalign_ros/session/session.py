@@ -236,6 +236,8 @@ class AlignmentSession:
     fast_path: bool = True
     #: (core, its estimate) while the core's state has not changed since (``_estimate``)
     _est_memo: tuple | None = None
+    #: outputs whose Euler error is filled in later by ``_fill_deferred_errors`` (offline ``run_session``); None: at once
+    _deferred_errors: list | None = None
 
     def __init__(self, config: SessionConfig | dict | None = None, core_params: dict | None = None,
                  criteria: AlignedCriteria | None = None, log=None) -> None:
@@ -1390,12 +1392,24 @@ class AlignmentSession:
             self.status = est.status
         self.reason = self.flag.reason if not est.reason else f"{self.flag.reason}; {est.reason}"
         tr = self._truth_at(t)
-        err = None
+        o = Output(t, est, now, self.status, self.reason, euler_3sigma_deg(est.C_b_n, P), None, tr)
         if tr is not None:
-            err = np.degrees(earth.euler_error_rad(est.C_b_n, tr))
-        o = Output(t, est, now, self.status, self.reason, euler_3sigma_deg(est.C_b_n, P), err, tr)
+            if self._deferred_errors is not None:
+                self._deferred_errors.append(o)
+            else:
+                o.euler_error_deg = np.degrees(earth.euler_error_rad(est.C_b_n, tr))
         self.last_output = o
         return o
+
+    def _fill_deferred_errors(self) -> None:
+        """The Euler errors of the outputs deferred by ``run_session``, in one vectorised call (numpy's elementwise
+        functions: the numbers of one call per output, test_speed_paths); deferring ends."""
+        outs, self._deferred_errors = self._deferred_errors, None
+        if outs:
+            E = np.degrees(earth.euler_error_rad(np.array([o.estimate.C_b_n for o in outs], float),
+                                                 np.array([o.truth_C_b_n for o in outs], float)))
+            for o, e in zip(outs, E):
+                o.euler_error_deg = e
 
     def _truth_at(self, t: float) -> np.ndarray | None:
         """Truth attitude at ``t``: the pose stamped there (within 1 us), else the slerp between the two poses that
