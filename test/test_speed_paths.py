@@ -348,6 +348,9 @@ def test_session_buffers_and_float_helpers():
         dq.extend(list(R))
         np.testing.assert_array_equal(np.asarray(ring), np.array(dq))
         np.testing.assert_array_equal(ring[-1], dq[-1])
+        if k % 7 == 0:
+            snap, snap_ref = ring.view(), np.array(dq)  # a view stays valid while the ring goes on
+        np.testing.assert_array_equal(snap, snap_ref)
         T = s0 + np.arange(1, m + 1) * 0.01
         s0 = float(T[-1])
         rec.add_block(T) if k % 2 else rec.add(float(T[0]))

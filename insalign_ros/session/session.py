@@ -689,7 +689,7 @@ class AlignmentSession:
             if q < m:
                 due = q + (m - 1 - q) // 100 * 100
             if due is not None:
-                self._spread = _LazySpread(np.asarray(self.hist_w), np.asarray(self.hist_f), plan.W[i:i + due],
+                self._spread = _LazySpread(self.hist_w.view(), self.hist_f.view(), plan.W[i:i + due],
                                            plan.F[i:i + due], self.hist_w.maxlen)
         t = Tl[j - 1]
         self.processed_t = t
@@ -1831,7 +1831,8 @@ class _ImuBuffer:
 
 class _Ring:
     """The last ``maxlen`` values or rows appended (a deque held in one array of twice that length): rows or blocks
-    in, one view out. Views are read at once, never kept (a later append may move the rows)."""
+    in, one view out. A row once written is never overwritten (a full array is replaced by a new one), so a view is
+    a snapshot that stays valid (``_LazySpread`` keeps one)."""
 
     __slots__ = ("maxlen", "a", "e")
 
@@ -1845,8 +1846,9 @@ class _Ring:
 
     def _shift(self) -> None:
         k = min(self.e, self.maxlen)
-        self.a[:k] = self.a[self.e - k:self.e]
-        self.e = k
+        a = np.empty_like(self.a)
+        a[:k] = self.a[self.e - k:self.e]
+        self.a, self.e = a, k
 
     def append(self, x) -> None:
         if self.e == self.a.shape[0]:
@@ -1857,6 +1859,7 @@ class _Ring:
     def extend(self, X: np.ndarray) -> None:
         m = X.shape[0]
         if m >= self.maxlen:
+            self.a = np.empty_like(self.a)
             self.a[:self.maxlen] = X[m - self.maxlen:]
             self.e = self.maxlen
             return
