@@ -4,7 +4,7 @@ A state machine around two cores and the motion detector (session/motion.py), se
 :class:`~insalign_ros.filters.base.AlignmentCore` (registered as ``auto``):
 
 * **waiting for data**: the session's own status until it has a position and 1 s of accelerometer data;
-* **static, levelling**: a zero-velocity core (``static_core``, default ekf10, tuned from the IMU grade) started by
+* **static, levelling**: a zero-velocity core (``static_core``, default pkf, tuned from the IMU grade) started by
   the session's sensors initialisation (level from the accelerometers, heading unknown: its azimuth bootstrap),
   zero-velocity updates scheduled by the session (``supports_gnss`` is False in the static states);
 * **static, fine**: the level 1-sigma is within 2x the b_acc/g floor. Heading: gyrocompassing only where the IMU
@@ -64,8 +64,11 @@ class AutoConfig(ConfigDict):
     """Parameters of ``core: auto``. The IMU grade (bias 1-sigmas, noise densities) sets the static core's
     tuning, the physical floors in the status and the motion detector's thresholds."""
 
-    #: zero-velocity core for the parked states (pkf, ekf10, ...) and the in-motion core for driving
-    static_core: str = "ekf10"
+    #: zero-velocity core for the parked states (pkf, ekf10, ...) and the in-motion core for driving. pkf: its biases
+    #: are consider parameters, so its level covariance stays at the b_acc/g floor when the heading is unobservable;
+    #: ekf10 estimates the body-frame accelerometer bias and, with a large bias prior (unknown_mems: 5 mg) and the
+    #: azimuth error state wandering, reported the level 0.6-1.3 deg off at a 0.12-deg 3-sigma (docs/session.md)
+    static_core: str = "pkf"
     motion_core: str = "iekf"
     #: IMU grade (the session fills these from ``imu_grade``, filters/imu_grade.py; defaults: industrial_mems):
     #: gyro and accelerometer bias 1-sigma, angle and velocity random walks, bias random walks
