@@ -29,6 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from insalign_ros.core import earth  # noqa: E402
+from insalign_ros.core.types import GnssFix  # noqa: E402
 from insalign_ros.eval.metrics import evaluate  # noqa: E402
 from insalign_ros.filters.imu_grade import SCENARIO_IMU_GRADE  # noqa: E402
 from insalign_ros.session.config import SessionConfig  # noqa: E402
@@ -52,17 +53,63 @@ def offset_fixes(d, t0_s: float, t1_s: float, east_north_m, walk: bool = False):
     return replace(d, gnss_p_e=p)
 
 
-def yaw_kick(deg: float):
+def yaw_kick(deg: float, record: dict | None = None):
     """An action for :func:`run`: rotate the core's attitude by ``deg`` about the local vertical (P untouched: a
-    lost filter that still believes its covariance)."""
+    lost filter that still believes its covariance). ``record`` (a dict) receives the filter time ``t`` and the
+    claimed NIS metric ``M`` (:func:`claimed_nis_metric`) just before the kick."""
     from scipy.spatial.transform import Rotation
 
     def kick(s):
         c = s.core
         c.flush()
+        if record is not None:
+            record.update(t=float(s.processed_t), M=claimed_nis_metric(c))
         up_i = c.p / np.linalg.norm(c.p)
         c.C = Rotation.from_rotvec(math.radians(deg) * up_i).as_matrix() @ c.C
     return kick
+
+
+def claimed_nis_metric(core) -> np.ndarray | None:
+    """The quadratic form M [1/m^2] (ENU) of the NIS a fix displaced by dp_n [m] from the core's own position would
+    have now (NIS = dp_n^T M dp_n: the claimed position covariance plus the fix noise, 1 m per axis), by
+    polarisation of ``predict_gnss`` (exact for the linear measurement model); None without a prediction."""
+    e = core.estimate()
+    p0, C_ne = earth.geodetic_to_ecef(e.lat_rad, e.lon_rad, e.h_m), earth.C_n_e(e.lat_rad, e.lon_rad)
+
+    def q(dp_n):
+        return core.predict_gnss(GnssFix(e.stamp_s, p0 + C_ne @ dp_n, np.eye(3))).nis
+
+    q0, E = q(np.zeros(3)), np.eye(3)
+    if not math.isfinite(q0):
+        return None
+    qi = [q(E[i]) for i in range(3)]
+    return np.array([[0.5 * (q(E[i] + E[j]) - qi[i] - qi[j] + q0) for j in range(3)] for i in range(3)])
+
+
+def detection_floor(d, t_kick_s: float, deg: float, M: np.ndarray, gate: float) -> tuple[float, float]:
+    """The physical detection floor of a yaw kick of ``deg`` at ``t_kick_s``: the filter's specific force in ENU
+    is the true one rotated by the kick, so its position drifts from the truth by the double integral of
+    (R_z(deg) - I) f_n (horizontal only; the true f_n of ``d``). The open-loop innovation (no fix fused since the
+    kick: the largest the kick can make it) at each fix, in the claimed metric ``M``: returns the delays [s] after
+    the kick of the first fix with NIS above ``gate`` and above 16.27 (chi-square(3), p = 0.001: the earliest any
+    test could tell it from noise). inf if never within the run."""
+    from scipy.spatial.transform import Rotation
+
+    i0 = int(np.searchsorted(d.t_s, t_kick_s))
+    f_n = np.einsum("nij,nj->ni", d.C_b_n[i0:], d.f_ib_b[i0:])
+    da = f_n @ (Rotation.from_euler("z", deg, degrees=True).as_matrix() - np.eye(3)).T
+    da[:, 2] = 0.0
+    dt = np.diff(d.t_s[i0:], prepend=d.t_s[i0])[:, None]
+    dp = np.cumsum(np.cumsum(da * dt, axis=0) * dt, axis=0)
+    k = np.searchsorted(d.t_s[i0:], d.gnss_t_s[d.gnss_t_s > t_kick_s])
+    k = k[k < len(dp)]
+    nis = np.einsum("ni,ij,nj->n", dp[k], M, dp[k])
+    t_fix = d.t_s[i0:][k] - t_kick_s
+
+    def first(level):
+        hit = np.flatnonzero(nis > level)
+        return float(t_fix[hit[0]]) if hit.size else math.inf
+    return first(gate), first(16.27)
 
 
 def run(d, cfg: dict, params: dict | None = None, at_s: float | None = None, action=None):
@@ -91,10 +138,16 @@ def run(d, cfg: dict, params: dict | None = None, at_s: float | None = None, act
 def one(scenario: str, seed: int, core: str, case: str, t_ev: float = 60.0, block_s: float = 10.0,
         gnss_vel_sigma_m_s: float = 0.0) -> dict:
     d = make_scenario(scenario, seed=seed, duration_s=t_ev + 90.0, gnss_vel_sigma_m_s=gnss_vel_sigma_m_s)
+    floor = (math.nan, math.nan)
     if case == "kick":
-        s, t, al, ye, logs = run(d, {"core": core, "imu_grade": SCENARIO_IMU_GRADE[scenario], **TRUTH}, at_s=t_ev, action=yaw_kick(60.0))
+        rec: dict = {}
+        cfg = SessionConfig.from_dict({"core": core, "imu_grade": SCENARIO_IMU_GRADE[scenario], **TRUTH})
+        s, t, al, ye, logs = run(d, {"core": core, "imu_grade": SCENARIO_IMU_GRADE[scenario], **TRUTH}, at_s=t_ev,
+                                 action=yaw_kick(60.0, rec))
         t_end = t_ev
         det = [tf for k, _, tf in logs if k == "divergence"]
+        if rec.get("M") is not None:
+            floor = detection_floor(d, rec["t"], 60.0, rec["M"], cfg.gnss_gate_nis)
     else:
         bad = offset_fixes(d, t_ev, t_ev + block_s, (300.0, 180.0)) if case == "block" else \
             offset_fixes(d, t_ev, t_ev + block_s, (3.0, 1.8), walk=True)
@@ -116,7 +169,18 @@ def one(scenario: str, seed: int, core: str, case: str, t_ev: float = 60.0, bloc
             "realigned_s": float(again[0] - t_end) if again.size else math.inf,
             "estimate_back_s": back - t_end, "inside_after": float(np.mean(np.abs(ye[after]) <= s3[after])) if after.any() else math.nan,
             "nees_after": float(np.nanmean(nees[after])) if after.any() else math.nan,
-            "divergences": s.counters["divergences"], "holds": s.counters["gnss_holds"]}
+            "divergences": s.counters["divergences"], "holds": s.counters["gnss_holds"],
+            "floor_gate_s": floor[0], "floor_p001_s": floor[1], "seed": seed,
+            "fault_by": next((_fault_kind(text) for k, text, tf in logs if k == "divergence"), "")}
+
+
+def _fault_kind(text: str) -> str:
+    """Which test declared a divergence (from its log line)."""
+    for kind, words in (("cusum", "CUSUM"), ("gated run", "consecutive fixes"), ("windowed NIS", "mean NIS"),
+                        ("hold", "held filter"), ("covariance", "covariance"), ("reinit jump", "re-initialis")):
+        if words in text:
+            return kind
+    return "other"
 
 
 def _estimate_back(t, yaw_err, t0: float, hold_s: float = 10.0) -> float:
@@ -147,7 +211,9 @@ def main(argv=None) -> int:
     ap.add_argument("--scenario", default="ship")
     ap.add_argument("--cases", nargs="+", default=["kick", "block", "walk"])
     ap.add_argument("--gnss-vel-sigma", type=float, default=0.0, help="GNSS velocity 1-sigma [m/s] (0: none)")
+    ap.add_argument("--per-run", action="store_true", help="kick: one line per run, FAULT latency next to its floor")
     args = ap.parse_args(argv)
+    per_run = []
     print(f"{args.scenario}, seeds 0..{args.seeds - 1}, GNSS velocity sigma {args.gnss_vel_sigma:g} m/s, event at 60 s; latency floor: the next fix (<= 1 s); "
           "re-aligned floor: hold_s 5 s after the first good fix")
     print("| case | core | aligned at the event | detection latency [s] median (max) | flag up with \\|yaw err\\| > "
@@ -159,6 +225,7 @@ def main(argv=None) -> int:
         for core in args.cores:
             t0 = time.perf_counter()
             rs = [one(args.scenario, seed, core, case, gnss_vel_sigma_m_s=args.gnss_vel_sigma) for seed in range(args.seeds)]
+            per_run += [(case, core, r) for r in rs]
             lat = np.array([r["latency_s"] for r in rs])
             re = np.array([r["realigned_s"] for r in rs])
             eb = np.array([r["estimate_back_s"] for r in rs])
@@ -170,6 +237,17 @@ def main(argv=None) -> int:
                   f"{int(np.sum(re < 60.0))}/{len(rs)} | {np.median(eb):.1f} ({np.max(eb):.1f}) | "
                   f"{np.nanmean([r['inside_after'] for r in rs]):.3f}; {np.nanmean([r['nees_after'] for r in rs]):.2f} | "
                   f"{time.perf_counter() - t0:.0f} |", flush=True)
+    kicks = [(core, r) for case, core, r in per_run if case == "kick"]
+    if kicks:
+        fl = np.array([r["floor_gate_s"] for _, r in kicks])
+        print(f"\nkick detection floor (first fix whose open-loop innovation from the kick exceeds the gate): median "
+              f"{np.nanmedian(fl):.1f} s, max {np.nanmax(fl):.1f} s")
+    if args.per_run and kicks:
+        print("\n| core | seed | FAULT latency [s] | by | floor: open-loop NIS > gate [s] | floor: open-loop NIS > 16.3 "
+              "(p = 0.001) [s] | FAULT - floor (gate) [s] |\n|---|---|---|---|---|---|---|")
+        for core, r in kicks:
+            print(f"| {core} | {r['seed']} | {r['latency_s']:.1f} | {r['fault_by']} | {r['floor_gate_s']:.1f} | "
+                  f"{r['floor_p001_s']:.1f} | {r['latency_s'] - r['floor_gate_s']:.1f} |")
     return 0
 
 
