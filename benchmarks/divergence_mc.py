@@ -31,6 +31,7 @@ sys.path.insert(0, str(ROOT))
 from insalign_ros.core import earth  # noqa: E402
 from insalign_ros.core.types import GnssFix  # noqa: E402
 from insalign_ros.eval.metrics import evaluate  # noqa: E402
+from insalign_ros.filters.hypotheses import YawHypothesisBank  # noqa: E402
 from insalign_ros.filters.imu_grade import SCENARIO_IMU_GRADE  # noqa: E402
 from insalign_ros.session.config import SessionConfig  # noqa: E402
 from insalign_ros.session.offline import events_in_arrival_order  # noqa: E402
@@ -64,8 +65,10 @@ def yaw_kick(deg: float, record: dict | None = None):
         c.flush()
         if record is not None:
             record.update(t=float(s.processed_t), M=claimed_nis_metric(c))
-        up_i = c.p / np.linalg.norm(c.p)
-        c.C = Rotation.from_rotvec(math.radians(deg) * up_i).as_matrix() @ c.C
+        for h in (c.hyps if isinstance(c, YawHypothesisBank) else [c]):  # a bank: every hypothesis
+            h.flush()
+            up_i = h.p / np.linalg.norm(h.p)
+            h.C = Rotation.from_rotvec(math.radians(deg) * up_i).as_matrix() @ h.C
     return kick
 
 
@@ -135,15 +138,38 @@ def run(d, cfg: dict, params: dict | None = None, at_s: float | None = None, act
     return s, t, aligned, yaw_err, logs
 
 
+#: every divergence test off (the false-alarm twin runs of :func:`converge`)
+GUARD_OFF = {"divergence_nis_window": 0, "divergence_cusum_llr": 0, "gnss_gate_max_consecutive": 1000,
+             "divergence_level_3sigma_deg": 1e9, "gnss_hold_max_s": 1e9, "gnss_hold_drift_m": 1e9}
+
+
+def converge(scenario: str, seed: int, core: str, bank: int, duration_s: float = 120.0) -> dict:
+    """False alarms: a converging filter from 3/3/179 deg (single, or a bank of ``bank`` yaw hypotheses) with the
+    guard as shipped, and its twin with every divergence test off: the twin tells whether the filter was lost
+    (|yaw error| > 10 deg somewhere in the last 30 s); a divergence of a filter whose twin converges is a false alarm."""
+    d = make_scenario(scenario, seed=seed, duration_s=duration_s)
+    cfg = {"core": core, "imu_grade": SCENARIO_IMU_GRADE[scenario], "init_mode": "truth",
+           "init_rpy_error_deg": [3.0, 3.0, 179.0]}
+    params = {"yaw_hypotheses": bank} if bank > 1 else None
+    s, t, al, ye, logs = run(d, cfg, params)
+    _, t0, _, ye0, _ = run(d, {**cfg, **GUARD_OFF}, params)
+    lost = bool(np.nanmax(np.abs(ye0[t0 > t0[-1] - 30.0])) > 10.0)
+    kinds = [_fault_kind(text) for k, text, _ in logs if k == "divergence"]
+    return {"lost_unguarded": lost, "divergences": s.counters["divergences"], "by": kinds,
+            "false_alarm": int(bool(kinds) and not lost), "flag_up_wrong": int(np.sum(al & (np.abs(ye) > YAW_BOUND_DEG))),
+            "final_abs_yaw": float(abs(ye[-1])), "final_abs_yaw_unguarded": float(abs(ye0[-1]))}
+
+
 def one(scenario: str, seed: int, core: str, case: str, t_ev: float = 60.0, block_s: float = 10.0,
-        gnss_vel_sigma_m_s: float = 0.0) -> dict:
+        gnss_vel_sigma_m_s: float = 0.0, bank: int = 1) -> dict:
     d = make_scenario(scenario, seed=seed, duration_s=t_ev + 90.0, gnss_vel_sigma_m_s=gnss_vel_sigma_m_s)
     floor = (math.nan, math.nan)
+    params = {"yaw_hypotheses": bank} if bank > 1 else None
     if case == "kick":
         rec: dict = {}
         cfg = SessionConfig.from_dict({"core": core, "imu_grade": SCENARIO_IMU_GRADE[scenario], **TRUTH})
-        s, t, al, ye, logs = run(d, {"core": core, "imu_grade": SCENARIO_IMU_GRADE[scenario], **TRUTH}, at_s=t_ev,
-                                 action=yaw_kick(60.0, rec))
+        s, t, al, ye, logs = run(d, {"core": core, "imu_grade": SCENARIO_IMU_GRADE[scenario], **TRUTH}, params,
+                                 at_s=t_ev, action=yaw_kick(60.0, rec))
         t_end = t_ev
         det = [tf for k, _, tf in logs if k == "divergence"]
         if rec.get("M") is not None:
@@ -151,7 +177,7 @@ def one(scenario: str, seed: int, core: str, case: str, t_ev: float = 60.0, bloc
     else:
         bad = offset_fixes(d, t_ev, t_ev + block_s, (300.0, 180.0)) if case == "block" else \
             offset_fixes(d, t_ev, t_ev + block_s, (3.0, 1.8), walk=True)
-        s, t, al, ye, logs = run(bad, {"core": core, "imu_grade": SCENARIO_IMU_GRADE[scenario], **TRUTH})
+        s, t, al, ye, logs = run(bad, {"core": core, "imu_grade": SCENARIO_IMU_GRADE[scenario], **TRUTH}, params)
         t_end = t_ev + block_s
         det = [tf for k, _, tf in logs if k == "gnss_gated" and tf >= t_ev]
     t_det = det[0] if det else t_ev
@@ -211,10 +237,15 @@ def main(argv=None) -> int:
     ap.add_argument("--scenario", default="ship")
     ap.add_argument("--cases", nargs="+", default=["kick", "block", "walk"])
     ap.add_argument("--gnss-vel-sigma", type=float, default=0.0, help="GNSS velocity 1-sigma [m/s] (0: none)")
+    ap.add_argument("--bank", type=int, default=1, help="yaw hypotheses of the core (1: a single filter)")
     ap.add_argument("--per-run", action="store_true", help="kick: one line per run, FAULT latency next to its floor")
+    ap.add_argument("--false-alarms", action="store_true",
+                    help="instead: converging filters from 179 deg, ship and car, iekf/liekf/ekf, single and bank of 8")
     args = ap.parse_args(argv)
+    if args.false_alarms:
+        return false_alarms(args.seeds)
     per_run = []
-    print(f"{args.scenario}, seeds 0..{args.seeds - 1}, GNSS velocity sigma {args.gnss_vel_sigma:g} m/s, event at 60 s; latency floor: the next fix (<= 1 s); "
+    print(f"{args.scenario}, bank {args.bank}, seeds 0..{args.seeds - 1}, GNSS velocity sigma {args.gnss_vel_sigma:g} m/s, event at 60 s; latency floor: the next fix (<= 1 s); "
           "re-aligned floor: hold_s 5 s after the first good fix")
     print("| case | core | aligned at the event | detection latency [s] median (max) | flag up with \\|yaw err\\| > "
           "2.5 deg (outputs, all seeds; in brackets: between event and detection) | flag up in the block | divergences / holds | re-aligned after [s] median "
@@ -224,7 +255,8 @@ def main(argv=None) -> int:
     for case in args.cases:
         for core in args.cores:
             t0 = time.perf_counter()
-            rs = [one(args.scenario, seed, core, case, gnss_vel_sigma_m_s=args.gnss_vel_sigma) for seed in range(args.seeds)]
+            rs = [one(args.scenario, seed, core, case, gnss_vel_sigma_m_s=args.gnss_vel_sigma, bank=args.bank)
+                  for seed in range(args.seeds)]
             per_run += [(case, core, r) for r in rs]
             lat = np.array([r["latency_s"] for r in rs])
             re = np.array([r["realigned_s"] for r in rs])
@@ -248,6 +280,25 @@ def main(argv=None) -> int:
         for core, r in kicks:
             print(f"| {core} | {r['seed']} | {r['latency_s']:.1f} | {r['fault_by']} | {r['floor_gate_s']:.1f} | "
                   f"{r['floor_p001_s']:.1f} | {r['latency_s'] - r['floor_gate_s']:.1f} |")
+    return 0
+
+
+def false_alarms(seeds: int) -> int:
+    """The false-alarm table (:func:`converge`) over ``seeds`` seeds of the ship and the car."""
+    print(f"seeds 0..{seeds - 1}, 120 s from 3/3/179 deg, each scenario's IMU grade; twin runs with every divergence "
+          "test off say whether the filter was lost (|yaw err| > 10 deg in the last 30 s)")
+    print("| scenario | core | bank | lost without the guard | divergences (by) | false alarms | flag up with \|yaw err\| > "
+          "2.5 deg (outputs) | final \|yaw err\| [deg] with the guard, max (without) | wall [s] |\n|---|---|---|---|---|---|---|---|---|")
+    for scenario in ("ship", "car"):
+        for core in ("iekf", "liekf", "ekf"):
+            for bank in (1, 8):
+                t0 = time.perf_counter()
+                rs = [converge(scenario, seed, core, bank) for seed in range(seeds)]
+                by = sorted({k for r in rs for k in r["by"]})
+                print(f"| {scenario} | {core} | {bank} | {sum(r['lost_unguarded'] for r in rs)}/{len(rs)} | "
+                      f"{sum(r['divergences'] for r in rs)} ({', '.join(by) or '-'}) | {sum(r['false_alarm'] for r in rs)} | "
+                      f"{sum(r['flag_up_wrong'] for r in rs)} | {max(r['final_abs_yaw'] for r in rs):.2f} "
+                      f"({max(r['final_abs_yaw_unguarded'] for r in rs):.2f}) | {time.perf_counter() - t0:.0f} |", flush=True)
     return 0
 
 
