@@ -2,7 +2,12 @@
 (block: 300 m East, 180 m North; walk: a bias walking at 3 m/s East, 1.8 m/s North, then back at once).
 
     .venv/bin/python benchmarks/divergence_mc.py [--seeds 10] [--cores iekf liekf ekf pi_liekf] [--scenario ship]
-                                                 [--cases kick block walk]
+                                                 [--cases kick block walk] [--bank 8] [--per-run]
+    .venv/bin/python benchmarks/divergence_mc.py --false-alarms [--seeds 3]
+
+``--per-run`` (kick): each run's FAULT latency next to its physical detection floor (:func:`detection_floor`).
+``--false-alarms``: converging filters from 179 deg (ship and car, iekf/liekf/ekf, single and bank of 8) with the guard
+and with every divergence test off (:func:`converge`): divergences of filters that would have converged.
 
 Per core and case, over the seeds: the detection latency (kick: the divergence, FAULT; block: the first gated fix,
 which starts the hold), the outputs with the flag up while |yaw error| > the flag's yaw bound (2.5 deg) outside the
