@@ -4,10 +4,12 @@
     .venv/bin/python benchmarks/divergence_mc.py [--seeds 10] [--cores iekf liekf ekf pi_liekf] [--scenario ship]
                                                  [--cases kick block walk] [--bank 8] [--per-run]
     .venv/bin/python benchmarks/divergence_mc.py --false-alarms [--seeds 3]
+    .venv/bin/python benchmarks/divergence_mc.py --unclaimed [--seeds 4]
 
 ``--per-run`` (kick): each run's FAULT latency next to its physical detection floor (:func:`detection_floor`).
 ``--false-alarms``: converging filters from 179 deg (ship and car, iekf/liekf/ekf, single and bank of 8) with the guard
 and with every divergence test off (:func:`converge`): divergences of filters that would have converged.
+``--unclaimed``: candidate tests on the NIS of a filter that does not claim its attitude yet (:func:`unclaimed`).
 
 Per core and case, over the seeds: the detection latency (kick: the divergence, FAULT; block: the first gated fix,
 which starts the hold), the outputs with the flag up while |yaw error| > the flag's yaw bound (2.5 deg) outside the
@@ -120,9 +122,11 @@ def detection_floor(d, t_kick_s: float, deg: float, M: np.ndarray, gate: float) 
     return first(gate), first(16.27)
 
 
-def run(d, cfg: dict, params: dict | None = None, at_s: float | None = None, action=None):
+def run(d, cfg: dict, params: dict | None = None, at_s: float | None = None, action=None, nis_log: list | None = None):
     """Push ``d`` through a session in arrival order (processing every 0.1 s of data); ``action(session)`` once the
-    filter time reaches ``at_s``. Returns (session, t, aligned, yaw error [deg], log lines (key, text, filter time))."""
+    filter time reaches ``at_s``. Returns (session, t, aligned, yaw error [deg], log lines (key, text, filter time)).
+    ``nis_log`` (a list) receives (filter time, NIS, armed) of every accepted fix, armed: the attitude 3-sigma within
+    ``divergence_cusum_arm_factor`` x the flag's bounds (where the CUSUM runs; the other fixes are "unclaimed")."""
     logs = []
     s = AlignmentSession(SessionConfig.from_dict(cfg), params,
                          log=lambda level, key, text: logs.append((key, text, s.processed_t)))
@@ -130,7 +134,12 @@ def run(d, cfg: dict, params: dict | None = None, at_s: float | None = None, act
     for kind, item in events_in_arrival_order(d):
         {"imu": s.push_imu, "fix": s.push_fix, "truth": s.push_truth, "vel": s.push_velocity}[kind](item)
         if kind == "imu" and int(round(item.stamp_s * 100)) % 10 == 0:
+            n_acc = s.counters["gnss_accepted"]
             outs += s.process()
+            if nis_log is not None and s.counters["gnss_accepted"] > n_acc:
+                k, sig, c = s.cfg.divergence_cusum_arm_factor, s.flag.sigma3_deg, s.flag.criteria
+                armed = bool(max(sig[0], sig[1]) < k * c.roll_pitch_3sigma_deg and sig[2] < k * c.yaw_3sigma_deg)
+                nis_log.append((float(s.processed_t), float(s.last_nis), armed))
             if not done and s.processed_t is not None and s.processed_t >= at_s:
                 action(s)
                 done = True
@@ -246,7 +255,11 @@ def main(argv=None) -> int:
     ap.add_argument("--per-run", action="store_true", help="kick: one line per run, FAULT latency next to its floor")
     ap.add_argument("--false-alarms", action="store_true",
                     help="instead: converging filters from 179 deg, ship and car, iekf/liekf/ekf, single and bank of 8")
+    ap.add_argument("--unclaimed", action="store_true",
+                    help="instead: tests on the NIS of unclaimed filters (converging from 179 deg, kicked by 170 deg)")
     args = ap.parse_args(argv)
+    if args.unclaimed:
+        return unclaimed(args.seeds)
     if args.false_alarms:
         return false_alarms(args.seeds)
     per_run = []
@@ -285,6 +298,68 @@ def main(argv=None) -> int:
         for core, r in kicks:
             print(f"| {core} | {r['seed']} | {r['latency_s']:.1f} | {r['fault_by']} | {r['floor_gate_s']:.1f} | "
                   f"{r['floor_p001_s']:.1f} | {r['latency_s'] - r['floor_gate_s']:.1f} |")
+    return 0
+
+
+def _windowed_fire(log, n: int, level: float) -> float:
+    """First time the mean NIS of the last ``n`` unclaimed fixes exceeds ``level`` (inf if never)."""
+    w = []
+    for t, nis, armed in log:
+        if not armed and math.isfinite(nis):
+            w = (w + [nis])[-n:]
+            if len(w) >= n and np.mean(w) > level:
+                return t
+    return math.inf
+
+
+def _log_cusum(log, c: float) -> tuple[list, float]:
+    """A log-CUSUM max(0, S + ln(NIS / c)) of the unclaimed fixes (reset while armed): [(t, S)], max S."""
+    S, out = 0.0, []
+    for t, nis, armed in log:
+        if math.isfinite(nis):
+            S = 0.0 if armed else max(0.0, S + math.log(max(nis, 1e-9) / c))
+            out.append((t, S))
+    return out, max([x for _, x in out], default=0.0)
+
+
+def unclaimed(seeds: int) -> int:
+    """Tests on the NIS of an unclaimed filter (docs/session.md "A filter lost before it claims"): the fix-by-fix NIS
+    with every divergence test off (a test changes nothing before it fires, so firing times are exact) of converging
+    filters (ship and car, iekf/liekf/ekf, single and bank of 8, from 3/3/179 deg, 120 s) and of filters kicked by
+    170 deg at 3 s (single, 85 s). Lost: |yaw err| > 10 deg in the last 30 s. Per test: when it fires on the lost
+    runs (s after the kick; from the start for a lost convergence) and on how many runs that converge."""
+    runs = []
+    for scenario in ("ship", "car"):
+        for seed in range(seeds):
+            d = make_scenario(scenario, seed=seed, duration_s=120.0)
+            dk = make_scenario(scenario, seed=seed, duration_s=85.0)
+            for core in ("iekf", "liekf", "ekf"):
+                base = {"core": core, "imu_grade": SCENARIO_IMU_GRADE[scenario], "init_mode": "truth", **GUARD_OFF}
+                for bank in (1, 8):
+                    log: list = []
+                    _, t, _, ye, _ = run(d, {**base, "init_rpy_error_deg": [3.0, 3.0, 179.0]},
+                                         {"yaw_hypotheses": bank} if bank > 1 else None, nis_log=log)
+                    runs.append((f"{scenario}/{seed}/{core}/{bank} from 179", 0.0, log, np.nanmax(np.abs(ye[t > t[-1] - 30])) > 10))
+                log = []
+                _, t, _, ye, _ = run(dk, {**base, "init_rpy_error_deg": [2.0, -2.0, 10.0]}, at_s=3.0,
+                                     action=yaw_kick(170.0), nis_log=log)
+                runs.append((f"{scenario}/{seed}/{core} kick 170 at 3 s", 3.0, log, np.nanmax(np.abs(ye[t > t[-1] - 30])) > 10))
+    lost = [r for r in runs if r[3]]
+    print(f"{len(runs)} runs, lost: {', '.join(r[0] for r in lost)}")
+    env = max((nis for r in runs if not r[3] for _, nis, armed in r[2] if not armed and math.isfinite(nis)), default=0.0)
+    print(f"largest unclaimed NIS of a run that converges: {env:.0f}; first fix of each lost run above it [s]: "
+          + ", ".join(f"{_windowed_fire(r[2], 1, env) - r[1]:.0f}" for r in lost))
+    tests = [("windowed mean of 10 > 1000 (shipped)", lambda g: _windowed_fire(g, 10, 1000.0), None),
+             ("single NIS > 2000", lambda g: _windowed_fire(g, 1, 2000.0), None)]
+    for c, h in ((1000.0, 1.0), (500.0, 2.0)):
+        tests.append((f"log-CUSUM c = {c:g}, h = {h:g}",
+                      lambda g, c=c, h=h: next((t for t, x in _log_cusum(g, c)[0] if x > h), math.inf),
+                      lambda g, c=c: _log_cusum(g, c)[1]))
+    print("| test | fires on lost runs [s after the error] | false alarms (runs that converge) | largest statistic of a run that converges |\n|---|---|---|---|")
+    for name, fire, stat in tests:
+        fa = sum(math.isfinite(fire(r[2])) for r in runs if not r[3])
+        m = f"{max(stat(r[2]) for r in runs if not r[3]):.2f}" if stat else "-"
+        print(f"| {name} | {', '.join(f'{fire(r[2]) - r[1]:.0f}' for r in lost)} | {fa} | {m} |", flush=True)
     return 0
 
 
