@@ -778,7 +778,7 @@ class AlignmentSession:
             return
         gate = self.cfg.gnss_gate_nis
         jump = self._fix_jump(fix)
-        if jump and self._restart_young_reinit(fix):  # divergence guard
+        if jump and self._restart_young_reinit():  # divergence guard
             return
         # a jump in the fix sequence is suspect by itself: gated even while the core does not claim its attitude
         if gate > 0 and (self._attitude_claimed() or jump or self._hold_since is not None):
@@ -933,7 +933,7 @@ class AlignmentSession:
         self._diverged(f"{reason}; {self.gated_run} gated fixes in a row")
         return True
 
-    def _restart_young_reinit(self, fix: GnssFix) -> bool:
+    def _restart_young_reinit(self) -> bool:
         """A GNSS jump within ``gnss_hold_max_s`` of a re-initialisation after a divergence, before the new filter
         claims its attitude: the fixes it started from may be the anomalous ones (a walking GNSS that made the old
         filter's CUSUM fire, then jumped back), and a young filter (a yaw bank: no gate yet) would fuse the jump.
