@@ -49,6 +49,7 @@ COUNTERS = (
     "gnss_unused", "truth_received", "truth_invalid", "time_resets", "core_faults", "zupt_accepted",
     "watchdog_trips", "inputs_dropped", "gnss_gated", "imu_spikes", "divergences")
 COUNTERS += ("gnss_jumps", "gnss_holds", "divergences_nis", "divergences_covariance", "divergences_cusum")  # divergence guard
+COUNTERS += ("reinit_restarts",)  # divergence guard: a re-initialisation restarted after a GNSS jump
 #: GNSS velocity (push_velocity): received, fused, rejected (total) and per reason
 VEL_COUNTERS = ("gnss_vel_received", "gnss_vel_accepted", "gnss_vel_rejected", "gnss_vel_invalid", "gnss_vel_duplicate",
                 "gnss_vel_stale", "gnss_vel_future", "gnss_vel_before_init", "gnss_vel_gated", "gnss_vel_filter_rejected",
@@ -880,6 +881,8 @@ class AlignmentSession:
             return
         gate = self.cfg.gnss_gate_nis
         jump = self._fix_jump(fix)
+        if jump and self._restart_young_reinit():  # divergence guard
+            return
         # a jump in the fix sequence is suspect by itself: gated even while the core does not claim its attitude
         if gate > 0 and (self._attitude_claimed() or jump or self._hold_since is not None):
             pr = core.predict_gnss(fix)
@@ -893,6 +896,8 @@ class AlignmentSession:
                 # an implausible fix while the core claims its attitude: the claim cannot be trusted now
                 self._lower_flag(f"a fix failed the NIS gate ({self.gated_run} in a row)")
                 if self._hold(fix, jump, pr.nis, float(np.linalg.norm(pr.innovation))):
+                    return
+                if self._gated_run_evidence(pr.nis, len(pr.innovation) or 3):  # divergence guard
                     return
                 if self.gated_run >= self.cfg.gnss_gate_max_consecutive:
                     self._diverged(f"{self.gated_run} consecutive fixes beyond the NIS gate (last NIS {pr.nis:.3g}), "
@@ -1016,6 +1021,36 @@ class AlignmentSession:
             self._lower_flag(f"inconsistent innovations (NIS {nis:.3g}, CUSUM {self._cusum_llr:.3g})")
         return ""
 
+    def _gated_run_evidence(self, nis: float, dof: int) -> bool:
+        """A gated fix in a run without a jump (smooth fixes the claimed filter disagrees with: the lost-filter
+        signature) is evidence for the CUSUM too, from the second fix of the run on and capped at the gate (the
+        first may be a lone outlier, and a single gated fix must not decide): a filter whose CUSUM had already risen
+        faults at its second gated fix, any other at its third, instead of the fifth (``gnss_gate_max_consecutive``).
+        True when the session restarted."""
+        if self.gated_run < 2:
+            return False
+        reason = self._cusum(min(nis, self.cfg.gnss_gate_nis), dof)
+        if not reason:
+            return False
+        self.counters["divergences_cusum"] += 1
+        self._diverged(f"{reason}; {self.gated_run} gated fixes in a row")
+        return True
+
+    def _restart_young_reinit(self) -> bool:
+        """A GNSS jump within ``gnss_hold_max_s`` of a re-initialisation after a divergence, before the new filter
+        claims its attitude: the fixes it started from may be the anomalous ones (a walking GNSS that made the old
+        filter's CUSUM fire, then jumped back), and a young filter (a yaw bank: no gate yet) would fuse the jump.
+        Re-initialise again from the fixes after the jump (three consistent ones). True when the session restarted."""
+        if not (self._sensors_reinit and self.init_t is not None and self.processed_t is not None
+                and self.processed_t - self.init_t <= self.cfg.gnss_hold_max_s and not self._attitude_claimed()):
+            return False
+        self.counters["reinit_restarts"] += 1
+        reason = (f"GNSS jump {self.processed_t - self.init_t:.0f} s after the re-initialisation, before the new "
+                  "filter claims its attitude: the fixes it started from are suspect")
+        self.log("warn", "reinit_restarts", f"{reason}; re-initialising from the fixes after the jump")
+        self._reinitialise(reason)
+        return True
+
     def _still_faulted(self) -> None:
         """While re-initialising after a fault or a divergence: status FAULT with its reason, and what the
         initialisation waits for (instead of the plain waiting status)."""
@@ -1110,9 +1145,14 @@ class AlignmentSession:
         """Divergence: FAULT with the reason, the flag down at once, re-initialisation from the data that follow."""
         self.counters["divergences"] += 1
         self.log("error", "divergence", f"divergence: {reason}; re-initialising from the sensors (yaw bank)")
+        self._reinitialise(f"divergence: {reason}")
+
+    def _reinitialise(self, why: str) -> None:
+        """FAULT with ``why`` and a re-initialisation from the sensors, keeping the fix sequence (jump detection)
+        and the level the lost filter claims (if it does)."""
         seq = self._fix_seq
         kept = self._claimed_level()
-        self._restart(f"divergence: {reason}")
+        self._restart(why)
         self._fix_seq = seq  # jump detection continues across the re-initialisation
         self._kept_level = kept
         self._sensors_reinit = True  # whatever the first initialisation was: a guess or the truth no longer holds
