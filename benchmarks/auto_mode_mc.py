@@ -67,9 +67,31 @@ def one_run(name: str, seed: int, heading_deg: float, park_s: float, drive_s: fl
         / (earth.OMEGA_IE_RAD_S * math.cos(float(d.lat_rad[0]))) / D2R,
         arw_limit_deg=acfg.gyro_arw_deg_sqrt_h / 60.0 / (earth.OMEGA_IE_RAD_S * math.cos(float(d.lat_rad[0]))
                                                           * math.sqrt(park_s)),
+        **_gyrocompass_limits(d, park_s, acfg.acc_vrw_m_s_sqrt_h),
         status_park=r.outputs[k].status.value, state_park=states[k],
         yaw_err_end_deg=float(abs(r.rpy_err_deg[-1, 2])), final_state=states[-1],
         resets=r.counters["time_resets"] + r.counters["core_faults"] + r.counters["divergences"])
+
+
+def _gyrocompass_limits(d, park_s: float, vrw_m_s_sqrt_h: float) -> dict:
+    """Two more references for the heading at the end of the park (navgrade, where the gyrocompass claims it).
+
+    ``ideal_yaw_park_deg``: the heading error of an ideal gyrocompass on this run's own sensor errors: the East
+    component (true attitude) of the gyro error (bias and noise) averaged over the park, over omega_ie cos lat; a
+    perfect level and a perfect compensation of the car's rocking are assumed, so no estimator on these samples
+    can be expected to do better on average.
+    ``vrw_limit_deg``: what the accelerometers add on a car that may rotate while parked (a person gets in, the
+    body sways): a Kalman filter with zero-velocity updates sees the azimuth only as the rate of the tilt it
+    causes (omega_N psi), measured by the accelerometers; the slope of a line fitted to T seconds of white tilt
+    noise (VRW / g per sqrt(Hz)) has a 1-sigma of sqrt(12) (VRW / g) / T^1.5."""
+    from insalign_ros.core import earth
+
+    k = d.t_s <= park_s - 0.3
+    err_n = np.einsum("kij,kj->ki", d.C_b_n[k], d.omega_ib_b[k] - d.omega_ib_b_true[k])
+    om = earth.OMEGA_IE_RAD_S * math.cos(float(d.lat_rad[0]))
+    tilt_noise = vrw_m_s_sqrt_h / 60.0 / 9.80665  # [rad sqrt(s)]
+    return dict(ideal_yaw_park_deg=float(np.mean(err_n[:, 0])) / om / D2R,
+                vrw_limit_deg=math.sqrt(12.0) * tilt_noise / park_s ** 1.5 / om / D2R)
 
 
 def summary(rows: list[dict]) -> None:
@@ -101,6 +123,15 @@ def summary(rows: list[dict]) -> None:
             yo = np.array([r["yaw_err_park_deg"] / math.hypot(r["az_floor_run_deg"], r["arw_limit_deg"]) for r in long])
             print(f"    |yaw err| / hypot(the run's own azimuth floor, ARW limit over the park): median "
                   f"{np.median(yo):.2f}, max {yo.max():.2f}, within 2x: {int(np.sum(yo < 2))}/{len(long)}")
+            yv = np.array([r["yaw_err_park_deg"] / math.hypot(r["az_floor_run_deg"], r["arw_limit_deg"],
+                                                              r["vrw_limit_deg"]) for r in long])
+            print(f"    ... / hypot(own floor, ARW limit, VRW tilt-rate limit {np.median([r['vrw_limit_deg'] for r in long]):.3f} "
+                  f"deg median): median {np.median(yv):.2f}, max {yv.max():.2f}, within 2x: {int(np.sum(yv < 2))}/{len(long)}")
+            yi = np.array([abs(r["ideal_yaw_park_deg"]) for r in long])
+            yr = np.array([r["yaw_err_park_deg"] for r in long])
+            print(f"    an ideal gyrocompass on the same sensor errors: |yaw err| median {np.median(yi):.3f} deg, max "
+                  f"{yi.max():.3f}; ours median {np.median(yr):.3f}, max {yr.max():.3f}; ideal within 2x hypot(own floor, "
+                  f"ARW limit): {int(np.sum(yi / np.hypot([r['az_floor_run_deg'] for r in long], [r['arw_limit_deg'] for r in long]) < 2))}/{len(long)}")
         print(f"  status at the end of the park: {sorted({r['status_park'] + ' / ' + r['state_park'] for r in rs})}")
         print(f"  |yaw err| at the end: median {np.median(fin):.3f} deg, max {fin.max():.3f} deg; resets/faults "
               f"{sum(r['resets'] for r in rs)}")

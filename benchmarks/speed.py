@@ -187,6 +187,10 @@ def main(argv=None) -> int:
     for c in cores:
         d = data["static" if c in STATIC_CORES else "ship"]
         with StageTimer() as st, _stage_clock(CLOCK[0]):
+            # the offline path checks the IMU once and pushes checked slices; the Euler errors come at the end
+            st._wrap(AlignmentSession, "_imu_array_checks", "input")
+            st._wrap(AlignmentSession, "_push_imu_checked", "input")
+            st._wrap(AlignmentSession, "_fill_deferred_errors", "outputs")
             st.align(d, core=c, **KW)
         stage_lines.append(f"| {c} | " + " | ".join(
             f"{1e6 * st.stages()[k] / d.n:.1f}" for k in ("read", "input", "propagate", "update", "outputs",

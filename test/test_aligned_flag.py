@@ -63,6 +63,31 @@ def test_flag_needs_fresh_updates_and_a_consistent_nis():
     assert len(f.nis) == 4 and f.last_update_s == 9.0
 
 
+def test_nis_hysteresis_keeps_the_flag_between_the_two_bands():
+    """Once up, the NIS test lowers the flag only outside the 1 - nis_alpha_drop band (99.9 %: 62.2 for 10 fixes),
+    not when the sum leaves the 99 % band (53.7); a flag that is down rises only inside the 99 % band."""
+    c = AlignedCriteria(nis_window=10, hold_s=0.0, max_update_age_s=5.0)
+    lo99, hi99 = nis_band(10, 3, 0.01)
+    lo999, hi999 = nis_band(10, 3, 0.001)
+    assert hi99 == pytest.approx(53.672, abs=1e-3) and hi999 == pytest.approx(62.162, abs=1e-3)
+    good = _P(0.1, 0.1, 0.3)
+    up = AlignedFlag(c)
+    for k in range(10):
+        up.on_update(float(k), True, 3.0)
+    assert up.on_estimate(9.0, good)
+    for k in range(10):  # sum 58: outside the 99 % band, inside the 99.9 % one
+        up.on_update(10.0 + k, True, 5.8)
+    assert up.on_estimate(19.0, good) and up.band[1] == pytest.approx(hi999)
+    down = AlignedFlag(c)  # the same sum never raises a flag that is down
+    for k in range(10):
+        down.on_update(10.0 + k, True, 5.8)
+    assert not down.on_estimate(19.0, good) and "above the chi-square band [13.8, 53.7]" in down.reason
+    for k in range(10):  # sum 65 > 62.2: down, and the band to rise again is the 99 % one
+        up.on_update(20.0 + k, True, 6.5)
+    assert not up.on_estimate(29.0, good) and "NIS sum 65.0 above the chi-square band [10.8, 62.2]" in up.reason
+    assert not up.on_estimate(29.1, good) and "[13.8, 53.7]" in up.reason
+
+
 def test_roll_pitch_threshold_and_lower_nis_check():
     f = AlignedFlag(AlignedCriteria(nis_window=3, hold_s=0.0, nis_lower_check=True))
     for k in range(3):
@@ -71,8 +96,8 @@ def test_roll_pitch_threshold_and_lower_nis_check():
     assert not f.on_estimate(2.0, _P(0.1, 0.1, 0.1)) and "pessimistic" in f.reason
 
 
-@pytest.mark.parametrize("bad", [dict(yaw_3sigma_deg=0.0), dict(nis_alpha=1.0), dict(nis_window=-1),
-                                 dict(hold_s=-1.0), dict(roll_pitch_3sigma_deg=float("nan"))])
+@pytest.mark.parametrize("bad", [dict(yaw_3sigma_deg=0.0), dict(nis_alpha=1.0), dict(nis_alpha_drop=0.02),
+                                 dict(nis_window=-1), dict(hold_s=-1.0), dict(roll_pitch_3sigma_deg=float("nan"))])
 def test_bad_criteria_are_refused(bad):
     with pytest.raises(ValueError):
         AlignedCriteria(**bad).validate()

@@ -54,6 +54,10 @@ def _assert_same(ref, fast, bound_rad=1e-9):
         scale = np.abs(a.estimate.P).max()
         assert np.abs(a.estimate.P - b.estimate.P).max() <= 1e-9 * scale
         assert a.aligned == b.aligned and a.reason == b.reason
+        # the fast path's Euler errors are computed in one call at the end (Output.euler_error_deg, deferred)
+        assert (a.euler_error_deg is None) == (b.euler_error_deg is None)
+        if a.euler_error_deg is not None:
+            assert np.abs(a.euler_error_deg - b.euler_error_deg).max() <= 10.0 * np.degrees(bound_rad)
     assert ref.counters == fast.counters
 
 
@@ -277,3 +281,80 @@ def test_compiled_update_helpers_match_numpy():
     np.testing.assert_array_equal(w, [[1, 1, 1], [0, 1, 2], [3, 4, 5]])
     np.testing.assert_array_equal(f[2], [9, 10, 11])
     assert buf.n == 0 and buf.take()[0].shape == (0,)
+
+
+def test_session_buffers_and_float_helpers():
+    """The session's array buffers against the list/deque models they replace, and the float helpers against numpy:
+    ``_dist3`` = ``np.linalg.norm(a - b)`` bit for bit; ``_covariance_plainly_fine`` only where numpy's test finds
+    nothing (finite, symmetric correlation, smallest eigenvalue >= -1e-9, level within the bound)."""
+    from collections import deque
+
+    from insalign_ros.session import session as S
+
+    rng = np.random.default_rng(3)
+    X = rng.normal(size=(4000, 2, 3)) * rng.lognormal(0.0, 3.0, size=(4000, 2, 1))
+    assert all(S._dist3(a.tolist(), b.tolist()) == float(np.linalg.norm(a - b)) for a, b in X)
+    fine = 0
+    for k in range(3000):
+        A = rng.normal(size=(3, 3)) * rng.lognormal(0.0, 2.0, size=3)
+        P = A @ A.T + (rng.normal(size=(3, 3)) * 10 ** rng.uniform(-9, -3) * np.abs(A).max() ** 2 if k % 3 else 0)
+        if k % 7 == 0:
+            P = np.outer(A[0], A[0]) + 10 ** rng.uniform(-12, -5) * np.eye(3) * (A[0] @ A[0])
+        lvl = 10 ** rng.uniform(0.0, 4.0)
+        if S._covariance_plainly_fine(P, lvl):
+            fine += 1
+            C = P / np.sqrt(np.outer(np.diag(P), np.diag(P)))
+            assert np.abs(C - C.T).max() <= 1e-6 and np.linalg.eigvalsh(0.5 * (C + C.T))[0] >= -1e-9
+            assert 3.0 * np.degrees(np.sqrt(max(P[0, 0], P[1, 1]))) <= lvl
+        assert S._all_finite(P) and not S._all_finite(np.where(np.arange(9).reshape(3, 3) == k % 9, np.nan, P))
+    assert 300 < fine < 2900  # both answers occur
+    # _ImuBuffer: blocks, single pushes, an out-of-order insert, takes across blocks = one sorted list
+    buf, ref = S._ImuBuffer(), []
+    t = 0.0
+    for k in range(40):
+        m = int(rng.integers(1, 30))
+        T = t + np.cumsum(rng.uniform(0.001, 0.02, m))
+        W, F = rng.normal(size=(m, 3)), rng.normal(size=(m, 3))
+        if k % 3:
+            buf.extend(T, W, F)
+        else:
+            for r in range(m):
+                buf.append(float(T[r]), W[r], F[r])
+        ref += [(float(T[r]), W[r], F[r]) for r in range(m)]
+        t = float(T[-1])
+        if k % 5 == 4 and len(ref) > 3:  # a sample between two buffered ones
+            tx = 0.5 * (ref[-3][0] + ref[-2][0])
+            buf.insert(tx, np.full(3, float(k)), np.full(3, -float(k)))
+            ref.insert(len(ref) - 2, (tx, np.full(3, float(k)), np.full(3, -float(k))))
+        if k % 4 == 3:
+            until = ref[len(ref) // 2][0]
+            n = buf.count_until(until)
+            assert n == sum(r[0] <= until for r in ref) and buf.t_at(n - 1) == ref[n - 1][0]
+            assert [x[0] for x in buf.iter_until(ref[n + 1][0])] == [r[0] for r in ref[:n + 2]]
+            Tt, Wt, Ft = buf.take(n)
+            np.testing.assert_array_equal(Tt, [r[0] for r in ref[:n]])
+            np.testing.assert_array_equal(Wt, np.array([r[1] for r in ref[:n]]).reshape(-1, 3))
+            np.testing.assert_array_equal(Ft, np.array([r[2] for r in ref[:n]]).reshape(-1, 3))
+            del ref[:n]
+        assert len(buf) == len(ref) and (buf.first() is None if not ref else buf.first()[0] == ref[0][0])
+    # _Ring = deque(maxlen) of rows; _RecentStamps = the deque + set of the last maxlen stamps
+    ring, dq = S._Ring(50, 3), deque(maxlen=50)
+    rec, rdq = S._RecentStamps(64), deque(maxlen=64)
+    s0 = 0.0
+    for k in range(300):
+        m = int(rng.integers(1, 80)) if k % 2 else 1
+        R = rng.normal(size=(m, 3))
+        ring.extend(R) if k % 2 else ring.append(R[0])
+        dq.extend(list(R))
+        np.testing.assert_array_equal(np.asarray(ring), np.array(dq))
+        np.testing.assert_array_equal(ring[-1], dq[-1])
+        if k % 7 == 0:
+            snap, snap_ref = ring.view(), np.array(dq)  # a view stays valid while the ring goes on
+        np.testing.assert_array_equal(snap, snap_ref)
+        T = s0 + np.arange(1, m + 1) * 0.01
+        s0 = float(T[-1])
+        rec.add_block(T) if k % 2 else rec.add(float(T[0]))
+        rdq.extend(T.tolist())
+        probe = float(T[0]) - 0.01 * int(rng.integers(0, 150))
+        assert (probe in rec) == (probe in rdq)
+        assert rec.set == set(rec.rs) == set(rdq)

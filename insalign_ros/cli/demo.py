@@ -1,7 +1,9 @@
 """insalign-demo: scripted bringup over real DDS, launch-free (the README's main command).
 
 Starts ``imu_sim_node`` and ``alignment_node`` as two processes on a private ROS_DOMAIN_ID with localhost-only
-discovery, runs a scenario (``ship`` by default, 300 s of data at rate factor 6: about a minute) or replays a bag,
+discovery, runs a scenario (``ship`` by default, 300 s of data at rate factor 6: about a minute) or replays a bag with the
+node's defaults (``core: auto``, initialised from the sensors: no ground truth, no guess; ``--init-error-deg`` starts
+from the simulator's truth plus that error instead, ``--initial-rpy-deg`` from a guess for a bag),
 prints a live one-line status and a final table (time to aligned, final Euler errors and 3-sigma per axis, messages
 sent / received / rejected / dropped). Exit 0 on success, 1 with the reason otherwise; every wait has a timeout and
 both processes are stopped on every exit path.
@@ -161,19 +163,24 @@ def run_alignment(args, log_dir: Path, out=None) -> tuple[int, dict]:
         os.environ[k] = env[k]  # the in-process monitor joins the same isolated domain
     from ..nodes.monitor import AlignmentMonitor
 
-    err = [float(x) for x in args.init_error_deg.split(",")]
-    align_params = {"core": args.core, "init_from_ground_truth": not args.bag, "init_rpy_error_deg": str(err),
-                    "imu_qos": "reliable"}
+    # the node's defaults: initialised from the sensors (level from the accelerometers, position and velocity from
+    # the fixes, unknown heading); --init-error-deg: the simulator's truth plus that error (a filter demo)
+    align_params = {"core": args.core, "init_mode": "sensors", "imu_qos": "reliable"}
+    if args.init_error_deg is not None and not args.bag:
+        align_params["init_from_ground_truth"] = True
+        align_params["init_rpy_error_deg"] = str([float(x) for x in args.init_error_deg.split(",")])
     if args.yaw_hypotheses > 1:  # unknown heading: a bank of yaw hypotheses (filters/hypotheses.py)
         align_params["yaw_hypotheses"] = args.yaw_hypotheses
     if args.imu_grade or not args.bag:  # a simulated scenario: its IMU's grade (docs/imu_grades.md)
         from ..filters.imu_grade import SCENARIO_IMU_GRADE
 
         align_params["imu_grade"] = args.imu_grade or SCENARIO_IMU_GRADE.get(args.scenario, "unknown_mems")
-    if args.bag:
+    if args.bag and args.initial_rpy_deg is not None:
         align_params["init_mode"] = "guess"
         align_params["initial_rpy_deg"] = str([float(x) for x in args.initial_rpy_deg.split(",")])
-        align_params["init_from_ground_truth"] = args.bag_truth_init
+    if args.bag and args.bag_truth_init:
+        align_params["init_from_ground_truth"] = True
+        align_params["init_rpy_error_deg"] = str([float(x) for x in (args.init_error_deg or "0,0,0").split(",")])
     sim_params = {"rate_factor": args.rate_factor, "wait_for_subscribers": 1, "wait_timeout_s": 30.0,
                   "seed": args.seed, "qos_depth": 1000}
     if args.bag:
@@ -285,31 +292,35 @@ def main(argv=None) -> int:
 
     ap = argparse.ArgumentParser(prog="insalign-demo", description=__doc__.splitlines()[0])
     ap.add_argument("--scenario", default="ship", help="simulated scenario (default ship)")
-    ap.add_argument("--core", default="iekf", choices=sorted(core_names()), help="alignment core (default iekf)")
+    ap.add_argument("--core", default="auto", choices=sorted(core_names()),
+                    help="alignment core (default auto, the node's default)")
     ap.add_argument("--rate-factor", type=float, default=6.0, help="data time / wall time (default 6)")
     ap.add_argument("--duration-s", type=float, default=0.0, help="data time [s] (default: the scenario's)")
     ap.add_argument("--rate-hz", type=float, default=100.0, help="IMU rate [Hz] (default 100)")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--init-error-deg", default="5,-5,30", help="initial roll,pitch,yaw error [deg] added to the "
-                    "truth (default 5,-5,30)")
+    ap.add_argument("--init-error-deg", default=None, help="start from the simulator's truth plus this roll,pitch,"
+                    "yaw error [deg] (e.g. 5,-5,30); default: from the sensors (no truth, no guess)")
     ap.add_argument("--yaw-hypotheses", type=int, default=1, help="in-motion cores: a bank of K yaw hypotheses for an "
                     "unknown heading (e.g. --yaw-hypotheses 8 --init-error-deg 5,-5,179; default 1 = one filter)")
     ap.add_argument("--imu-grade", default=None, help="alignment_node imu_grade (docs/imu_grades.md; default: the "
                     "scenario's IMU grade, unknown_mems for a bag)")
     ap.add_argument("--bag", type=Path, default=None, help="replay this contract rosbag2 instead of a scenario")
-    ap.add_argument("--initial-rpy-deg", default="0,0,0", help="bag without truth: initial roll,pitch,yaw guess")
-    ap.add_argument("--bag-truth-init", action="store_true", help="bag with truth: initialise from it + the error")
+    ap.add_argument("--initial-rpy-deg", default=None, help="bag: start from this roll,pitch,yaw guess [deg] "
+                    "(default: from the sensors)")
+    ap.add_argument("--bag-truth-init", action="store_true", help="bag with truth: initialise from it + "
+                    "--init-error-deg")
     ap.add_argument("--timeout-s", type=float, default=110.0, help="give up after this long (default 110 s)")
     ap.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: a random one in 1..100)")
     ap.add_argument("--log-dir", type=Path, default=None, help="keep node logs here (default: a temp dir)")
     args = ap.parse_args(argv)
     if not 0 < args.rate_factor <= 1000 or args.timeout_s <= 0 or args.duration_s < 0:
         ap.error("need 0 < --rate-factor <= 1000, --timeout-s > 0, --duration-s >= 0")
-    try:
-        if len([float(x) for x in args.init_error_deg.split(",")]) != 3:
-            raise ValueError
-    except ValueError:
-        ap.error("--init-error-deg needs three numbers: roll,pitch,yaw")
+    for opt, val in (("--init-error-deg", args.init_error_deg), ("--initial-rpy-deg", args.initial_rpy_deg)):
+        try:
+            if val is not None and len([float(x) for x in val.split(",")]) != 3:
+                raise ValueError
+        except ValueError:
+            ap.error(f"{opt} needs three numbers: roll,pitch,yaw")
     if args.bag is not None and not args.bag.exists():
         ap.error(f"--bag {args.bag}: no such file or directory")
     log_dir = args.log_dir or Path(tempfile.mkdtemp(prefix="insalign-demo-"))

@@ -7,7 +7,9 @@ The flag is raised when, continuously for at least ``hold_s`` of data time:
 2. **innovations consistent with the covariance**: the normalized innovation squared (NIS) of the last
    ``nis_window`` accepted GNSS updates, summed, lies inside the two-sided chi-square band of probability
    ``1 - nis_alpha`` with ``nis_window * dof`` degrees of freedom (a sum of independent chi-square(dof)
-   variables is chi-square(window*dof)). Too large a sum means the filter is over-confident (the covariance
+   variables is chi-square(window*dof)); once the flag is up, inside the wider band of ``1 - nis_alpha_drop``
+   (hysteresis: the window slides one update at a time, so the sum of a consistent filter leaves the narrower band
+   every few minutes). Too large a sum means the filter is over-confident (the covariance
    in 1. cannot be trusted); too small means it is pessimistic (harmless for safety, but the model is off, so
    ``nis_lower_check`` can switch that side off). Cores without innovations (static cores fed with zero-velocity
    updates only) can use the same test on their ZUPT innovations; with ``nis_window = 0`` the test is off.
@@ -47,6 +49,10 @@ class AlignedCriteria:
     nis_window: int = 10
     #: two-sided probability outside the band (0.01: the 0.5 % and 99.5 % quantiles)
     nis_alpha: float = 0.01
+    #: once the flag is up, the NIS test lowers it only outside the band of this smaller probability (hysteresis:
+    #: the window slides by one update, so a consistent filter's sum leaves the 99 % band every few minutes; the
+    #: session's CUSUM of the NIS watches sustained over-confidence); equal to ``nis_alpha``: no hysteresis
+    nis_alpha_drop: float = 0.001
     #: also reject a too-small NIS sum (a pessimistic filter)
     nis_lower_check: bool = False
     #: the criteria must hold this long [s of data time] before the flag rises
@@ -55,7 +61,8 @@ class AlignedCriteria:
     max_update_age_s: float = 5.0
 
     def validate(self) -> None:
-        for name in ("roll_pitch_3sigma_deg", "yaw_3sigma_deg", "nis_alpha", "hold_s", "max_update_age_s"):
+        for name in ("roll_pitch_3sigma_deg", "yaw_3sigma_deg", "nis_alpha", "nis_alpha_drop", "hold_s",
+                     "max_update_age_s"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v)):
                 raise ValueError(f"{name}: expected a finite number, got {v!r}")
@@ -63,6 +70,8 @@ class AlignedCriteria:
             raise ValueError("roll_pitch_3sigma_deg and yaw_3sigma_deg must be > 0")
         if not 0 < self.nis_alpha < 1:
             raise ValueError(f"nis_alpha: must be in (0, 1), got {self.nis_alpha}")
+        if not 0 < self.nis_alpha_drop <= self.nis_alpha:
+            raise ValueError(f"nis_alpha_drop: must be in (0, nis_alpha], got {self.nis_alpha_drop}")
         if not (isinstance(self.nis_window, int) and 0 <= self.nis_window <= 10000):
             raise ValueError(f"nis_window: must be an integer in [0, 10000], got {self.nis_window!r}")
         if self.hold_s < 0 or not self.max_update_age_s > 0:
@@ -138,7 +147,8 @@ class AlignedFlag:
         if c.nis_window > 0:
             if len(self.nis) < c.nis_window:
                 return f"NIS window filling ({len(self.nis)}/{c.nis_window} updates)"
-            self.band = lo, hi = nis_band(c.nis_window, self.nis_dof, c.nis_alpha)
+            alpha = c.nis_alpha_drop if self.aligned else c.nis_alpha  # hysteresis: a wider band to stay up
+            self.band = lo, hi = nis_band(c.nis_window, self.nis_dof, alpha)
             self.nis_sum = total = float(sum(self.nis))
             if total > hi:
                 return f"NIS sum {total:.1f} above the chi-square band [{lo:.1f}, {hi:.1f}] (over-confident)"

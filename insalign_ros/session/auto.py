@@ -4,7 +4,7 @@ A state machine around two cores and the motion detector (session/motion.py), se
 :class:`~insalign_ros.filters.base.AlignmentCore` (registered as ``auto``):
 
 * **waiting for data**: the session's own status until it has a position and 1 s of accelerometer data;
-* **static, levelling**: a zero-velocity core (``static_core``, default ekf10, tuned from the IMU grade) started by
+* **static, levelling**: a zero-velocity core (``static_core``, default pkf, tuned from the IMU grade) started by
   the session's sensors initialisation (level from the accelerometers, heading unknown: its azimuth bootstrap),
   zero-velocity updates scheduled by the session (``supports_gnss`` is False in the static states);
 * **static, fine**: the level 1-sigma is within 2x the b_acc/g floor. Heading: gyrocompassing only where the IMU
@@ -64,8 +64,11 @@ class AutoConfig(ConfigDict):
     """Parameters of ``core: auto``. The IMU grade (bias 1-sigmas, noise densities) sets the static core's
     tuning, the physical floors in the status and the motion detector's thresholds."""
 
-    #: zero-velocity core for the parked states (pkf, ekf10, ...) and the in-motion core for driving
-    static_core: str = "ekf10"
+    #: zero-velocity core for the parked states (pkf, ekf10, ...) and the in-motion core for driving. pkf: its biases
+    #: are consider parameters, so its level covariance stays at the b_acc/g floor when the heading is unobservable;
+    #: ekf10 estimates the body-frame accelerometer bias and, with a large bias prior (unknown_mems: 5 mg) and the
+    #: azimuth error state wandering, reported the level 0.6-1.3 deg off at a 0.12-deg 3-sigma (docs/session.md)
+    static_core: str = "pkf"
     motion_core: str = "iekf"
     #: IMU grade (the session fills these from ``imu_grade``, filters/imu_grade.py; defaults: industrial_mems):
     #: gyro and accelerometer bias 1-sigma, angle and velocity random walks, bias random walks
@@ -164,6 +167,28 @@ def rest_rate_mean(block_means_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.median(x, axis=0), block_variance(x) * (0.5 * math.pi) / x.shape[0]
 
 
+class _BlockMean:
+    """Running ``REST_BLOCK_S`` mean of the gyro rate omega_ib_b [rad/s] from samples that are each the mean rate
+    over their interval; a block with any sample not at rest is dropped."""
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        self.int_w, self.T, self.ok = np.zeros(3), 0.0, True
+
+    def add(self, dt: float, w: np.ndarray, at_rest: bool = True) -> np.ndarray | None:
+        """Add a sample over ``dt`` [s]; the block's mean when this sample completes a block at rest, else None."""
+        self.int_w += w * dt
+        self.T += dt
+        self.ok &= at_rest
+        if self.T < REST_BLOCK_S:
+            return None
+        mean, ok = self.int_w / self.T, self.ok
+        self.reset()
+        return mean if ok else None
+
+
 def gyro_bias_from_rest(omega_mean_b: np.ndarray, var_mean_b: np.ndarray, C_b_n: np.ndarray, lat_rad: float,
                         heading_trusted: bool, gyro_bias_instability_deg_h: float, sigma_level_rad: float = 0.0,
                         sigma_yaw_rad: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
@@ -216,10 +241,9 @@ class AutoCore(AlignmentCore):
         #: (t, AlignmentEstimate, number of rest blocks done) of the static core at rest
         self.snaps: deque = deque()
         self._blocks: list[np.ndarray] = []  # REST_BLOCK_S means of the gyro rate since the static core started
-        self._block_int_w, self._block_T = np.zeros(3), 0.0
+        self._block = _BlockMean()  # the block being summed (at rest before the hand-over, then at stops)
         self._stop_blocks: list[np.ndarray] = []  # REST_BLOCK_S gyro means of the current stop
         self._stop_applied = 0  # ... of which fused (zero-angular-rate updates)
-        self._stop_block_ok = True
         self.gyro_bias_prior: tuple[np.ndarray, np.ndarray] | None = None  # (b_g_b, P) given at the hand-over
         self.heading_trusted = False
         self.heading_floor_deg = math.nan
@@ -316,11 +340,9 @@ class AutoCore(AlignmentCore):
             self.hist.popleft()
         if self.motion is None:
             if t_prev is not None and t > t_prev:  # the sample is the mean rate over (t_prev, t]
-                self._block_int_w += w * (t - t_prev)
-                self._block_T += t - t_prev
-                if self._block_T >= REST_BLOCK_S:
-                    self._blocks.append(self._block_int_w / self._block_T)
-                    self._block_int_w, self._block_T = np.zeros(3), 0.0
+                mean = self._block.add(t - t_prev, w)
+                if mean is not None:
+                    self._blocks.append(mean)
             self.static.propagate(imu)
             if dec is not None and dec.moving:
                 self._handover(t, dec.since_s)
@@ -338,7 +360,7 @@ class AutoCore(AlignmentCore):
             self._hold_p_e = self._position_e()
             self._next_hold_t = t
             self._stop_blocks, self._stop_applied = [], 0
-            self._block_int_w, self._block_T, self._stop_block_ok = np.zeros(3), 0.0, True
+            self._block.reset()
             self._set_state(t, "stopped", f"stopped since {dec.since_s:.2f} s: zero-velocity updates (position hold) "
                                           "and zero-angular-rate updates")
         if self.state == "stopped" and t >= self._next_hold_t and self._hold_p_e is not None:
@@ -352,14 +374,10 @@ class AutoCore(AlignmentCore):
         """Stopped: 1-s gyro means; from ``stop_zero_rate_min_blocks`` on, each one is a zero-angular-rate update of
         the in-motion core (the z gyro bias is observable at rest: the yaw 3-sigma stops growing) with the per-block
         variance of :func:`block_variance` over the stop so far. Blocks with the detector not at rest are dropped."""
-        self._block_int_w += w * dt
-        self._block_T += dt
-        self._stop_block_ok &= at_rest
-        if self._block_T < REST_BLOCK_S:
+        mean = self._block.add(dt, w, at_rest)
+        if mean is None:
             return
-        if self._stop_block_ok:
-            self._stop_blocks.append(self._block_int_w / self._block_T)
-        self._block_int_w, self._block_T, self._stop_block_ok = np.zeros(3), 0.0, True
+        self._stop_blocks.append(mean)
         n = len(self._stop_blocks)
         if self.cfg.stop_zero_rate_min_blocks == 0 or n < self.cfg.stop_zero_rate_min_blocks \
                 or not self.motion.supports_zero_rate:

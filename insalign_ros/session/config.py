@@ -72,7 +72,8 @@ class SessionConfig:
     #: know its attitude (3-sigma within twice the flag's bounds); 0: off. 100 is p < 1e-20 for a consistent filter
     #: (chi-square, 3 dof) and rejects a fix 200 m off at a 1-m sigma
     gnss_gate_nis: float = 100.0
-    #: that many consecutive gated fixes: the filter is lost (or the GNSS is): FAULT and re-initialisation
+    #: that many consecutive gated fixes: the filter is lost (or the GNSS is): FAULT and re-initialisation (sooner
+    #: while the NIS CUSUM is armed: gated fixes feed it from the second of a run on, capped at the gate)
     gnss_gate_max_consecutive: int = 5
     # -- divergence guard (issue 15; docs/session.md "Outliers and divergence") --
     #: a fix off the straight-line extrapolation of the two fixes before it by more than this acceleration allows
@@ -80,7 +81,8 @@ class SessionConfig:
     #: not a lost filter: the session holds the filter (IMU only, flag down) instead of re-initialising
     gnss_jump_accel_m_s2: float = 10.0
     #: the longest such hold [s data time]: fixes that still disagree with the held filter after it are believed
-    #: (divergence, re-initialisation from the new fixes)
+    #: (divergence, re-initialisation from the new fixes); also the window after a re-initialisation in which a GNSS
+    #: jump before the new filter claims its attitude restarts it from the fixes after the jump
     gnss_hold_max_s: float = 30.0
     #: ... or sooner, when the held filter drifts away from fixes consistent with each other: |innovation| changed by
     #: more than this since the hold began without a jump [m] (a filter that absorbed a slowly walking bias)

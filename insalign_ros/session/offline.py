@@ -18,6 +18,7 @@ from ..eval.aligned import AlignedCriteria
 from ..sim.types import ScenarioData
 from .config import SessionConfig
 from .session import AlignmentSession, Output, TruthSample, TruthTable  # noqa: F401  (TruthSample re-exported)
+from .session import truth_table_valid
 
 
 @dataclass
@@ -122,7 +123,11 @@ def run_session(session: AlignmentSession, data: ScenarioData, fix_delay_s: floa
     (a fix) or the loop processes (every ``chunk`` samples): the same arrival order and processing points as one
     push per sample, so the same numbers (test/test_speed_paths.py)."""
     if session.fast_path and data.n > 0 and bool(np.all(np.diff(data.t_s) > 0)):
-        return _run_session_arrays(session, data, fix_delay_s, chunk, progress)
+        session._deferred_errors = []  # the outputs' Euler errors in one call at the end
+        try:
+            return _run_session_arrays(session, data, fix_delay_s, chunk, progress)
+        finally:
+            session._fill_deferred_errors()
     out: list[Output] = []
     n_imu = 0
     for kind, item in events_in_arrival_order(data, fix_delay_s):
@@ -164,14 +169,21 @@ def _run_session_arrays(session: AlignmentSession, data: ScenarioData, fix_delay
     jv = 0
     stops.update(np.flatnonzero(imu_ok & (n_valid % chunk == 0)).tolist())
     stops.add(data.n - 1)
+    # the valid rows, checked once (the checks are row-wise: a push's are the slice of these)
+    vi = np.flatnonzero(imu_ok)
+    tv = np.ascontiguousarray(t[vi], float)
+    wv = np.ascontiguousarray(data.omega_ib_b[vi], float)
+    fv = np.ascontiguousarray(data.f_ib_b[vi], float)
+    ok, cont = session._imu_array_checks(tv, wv, fv)
+    truth_ok = truth is not None and truth_table_valid(truth)
     j = 0
     a = 0
     for b in sorted(stops):
         if truth is not None:
-            session.push_truth_table(truth, a, b + 1)
-        sel = np.flatnonzero(imu_ok[a:b + 1]) + a
-        if sel.size:
-            session.push_imu_arrays(t[sel], data.omega_ib_b[sel], data.f_ib_b[sel])
+            session.push_truth_table(truth, a, b + 1, checked=truth_ok)
+        p, q = int(n_valid[a] - imu_ok[a]), int(n_valid[b])  # the valid rows a..b
+        if q > p:
+            session._push_imu_checked(tv[p:q], wv[p:q], fv[p:q], ok[p:q], cont[p:q - 1])
         if imu_ok[b] and n_valid[b] % chunk == 0:
             out += session.process()
             if progress is not None:

@@ -49,6 +49,7 @@ COUNTERS = (
     "gnss_unused", "truth_received", "truth_invalid", "time_resets", "core_faults", "zupt_accepted",
     "watchdog_trips", "inputs_dropped", "gnss_gated", "imu_spikes", "divergences")
 COUNTERS += ("gnss_jumps", "gnss_holds", "divergences_nis", "divergences_covariance", "divergences_cusum")  # divergence guard
+COUNTERS += ("reinit_restarts",)  # divergence guard: a re-initialisation restarted after a GNSS jump
 #: GNSS velocity (push_velocity): received, fused, rejected (total) and per reason
 VEL_COUNTERS = ("gnss_vel_received", "gnss_vel_accepted", "gnss_vel_rejected", "gnss_vel_invalid", "gnss_vel_duplicate",
                 "gnss_vel_stale", "gnss_vel_future", "gnss_vel_before_init", "gnss_vel_gated", "gnss_vel_filter_rejected",
@@ -92,13 +93,77 @@ class TruthTable:
         return tr
 
 
+def truth_table_valid(table: TruthTable, start: int = 0, stop: int | None = None) -> bool:
+    """Rows ``start:stop`` of ``table`` are finite and strictly increasing in time (what ``push_truth_table`` takes in
+    bulk)."""
+    T = table.t_s[start:stop]
+    return bool(np.isfinite(table.C_b_n[start:stop]).all() and np.isfinite(T).all()
+                and (T.shape[0] < 2 or np.all(np.diff(T) > 0)))
+
+
 class _TruthDict(dict):
     """stamp -> TruthSample; rows pushed from a :class:`TruthTable` are held as an integer reference and built on
-    first read (``[]``, ``get``)."""
+    first read (``[]``, ``get``).
+
+    Row ranges pushed from a table (``add_block``) stay pending, after every stamp of the dict: the output's truth
+    look-up (:meth:`around`, :meth:`drop_pending_before`) reads them in the table; any other read (``[]``, ``get``,
+    ``in``) first moves them into the dict and the sorted stamps ``tt`` (the session's ``truth_t``)."""
 
     def __init__(self) -> None:
         super().__init__()
         self.tables: list = []
+        self.tt: list = []  # the sorted stamps of the dict (linked to _Pending.truth_t)
+        self.pending: list = []  # [table, lo, hi]: rows lo:hi of a table, in stamp order
+        self.n_pending = 0
+
+    def add_block(self, table: "TruthTable", lo: int, hi: int) -> None:
+        """Rows ``lo:hi`` of ``table`` (valid, increasing, after every stamp held)."""
+        self.pending.append([table, lo, hi])
+        self.n_pending += hi - lo
+
+    def last_stamp(self) -> float | None:
+        if self.pending:
+            tb, _, hi = self.pending[-1]
+            return float(tb.t_s[hi - 1])
+        return self.tt[-1] if self.tt else None
+
+    def sync(self) -> None:
+        """Move the pending rows into the dict and ``tt``."""
+        blocks, self.pending, self.n_pending = self.pending, [], 0
+        for tb, lo, hi in blocks:
+            ts = tb.t_s[lo:hi].tolist()
+            self.add_rows(ts, tb, lo)
+            self.tt.extend(ts)
+
+    def drop_pending_before(self, t0: float) -> None:
+        """Forget the pending rows stamped before ``t0`` (what the look-up forgets in the dict)."""
+        while self.pending:
+            blk = self.pending[0]
+            tb, lo, hi = blk
+            k = lo + int(np.searchsorted(tb.t_s[lo:hi], t0, side="left"))
+            self.n_pending -= k - lo
+            if k < hi:
+                blk[1] = k
+                return
+            del self.pending[0]
+
+    def around(self, x: float):
+        """``(before, after)``: (stamp, C_b_n) of the last pose stamped before ``x`` and of the first at or after it
+        (None where there is none), over the dict and the pending rows, without moving them."""
+        tt = self.tt
+        i = bisect.bisect_left(tt, x)
+        if i < len(tt):
+            return ((tt[i - 1], self._sample(tt[i - 1]).C_b_n) if i else None), (tt[i], self._sample(tt[i]).C_b_n)
+        before = (tt[-1], self._sample(tt[-1]).C_b_n) if tt else None
+        for tb, lo, hi in self.pending:
+            T = tb.t_s
+            k = lo + int(np.searchsorted(T[lo:hi], x, side="left"))
+            if k < hi:
+                if k > lo:
+                    before = (float(T[k - 1]), tb.C_b_n[k - 1])
+                return before, (float(T[k]), tb.C_b_n[k])
+            before = (float(T[hi - 1]), tb.C_b_n[hi - 1])
+        return before, None
 
     def add_rows(self, stamps: list, table: TruthTable, start: int) -> None:
         if not self.tables or self.tables[-1] is not table:
@@ -111,11 +176,23 @@ class _TruthDict(dict):
         dict.__setitem__(self, t, tr)
         return tr
 
-    def __getitem__(self, t):
+    def _sample(self, t):
         v = dict.__getitem__(self, t)
         return self._build(t, v) if type(v) is int else v
 
+    def __getitem__(self, t):
+        if self.pending:
+            self.sync()
+        return self._sample(t)
+
+    def __contains__(self, t) -> bool:
+        if self.pending:
+            self.sync()
+        return dict.__contains__(self, t)
+
     def get(self, t, default=None):
+        if self.pending:
+            self.sync()
         v = dict.get(self, t, default)
         return self._build(t, v) if type(v) is int else v
 
@@ -138,14 +215,17 @@ class Output:
 class _Pending:
     """Time-ordered input buffer (IMU and fixes in stamp order; truth by stamp)."""
 
-    imu_t: list = field(default_factory=list)
-    imu: list = field(default_factory=list)  # (t, omega (3,), f (3,))
+    imu: "_ImuBuffer" = field(default_factory=lambda: _ImuBuffer())  # t, omega (3,), f (3,) as array blocks
     fix_t: list = field(default_factory=list)
     fix: list = field(default_factory=list)
     truth: dict = field(default_factory=lambda: _TruthDict())  # stamp -> TruthSample
     truth_t: list = field(default_factory=list)  # sorted stamps of ``truth``
     vel_t: list = field(default_factory=list)  # GNSS velocities in stamp order (push_velocity)
     vel: list = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.truth, _TruthDict):
+            self.truth.tt = self.truth_t
 
 
 class AlignmentSession:
@@ -155,6 +235,10 @@ class AlignmentSession:
     MAX_BUFFER = 200_000
     #: process runs of IMU samples between events as arrays (``_fast_run``); False: one ``_step`` per sample
     fast_path: bool = True
+    #: (core, its estimate) while the core's state has not changed since (``_estimate``)
+    _est_memo: tuple | None = None
+    #: outputs whose Euler error is filled in later by ``_fill_deferred_errors`` (offline ``run_session``); None: at once
+    _deferred_errors: list | None = None
 
     def __init__(self, config: SessionConfig | dict | None = None, core_params: dict | None = None,
                  criteria: AlignedCriteria | None = None, log=None) -> None:
@@ -212,8 +296,8 @@ class AlignmentSession:
         self.fault_reason = ""
         self.newest_imu_t: float | None = None
         self.processed_t: float | None = None  # stamp of the last processed IMU sample (= the core's time)
-        self.recent_stamps: deque = deque(maxlen=4096)
-        self._recent_set: set = set()
+        self.recent_stamps = _RecentStamps(4096)
+        self._recent_set: set = self.recent_stamps.set
         self.fix_stamps: deque = deque(maxlen=256)
         self.jump_candidates: list = []
         self.dts: deque = deque(maxlen=101)
@@ -231,9 +315,9 @@ class AlignmentSession:
         self._cusum_llr = 0.0  # divergence guard: CUSUM of the NIS log-likelihood ratio while the attitude is claimed
         self._kept_level = None  # divergence guard: (t, C_b_n, level 1-sigma) of the lost filter, if it claimed its level
         self.pre_init: deque = deque(maxlen=4000)  # IMU samples before the initialisation (level from sensors)
-        self.hist_t: deque = deque(maxlen=1000)  # recent processed samples (gap bridging statistics)
-        self.hist_w: deque = deque(maxlen=1000)
-        self.hist_f: deque = deque(maxlen=1000)
+        self.hist_t = _Ring(1000)  # recent processed samples (gap bridging statistics)
+        self.hist_w = _Ring(1000, 3)
+        self.hist_f = _Ring(1000, 3)
         self._batch: tuple[list, int] = ([], 0)  # the batch being processed and the index in it (gap look-ahead)
         self.init_t: float | None = None
         self.anchor: tuple[float, float, float] | None = None
@@ -260,9 +344,13 @@ class AlignmentSession:
         reason = _check_imu(t, w, f, self.cfg.max_rate_rad_s, self.cfg.max_acc_m_s2)
         if reason:
             return self._reject_imu("imu_invalid", reason)
+        w, f = np.asarray(w, float), np.asarray(f, float)
+        if w.shape != (3,) or f.shape != (3,):  # (the array buffer holds (3,) rows)
+            return self._reject_imu("imu_invalid", f"angular_velocity/linear_acceleration: shapes {w.shape}, {f.shape} "
+                                                   "instead of (3,)")
         if wall_s is not None:
             self.last_imu_wall = wall_s  # the watchdog counts valid samples only
-        if t in self._recent_set:
+        if t in self.recent_stamps:
             return self._reject_imu("imu_duplicate", f"duplicate stamp {t + self.stamp_offset_s:.6f}")
         newest = self.newest_imu_t
         if newest is not None and (t - newest > self.cfg.max_gap_s or newest - t > self.cfg.max_gap_s):
@@ -272,19 +360,20 @@ class AlignmentSession:
             return self._reject_imu("imu_out_of_order", f"stamp {t + self.stamp_offset_s:.6f} is {self.processed_t - t:.3f} s before "
                                                         "the filter time (beyond the fusion delay)")
         self._remember(t)
-        item = (t, np.asarray(w, float), np.asarray(f, float))
         if newest is None or t > newest:
-            self.buf.imu_t.append(t)
-            self.buf.imu.append(item)
+            self.buf.imu.append(t, w, f)
             self.newest_imu_t = t
         else:
             c["imu_reordered"] += 1
-            i = bisect.bisect(self.buf.imu_t, t)
-            self.buf.imu_t.insert(i, t)
-            self.buf.imu.insert(i, item)
-        if len(self.buf.imu_t) > self.MAX_BUFFER:
-            self._overflow_out += self._process(until=self.buf.imu_t[len(self.buf.imu_t) - self.MAX_BUFFER])
+            self.buf.imu.insert(t, w, f)
+        self._check_overflow()
         return True
+
+    def _check_overflow(self) -> None:
+        """More than MAX_BUFFER samples held: the oldest are processed at once (outputs handed out later)."""
+        b = self.buf.imu
+        if len(b) > self.MAX_BUFFER:
+            self._overflow_out += self._process(until=b.t_at(len(b) - self.MAX_BUFFER))
 
     def push_imu_arrays(self, t_s, omega_ib_b, f_ib_b, wall_s: float | None = None) -> int:
         """``push_imu`` for arrays of samples (t_s (N,) [s], omega_ib_b (N, 3) [rad/s], f_ib_b (N, 3) [m/s^2], body
@@ -297,6 +386,13 @@ class AlignmentSession:
         n = t.shape[0] if t.ndim == 1 else -1
         if n < 0 or w.shape != (n, 3) or f.shape != (n, 3):
             return sum(self.push_imu(ImuSample(float(t[k]), w[k], f[k]), wall_s) for k in range(len(t)))
+        ok, cont = self._imu_array_checks(t, w, f)
+        return self._push_imu_checked(t, w, f, ok, cont, wall_s)
+
+    def _imu_array_checks(self, t: np.ndarray, w: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``push_imu``'s checks of arrays of samples, at once: ``ok`` (N,) rows valid; ``cont`` (N - 1,) row k + 1 is
+        valid and after row k by at most ``max_gap_s`` (it continues a bulk run). Row-wise: the checks of a slice are
+        the slice of the checks (``run_session`` checks a whole recording once)."""
         cfg = self.cfg
         with np.errstate(invalid="ignore", over="ignore"):
             nw = _row_norms(w)
@@ -307,6 +403,13 @@ class AlignmentSession:
             dt = np.diff(t)
             # a row continues the bulk run when valid and after its predecessor by at most max_gap_s
             cont = ok[1:] & (dt > 0.0) & ~(dt > cfg.max_gap_s)
+        return ok, cont
+
+    def _push_imu_checked(self, t: np.ndarray, w: np.ndarray, f: np.ndarray, ok: np.ndarray, cont: np.ndarray,
+                          wall_s: float | None = None) -> int:
+        """``push_imu_arrays`` with the checks of :meth:`_imu_array_checks` done (for these rows, this config)."""
+        cfg = self.cfg
+        n = t.shape[0]
         brk = np.flatnonzero(~cont) + 1  # rows that cannot continue the run of their predecessor
         accepted = 0
         s = 0
@@ -331,21 +434,11 @@ class AlignmentSession:
         self._touch(wall_s)
         if wall_s is not None:
             self.last_imu_wall = wall_s
-        tl = t.tolist()
-        rs, rset = self.recent_stamps, self._recent_set
-        drop = len(rs) + m - rs.maxlen
-        if drop >= len(rs):
-            rset.clear()
-        elif drop > 0:
-            for k in range(drop):
-                rset.discard(rs[k])
-        rs.extend(tl)
-        rset.update(tl[-rs.maxlen:])
-        self.buf.imu_t.extend(tl)
-        self.buf.imu.extend(zip(tl, list(w), list(f)))
-        self.newest_imu_t = tl[-1]
-        if len(self.buf.imu_t) > self.MAX_BUFFER:
-            self._overflow_out += self._process(until=self.buf.imu_t[len(self.buf.imu_t) - self.MAX_BUFFER])
+        t, w, f = t.copy(), w.copy(), f.copy()  # the caller may reuse its arrays
+        self.recent_stamps.add_block(t)
+        self.buf.imu.extend(t, w, f)
+        self.newest_imu_t = float(t[m - 1])
+        self._check_overflow()
 
     def push_fix(self, fix: GnssFix, wall_s: float | None = None) -> bool:
         """Validate and buffer one GNSS position fix (ECEF p_e [m], R_e [m^2]). False if rejected."""
@@ -383,26 +476,29 @@ class AlignmentSession:
         while len(self.buf.truth_t) > 5000:
             del self.buf.truth[self.buf.truth_t.pop(0)]
 
-    def push_truth_table(self, table: "TruthTable", start: int = 0, stop: int | None = None) -> None:
+    def push_truth_table(self, table: "TruthTable", start: int = 0, stop: int | None = None,
+                         checked: bool = False) -> None:
         """``push_truth`` for rows ``start:stop`` of a :class:`TruthTable` (the offline path): one vectorised check,
         and a :class:`TruthSample` is built only for the stamps the session reads (initialisation, outputs). Rows that
-        are not all valid, new and after the buffered poses go through ``push_truth`` one by one."""
+        are not all valid, new and after the buffered poses go through ``push_truth`` one by one. ``checked``: the
+        caller found the whole table valid (:func:`truth_table_valid`) and does not change it."""
         b = self.buf
         stop = len(table.t_s) if stop is None else stop
         m = stop - start
         if m <= 0:
             return
         T = table.t_s[start:stop]
-        if not isinstance(b.truth, _TruthDict) or not (np.isfinite(table.C_b_n[start:stop]).all()
-                                                       and np.isfinite(T).all()) \
-                or (m > 1 and not bool(np.all(np.diff(T) > 0))) or (b.truth_t and not T[0] > b.truth_t[-1]):
+        last = b.truth.last_stamp() if isinstance(b.truth, _TruthDict) else None
+        if not isinstance(b.truth, _TruthDict) or not (checked or truth_table_valid(table, start, stop)) \
+                or (last is not None and not T[0] > last):
             for k in range(start, stop):
                 self.push_truth(table.sample(k))
             return
         self.counters["truth_received"] += m
-        ts = T.tolist()
-        b.truth.add_rows(ts, table, start)
-        b.truth_t.extend(ts)
+        b.truth.add_block(table, start, stop)  # read in the table until a reader needs them in the dict
+        if len(b.truth_t) + b.truth.n_pending <= 5000:
+            return
+        b.truth.sync()
         k = len(b.truth_t) - 5000
         if k > 0:
             for x in b.truth_t[:k]:
@@ -420,10 +516,7 @@ class AlignmentSession:
             self.last_input_wall = wall_s
 
     def _remember(self, t: float) -> None:
-        if len(self.recent_stamps) == self.recent_stamps.maxlen:
-            self._recent_set.discard(self.recent_stamps[0])
-        self.recent_stamps.append(t)
-        self._recent_set.add(t)
+        self.recent_stamps.add(t)
 
     def _reject(self, topic: str, what: str, counter: str, reason: str) -> bool:
         """Count a rejected input under its own counter and the topic's total; a throttled log line; False."""
@@ -460,8 +553,7 @@ class AlignmentSession:
         # the earlier candidates were counted as rejected; the run starts the new time line
         for s in run:
             self._remember(s.stamp_s)
-            self.buf.imu_t.append(float(s.stamp_s))
-            self.buf.imu.append((float(s.stamp_s), np.asarray(s.omega_ib_b, float), np.asarray(s.f_ib_b, float)))
+            self.buf.imu.append(float(s.stamp_s), np.asarray(s.omega_ib_b, float), np.asarray(s.f_ib_b, float))
         self.newest_imu_t = float(run[-1].stamp_s)
         return True
 
@@ -499,23 +591,25 @@ class AlignmentSession:
     def _process(self, until: float) -> list[Output]:
         out: list[Output] = []
         b = self.buf
-        n = bisect.bisect_right(b.imu_t, until)
+        n = b.imu.count_until(until)
         if n == 0:
             self._apply_due_fixes(out)
             return out
-        items = b.imu[:n]
-        del b.imu[:n], b.imu_t[:n]
-        plan = _FastPlan(self, items, b.imu[0] if b.imu else None) if self.fast_path and n >= 8 else None
+        T, W, F = b.imu.take(n)
+        Tl = T.tolist()
+        arrs = (Tl, W, F)
+        after = b.imu.first()
+        plan = _FastPlan(self, T, W, F, after, Tl) if self.fast_path and n >= 8 else None
         i = 0
         while i < n:
             if plan is not None and self.core is not None and self.bt is None:
-                j = self._fast_run(plan, i)
+                j = self._fast_run(plan, i, out)
                 if j > i:
                     i = j
                     continue
-            t, w, f = items[i]
-            self._batch = (items, i)
-            nxt = items[i + 1] if i + 1 < n else (b.imu[0] if b.imu else None)
+            t, w, f = Tl[i], W[i], F[i]
+            self._batch = (arrs, i)
+            nxt = (Tl[i + 1], W[i + 1], F[i + 1]) if i + 1 < n else after
             i += 1
             if self._spike(t, w, f, nxt):
                 continue
@@ -527,69 +621,68 @@ class AlignmentSession:
         self.timing["samples"] += n
         return out
 
-    def _fast_run(self, plan: "_FastPlan", i: int) -> int:
-        """Process ``plan.items[i:j]`` in one batch when none of them needs per-sample attention; return ``j``
-        (``i``: nothing done, the caller takes the per-sample path).
+    def _fast_run(self, plan: "_FastPlan", i: int, out: list[Output]) -> int:
+        """Process samples ``i:j`` of the plan in one batch when none of them needs per-sample attention, the last
+        one possibly a sample at which events fall due (fixes, a zero-velocity update, an output: handled after the
+        batch, as ``_step`` does after that sample); return ``j`` (``i``: nothing done, the caller takes the per-sample
+        path).
 
-        A sample needs attention when a fix, a zero-velocity update or an output falls due at it, when its interval
-        could be a gap or make the spike check return early (bounded with a lower bound of the running median
-        interval), or when it could be a spike (off both neighbours by more than the configured bounds, which the
-        adaptive bound never undercuts). Everything else ``_step`` does per sample is done here for the run at once
-        (period tracking, counters, history, ``core.propagate_arrays``), with the same result (docs/speed.md)."""
+        A sample needs attention when its interval could be a gap or make the spike check return early (bounded with
+        a lower bound of the running median interval), or when it could be a spike (off both neighbours by more than
+        the configured bounds, which the adaptive bound never undercuts). Everything else ``_step`` does per sample
+        is done here for the run at once (period tracking, counters, history, ``core.propagate_arrays``), with the
+        same result (docs/speed.md)."""
         core, cfg = self.core, self.cfg
         prev = self.processed_t
         if prev is None or self._median_dt is None or not self.hist_w or i >= plan.n_fast:
             return i
-        T = plan.T
-        # events: fixes, outputs, zero-velocity updates (stamps increase along the buffer)
+        Tl = plan.Tl
+        # events: fixes, outputs, zero-velocity updates (stamps increase along the buffer); the run ends at the first
+        # sample at which one falls due
+        b = self.buf
         t_end = self.next_out_t - 1e-9
-        if self.buf.fix_t:
-            t_end = min(t_end, self.buf.fix_t[0])
-        if self.buf.vel_t:
-            t_end = min(t_end, self.buf.vel_t[0])
-        if self._zupt_due(math.inf):  # the session schedules zero-velocity updates for this core
-            t_end = min(t_end, self.next_zupt_t)
-        if not T[i] < t_end:  # an event at this very sample (the usual case right after a run)
-            return i
-        j = min(plan.n_fast, int(np.searchsorted(T, t_end, side="left")))
+        if b.fix_t and b.fix_t[0] < t_end:
+            t_end = b.fix_t[0]
+        if b.vel_t and b.vel_t[0] < t_end:
+            t_end = b.vel_t[0]
+        if self.next_zupt_t < t_end and self._zupt_due(math.inf):  # the session schedules zero-velocity updates
+            t_end = self.next_zupt_t
+        j = min(plan.n_fast, bisect.bisect_left(Tl, t_end, i) + 1)
         if plan.cand is not None:  # spike candidates after the first sample; the first against the history
             j = min(j, plan.next_candidate(i + 1))
-            if j - i < 2 or plan.candidate_at(i, self.hist_w[-1], self.hist_f[-1]):
+            if j == i or plan.candidate_at(i, self.hist_w[-1], self.hist_f[-1]):
                 return i
-        if j - i < 2:
-            return i
         # intervals: none may be a gap or exceed 3 medians (the spike check's early return), for any median the
         # running window can take during the run (>= the 51st smallest interval of the old window and the run)
-        d = np.empty(j - i)
-        d[0] = T[i] - prev
-        d[1:] = plan.dT[i:j - 1]
-        old = list(self.dts)
+        d = [Tl[i] - prev]
+        d += plan.dTl[i:j - 1]
         fac = min(3.0, cfg.gap_factor)
         # cheap bound first (the smallest interval anywhere; the median now may come from a window partly older than
-        # ``old``), the 51st smallest of the old window and the run when jitter makes the cheap one too tight
-        lb = min(min(old), float(d.min()), self._median_dt)
-        if float(d.max()) > fac * lb or plan.dnext[j - 1] > fac * lb:
-            alld = np.concatenate((old, d))
+        # the window now), the 51st smallest of the old window and the run when jitter makes the cheap one too tight
+        lb = min(min(self.dts), min(d), self._median_dt)
+        if max(d) > fac * lb or plan.dnextl[j - 1] > fac * lb:
+            old = list(self.dts)
+            alld = np.array(old + d)
             lb = float(alld.min()) if len(old) < self.dts.maxlen else float(np.partition(alld, 50)[50])
             lb = min(lb, self._median_dt)
             thr = fac * lb
-            over = np.flatnonzero(d > thr)
+            over = np.flatnonzero(np.array(d) > thr)
             if over.size:
                 j = i + int(over[0]) - 1  # the sample before the long interval is the last whose next one is short
                 d = d[:max(j - i, 0)]
-            elif plan.dnext[j - 1] > thr:
+            elif plan.dnextl[j - 1] > thr:
                 j -= 1
                 d = d[:j - i]
-            if j - i < 2:
+            if j - i < 1:
                 return i
         m = j - i
         # period tracking as _track_period per sample: the median at the last multiple of 20 intervals in the run
         c0 = self._dt_count
-        self.dts.extend(d.tolist())
-        self._dt_count = c0 + m
         p = (c0 + m) // 20 * 20
         if p > c0:
-            self._median_dt = _median((old + d[:p - c0].tolist())[-self.dts.maxlen:])
+            self._median_dt = _median((list(self.dts) + d[:p - c0])[-self.dts.maxlen:])
+        self.dts.extend(d)
+        self._dt_count = c0 + m
         # the spike check's spread statistic, due at sample k when its interval count % 100 == 1: lazily
         if cfg.imu_spike_rad_s > 0 or cfg.imu_spike_m_s2 > 0:
             due = None if self._spread is not None else 0
@@ -597,19 +690,23 @@ class AlignmentSession:
             if q < m:
                 due = q + (m - 1 - q) // 100 * 100
             if due is not None:
-                self._spread = _LazySpread(list(self.hist_w), list(self.hist_f), plan.W[i:i + due], plan.F[i:i + due],
-                                           self.hist_w.maxlen)
-        self.processed_t = float(T[j - 1])
+                self._spread = _LazySpread(self.hist_w.view(), self.hist_f.view(), plan.W[i:i + due],
+                                           plan.F[i:i + due], self.hist_w.maxlen)
+        t = Tl[j - 1]
+        self.processed_t = t
         self.counters["imu_processed"] += m
-        run = plan.items[i:j]
-        self.hist_t.extend(T[i:j].tolist())
-        self.hist_w.extend([it[1] for it in run])
-        self.hist_f.extend([it[2] for it in run])
+        T, W, F = plan.T[i:j], plan.W[i:j], plan.F[i:j]
+        self.hist_t.extend(T)
+        self.hist_w.extend(W)
+        self.hist_f.extend(F)
+        self._est_memo = None
         try:
             if core.propagate_arrays_matches_propagate:
-                core.propagate_arrays(T[i:j], plan.W[i:j], plan.F[i:j])
+                core.propagate_arrays(T, W, F)
             else:
-                AlignmentCore.propagate_arrays(core, T[i:j], plan.W[i:j], plan.F[i:j])
+                AlignmentCore.propagate_arrays(core, T, W, F)
+            if t >= t_end:
+                self._events_at(t, out)
         except Exception as exc:  # noqa: BLE001 - a core failure is a fault; the alignment restarts
             self._fault(exc)
         return j
@@ -628,8 +725,9 @@ class AlignmentSession:
             self._spread = (float(np.linalg.norm(np.std(np.asarray(self.hist_w), axis=0))),
                             float(np.linalg.norm(np.std(np.asarray(self.hist_f), axis=0))))
         # off BOTH neighbours (the sample before a spike is off only one of them)
-        dw = min(float(np.linalg.norm(w - self.hist_w[-1])), float(np.linalg.norm(w - nxt[1])))
-        df = min(float(np.linalg.norm(f - self.hist_f[-1])), float(np.linalg.norm(f - nxt[2])))
+        wl, fl = w.tolist(), f.tolist()
+        dw = min(_dist3(wl, self.hist_w[-1].tolist()), _dist3(wl, nxt[1].tolist()))
+        df = min(_dist3(fl, self.hist_f[-1].tolist()), _dist3(fl, nxt[2].tolist()))
         if isinstance(self._spread, _LazySpread):  # fell due inside a fast run (_fast_run): computed when it matters
             if not ((cfg.imu_spike_rad_s > 0 and dw > cfg.imu_spike_rad_s)
                     or (cfg.imu_spike_m_s2 > 0 and df > cfg.imu_spike_m_s2)):
@@ -667,6 +765,11 @@ class AlignmentSession:
         self.hist_t.append(t)
         self.hist_w.append(w)
         self.hist_f.append(f)
+        self._events_at(t, out)
+
+    def _events_at(self, t: float, out: list[Output]) -> None:
+        """What falls due at the processed sample ``t``: fixes and GNSS velocities stamped up to it, a zero-velocity
+        update, an output."""
         self._apply_fixes_until(t, out)
         if self.core is None:  # a divergence restarted the session
             return
@@ -734,17 +837,17 @@ class AlignmentSession:
     def _lookahead(self, until: float):
         """The IMU samples not processed yet (the rest of the batch being processed, then the buffer), up to the
         stamp ``until`` [s]: data the gap bridge may use after the gap."""
-        items, i = self._batch
-        for it in items[i + 1:]:
-            if it[0] > until:
-                return
-            yield it
-        for it in self.buf.imu:
-            if it[0] > until:
-                return
-            yield it
+        arrs, i = self._batch
+        if arrs:
+            Tl, W, F = arrs
+            for k in range(i + 1, len(Tl)):
+                if Tl[k] > until:
+                    return
+                yield Tl[k], W[k], F[k]
+        yield from self.buf.imu.iter_until(until)
 
     def _feed(self, event) -> None:
+        self._est_memo = None
         if self.bt is not None:
             self.bt.feed(event)
         elif isinstance(event, ImuSample):
@@ -766,6 +869,7 @@ class AlignmentSession:
             if fix.stamp_s < self.init_t:
                 self.counters["gnss_before_init"] += 1
                 continue
+            self._est_memo = None
             self._fuse_fix(fix)
         self._apply_velocities_until(t)
 
@@ -777,6 +881,8 @@ class AlignmentSession:
             return
         gate = self.cfg.gnss_gate_nis
         jump = self._fix_jump(fix)
+        if jump and self._restart_young_reinit():  # divergence guard
+            return
         # a jump in the fix sequence is suspect by itself: gated even while the core does not claim its attitude
         if gate > 0 and (self._attitude_claimed() or jump or self._hold_since is not None):
             pr = core.predict_gnss(fix)
@@ -790,6 +896,8 @@ class AlignmentSession:
                 # an implausible fix while the core claims its attitude: the claim cannot be trusted now
                 self._lower_flag(f"a fix failed the NIS gate ({self.gated_run} in a row)")
                 if self._hold(fix, jump, pr.nis, float(np.linalg.norm(pr.innovation))):
+                    return
+                if self._gated_run_evidence(pr.nis, len(pr.innovation) or 3):  # divergence guard
                     return
                 if self.gated_run >= self.cfg.gnss_gate_max_consecutive:
                     self._diverged(f"{self.gated_run} consecutive fixes beyond the NIS gate (last NIS {pr.nis:.3g}), "
@@ -878,7 +986,7 @@ class AlignmentSession:
                 reason, key = reason or (f"mean NIS {mean:.3g} of the last {len(self._nis_win)} fixes above "
                                f"{cfg.divergence_nis_mean:g} (chi-square(3) mean 3)"), "divergences_nis"
         if not reason:
-            P = self.core.estimate().P_att_n
+            P = self._estimate().P_att_n
             if self._level_bound_deg is None:  # an initialisation from sensors may start near the bound (a_est / g)
                 d = np.clip(np.diag(P)[:2], 0.0, None)
                 self._level_bound_deg = max(cfg.divergence_level_3sigma_deg, 2.0 * 3.0 * math.degrees(math.sqrt(max(d))))
@@ -912,6 +1020,36 @@ class AlignmentSession:
         if cfg.divergence_cusum_flag_llr > 0 and self._cusum_llr > cfg.divergence_cusum_flag_llr:
             self._lower_flag(f"inconsistent innovations (NIS {nis:.3g}, CUSUM {self._cusum_llr:.3g})")
         return ""
+
+    def _gated_run_evidence(self, nis: float, dof: int) -> bool:
+        """A gated fix in a run without a jump (smooth fixes the claimed filter disagrees with: the lost-filter
+        signature) is evidence for the CUSUM too, from the second fix of the run on and capped at the gate (the
+        first may be a lone outlier, and a single gated fix must not decide): a filter whose CUSUM had already risen
+        faults at its second gated fix, any other at its third, instead of the fifth (``gnss_gate_max_consecutive``).
+        True when the session restarted."""
+        if self.gated_run < 2:
+            return False
+        reason = self._cusum(min(nis, self.cfg.gnss_gate_nis), dof)
+        if not reason:
+            return False
+        self.counters["divergences_cusum"] += 1
+        self._diverged(f"{reason}; {self.gated_run} gated fixes in a row")
+        return True
+
+    def _restart_young_reinit(self) -> bool:
+        """A GNSS jump within ``gnss_hold_max_s`` of a re-initialisation after a divergence, before the new filter
+        claims its attitude: the fixes it started from may be the anomalous ones (a walking GNSS that made the old
+        filter's CUSUM fire, then jumped back), and a young filter (a yaw bank: no gate yet) would fuse the jump.
+        Re-initialise again from the fixes after the jump (three consistent ones). True when the session restarted."""
+        if not (self._sensors_reinit and self.init_t is not None and self.processed_t is not None
+                and self.processed_t - self.init_t <= self.cfg.gnss_hold_max_s and not self._attitude_claimed()):
+            return False
+        self.counters["reinit_restarts"] += 1
+        reason = (f"GNSS jump {self.processed_t - self.init_t:.0f} s after the re-initialisation, before the new "
+                  "filter claims its attitude: the fixes it started from are suspect")
+        self.log("warn", "reinit_restarts", f"{reason}; re-initialising from the fixes after the jump")
+        self._reinitialise(reason)
+        return True
 
     def _still_faulted(self) -> None:
         """While re-initialising after a fault or a divergence: status FAULT with its reason, and what the
@@ -957,6 +1095,7 @@ class AlignmentSession:
             if vel.stamp_s < self.init_t:
                 self.counters["gnss_vel_before_init"] += 1
                 continue
+            self._est_memo = None
             self._fuse_velocity(vel)
 
     def _fuse_velocity(self, vel: GnssVelocity) -> None:
@@ -1006,9 +1145,14 @@ class AlignmentSession:
         """Divergence: FAULT with the reason, the flag down at once, re-initialisation from the data that follow."""
         self.counters["divergences"] += 1
         self.log("error", "divergence", f"divergence: {reason}; re-initialising from the sensors (yaw bank)")
+        self._reinitialise(f"divergence: {reason}")
+
+    def _reinitialise(self, why: str) -> None:
+        """FAULT with ``why`` and a re-initialisation from the sensors, keeping the fix sequence (jump detection)
+        and the level the lost filter claims (if it does)."""
         seq = self._fix_seq
         kept = self._claimed_level()
-        self._restart(f"divergence: {reason}")
+        self._restart(why)
         self._fix_seq = seq  # jump detection continues across the re-initialisation
         self._kept_level = kept
         self._sensors_reinit = True  # whatever the first initialisation was: a guess or the truth no longer holds
@@ -1047,6 +1191,7 @@ class AlignmentSession:
                 and self.cfg.zupt_rate_hz > 0 and t >= self.next_zupt_t)
 
     def _zupt(self, t: float) -> None:
+        self._est_memo = None
         res = self.core.update_zero_velocity(t, self.cfg.zupt_sigma_m_s)
         self.next_zupt_t = t + 1.0 / self.cfg.zupt_rate_hz - 1e-9
         if res.accepted:
@@ -1259,10 +1404,21 @@ class AlignmentSession:
         return coef[-2]
 
     # ------------------------------------------------------------------ outputs, flag, status
+    def _estimate(self) -> AlignmentEstimate:
+        """``core.estimate()`` once per core state: the divergence guard's covariance test after a fix and the output
+        at the same sample read the same one (the memo is dropped whenever the session hands the core a sample or an
+        update)."""
+        m, core = self._est_memo, self.core
+        if m is not None and m[0] is core:
+            return m[1]
+        est = core.estimate()
+        self._est_memo = (core, est)
+        return est
+
     def _output(self, t: float) -> Output:
-        est = self.core.estimate()
+        est = self._estimate()
         P = est.P_att_n
-        if not (np.all(np.isfinite(P)) and np.all(np.isfinite(est.C_b_n)) and math.isfinite(est.lat_rad)):
+        if not (math.isfinite(est.lat_rad) and _all_finite(P) and _all_finite(est.C_b_n)):
             raise FloatingPointError("non-finite estimate")
         was = self.flag.aligned
         now = self.flag.on_estimate(t, P) and not self.watchdog_reason
@@ -1276,12 +1432,24 @@ class AlignmentSession:
             self.status = est.status
         self.reason = self.flag.reason if not est.reason else f"{self.flag.reason}; {est.reason}"
         tr = self._truth_at(t)
-        err = None
+        o = Output(t, est, now, self.status, self.reason, euler_3sigma_deg(est.C_b_n, P), None, tr)
         if tr is not None:
-            err = np.degrees(earth.euler_error_rad(est.C_b_n, tr))
-        o = Output(t, est, now, self.status, self.reason, euler_3sigma_deg(est.C_b_n, P), err, tr)
+            if self._deferred_errors is not None:
+                self._deferred_errors.append(o)
+            else:
+                o.euler_error_deg = np.degrees(earth.euler_error_rad(est.C_b_n, tr))
         self.last_output = o
         return o
+
+    def _fill_deferred_errors(self) -> None:
+        """The Euler errors of the outputs deferred by ``run_session``, in one vectorised call (numpy's elementwise
+        functions: the numbers of one call per output, test_speed_paths); deferring ends."""
+        outs, self._deferred_errors = self._deferred_errors, None
+        if outs:
+            E = np.degrees(earth.euler_error_rad(np.array([o.estimate.C_b_n for o in outs], float),
+                                                 np.array([o.truth_C_b_n for o in outs], float)))
+            for o, e in zip(outs, E):
+                o.euler_error_deg = e
 
     def _truth_at(self, t: float) -> np.ndarray | None:
         """Truth attitude at ``t``: the pose stamped there (within 1 us), else the slerp between the two poses that
@@ -1294,14 +1462,20 @@ class AlignmentSession:
             for k in tt[:n_old]:
                 del b.truth[k]
             del tt[:n_old]
-        i = bisect.bisect_left(tt, t - 1e-6)
-        if i < len(tt) and abs(tt[i] - t) <= 1e-6:
-            return np.asarray(b.truth[tt[i]].C_b_n, float)
-        if 0 < i < len(tt) and tt[i] - tt[i - 1] <= 0.25:
+        if isinstance(b.truth, _TruthDict):
+            if not tt:  # the pending rows come after every stamp in the dict
+                b.truth.drop_pending_before(t - 2.0)
+            before, after = b.truth.around(t - 1e-6)
+        else:
+            i = bisect.bisect_left(tt, t - 1e-6)
+            before = (tt[i - 1], b.truth[tt[i - 1]].C_b_n) if 0 < i <= len(tt) else None
+            after = (tt[i], b.truth[tt[i]].C_b_n) if i < len(tt) else None
+        if after is not None and abs(after[0] - t) <= 1e-6:
+            return np.asarray(after[1], float)
+        if before is not None and after is not None and after[0] - before[0] <= 0.25:
             from scipy.spatial.transform import Rotation, Slerp
 
-            a, c = tt[i - 1], tt[i]
-            sl = Slerp([a, c], Rotation.from_matrix([b.truth[a].C_b_n, b.truth[c].C_b_n]))
+            sl = Slerp([before[0], after[0]], Rotation.from_matrix([before[1], after[1]]))
             return sl([t]).as_matrix()[0]
         return None
 
@@ -1412,7 +1586,7 @@ class AlignmentSession:
             d["gnss_age_s"] = f"{self.processed_t - self.last_accepted_fix_t:.2f}"
         if self._median_dt is not None:
             d["imu_period_median_ms"] = f"{self._median_dt * 1e3:.3f}"
-        d["buffered_imu"] = str(len(self.buf.imu_t))
+        d["buffered_imu"] = str(len(self.buf.imu))
         d["buffered_fixes"] = str(len(self.buf.fix_t))
         if self.watchdog_reason:
             d["watchdog"] = self.watchdog_reason
@@ -1452,6 +1626,8 @@ def _extrapolation_excess(prev, point, accel_m_s2: float) -> float:
 def _covariance_problem(P_att: np.ndarray, level_3sigma_deg: float) -> str:
     """Why an attitude covariance [rad^2, ENU] cannot be a filter's honest belief ("" when it can): not finite,
     not symmetric, not positive definite, or a roll/pitch (East/North) 3-sigma beyond ``level_3sigma_deg``."""
+    if _covariance_plainly_fine(P_att, level_3sigma_deg):
+        return ""
     P = np.asarray(P_att, float)
     if not np.all(np.isfinite(P)):
         return "attitude covariance is not finite"
@@ -1469,6 +1645,42 @@ def _covariance_problem(P_att: np.ndarray, level_3sigma_deg: float) -> str:
     if s_level > level_3sigma_deg:
         return f"level 3-sigma {s_level:.0f} deg beyond the physical bound {level_3sigma_deg:g} deg"
     return ""
+
+
+def _covariance_plainly_fine(P_att: np.ndarray, level_3sigma_deg: float) -> bool:
+    """A sufficient condition for :func:`_covariance_problem` to find nothing, in Python floats (it runs after every
+    fix; numpy's eigvalsh on 3x3 costs ~15 us): finite, positive diagonal, the correlation form symmetric within the
+    same 1e-6, the symmetrised correlation minus 1e-6 I has a Cholesky factor (so its smallest eigenvalue is above
+    1e-6 minus rounding, far from the -1e-9 limit), and the same level 3-sigma test. False: the full test decides."""
+    (p00, p01, p02), (p10, p11, p12), (p20, p21, p22) = np.asarray(P_att, float).tolist()
+    if not (math.isfinite(p00 + p01 + p02 + p10 + p11 + p12 + p20 + p21 + p22) and p00 > 0 and p11 > 0 and p22 > 0):
+        return False
+    c01, c10 = p01 / math.sqrt(p00 * p11), p10 / math.sqrt(p11 * p00)
+    c02, c20 = p02 / math.sqrt(p00 * p22), p20 / math.sqrt(p22 * p00)
+    c12, c21 = p12 / math.sqrt(p11 * p22), p21 / math.sqrt(p22 * p11)
+    if max(abs(c01 - c10), abs(c02 - c20), abs(c12 - c21)) > 1e-6:
+        return False
+    s01, s02, s12 = 0.5 * (c01 + c10), 0.5 * (c02 + c20), 0.5 * (c12 + c21)
+    delta = 1e-6
+    a = p00 / math.sqrt(p00 * p00) - delta
+    if not a > 0:
+        return False
+    l00 = math.sqrt(a)
+    l10, l20 = s01 / l00, s02 / l00
+    a = p11 / math.sqrt(p11 * p11) - delta - l10 * l10
+    if not a > 0:
+        return False
+    l11 = math.sqrt(a)
+    l21 = (s12 - l20 * l10) / l11
+    if not p22 / math.sqrt(p22 * p22) - delta - l20 * l20 - l21 * l21 > 0:
+        return False
+    return not 3.0 * math.degrees(math.sqrt(max(p00, p11))) > level_3sigma_deg
+
+
+def _all_finite(X: np.ndarray) -> bool:
+    """``np.all(np.isfinite(X))`` for a small array, without numpy's per-call overhead (the sum of finite numbers
+    overflows only beyond 1e308: then numpy decides)."""
+    return math.isfinite(sum(X.ravel().tolist())) or bool(np.all(np.isfinite(X)))
 
 
 def _check_velocity(t: float, v_n, R_n) -> str:
@@ -1504,18 +1716,15 @@ class _FastPlan:
     """Arrays of one ``_process`` batch for ``AlignmentSession._fast_run``: stamps, rates, specific forces, the
     intervals, and the samples that could be spikes (off both neighbours by more than the configured bounds)."""
 
-    def __init__(self, session: AlignmentSession, items: list, nxt) -> None:
-        n = len(items)
-        self.items = items
-        self.T = np.fromiter((it[0] for it in items), float, n)
-        self.W = np.array([it[1] for it in items], dtype=float)
-        self.F = np.array([it[2] for it in items], dtype=float)
+    def __init__(self, session: AlignmentSession, T: np.ndarray, W: np.ndarray, F: np.ndarray, nxt, Tl: list) -> None:
+        n = T.shape[0]
+        self.n = n
+        self.T, self.W, self.F, self.Tl = T, W, F, Tl
         self.n_fast = n if nxt is not None else n - 1  # the last sample of the buffer: per sample (no neighbour)
-        if self.W.shape != (n, 3) or self.F.shape != (n, 3):
-            self.n_fast = 0
-            return
         self.dT = np.diff(self.T)
         self.dnext = np.append(self.dT, (nxt[0] - self.T[-1]) if nxt is not None else math.inf)
+        self.dTl = self.dT.tolist()
+        self.dnextl = self.dnext.tolist()
         cfg = session.cfg
         self.bound_w, self.bound_f = cfg.imu_spike_rad_s, cfg.imu_spike_m_s2
         self.cand = None
@@ -1534,20 +1743,229 @@ class _FastPlan:
             bad |= dw > self.bound_w * (1.0 - 1e-9)
         if self.bound_f > 0:
             bad |= df > self.bound_f * (1.0 - 1e-9)
-        self.cand = np.flatnonzero(bad) + 1
+        self.cand = (np.flatnonzero(bad) + 1).tolist()
 
     def next_candidate(self, k: int) -> int:
-        """Index of the first possible spike at or after ``k`` (``len(items)`` when none)."""
+        """Index of the first possible spike at or after ``k`` (``n`` when none)."""
         c = self.cand
-        i = int(np.searchsorted(c, k))
-        return int(c[i]) if i < c.shape[0] else len(self.items)
+        i = bisect.bisect_left(c, k)
+        return c[i] if i < len(c) else self.n
 
     def candidate_at(self, k: int, w_prev, f_prev) -> bool:
         """Could sample ``k`` be a spike, with ``w_prev``, ``f_prev`` the last processed sample before it?"""
-        dw = min(math.dist(self.W[k].tolist(), np.asarray(w_prev, float).tolist()), float(self.dn_w[k]))
-        df = min(math.dist(self.F[k].tolist(), np.asarray(f_prev, float).tolist()), float(self.dn_f[k]))
+        dw = min(_dist3(self.W[k].tolist(), np.asarray(w_prev, float).tolist()), float(self.dn_w[k]))
+        df = min(_dist3(self.F[k].tolist(), np.asarray(f_prev, float).tolist()), float(self.dn_f[k]))
         return bool((self.bound_w > 0 and dw > self.bound_w * (1.0 - 1e-9))
                     or (self.bound_f > 0 and df > self.bound_f * (1.0 - 1e-9)))
+
+
+class _ImuBuffer:
+    """IMU samples waiting to be processed, in stamp order, held as array blocks: ``(T (m,) [s], W (m, 3) [rad/s],
+    F (m, 3) [m/s^2])`` with a read offset into the first block, then a growing block of single pushes (``push_imu``
+    from the node). A block pushed as arrays reaches the core as views, without a Python object per sample."""
+
+    __slots__ = ("blocks", "off", "n", "_t", "_w", "_f")
+
+    def __init__(self) -> None:
+        self.blocks: list = []
+        self.off = 0
+        self.n = 0
+        self._t: list = []
+        self._w: list = []
+        self._f: list = []
+
+    def __len__(self) -> int:
+        return self.n
+
+    def _seal(self) -> None:
+        if self._t:
+            m = len(self._t)
+            self.blocks.append((np.array(self._t, float), np.array(self._w, float).reshape(m, 3),
+                                np.array(self._f, float).reshape(m, 3)))
+            self._t, self._w, self._f = [], [], []
+
+    def append(self, t: float, w: np.ndarray, f: np.ndarray) -> None:
+        """One sample stamped after every buffered one (``w``, ``f`` of shape (3,))."""
+        self._t.append(t)
+        self._w.append(w)
+        self._f.append(f)
+        self.n += 1
+
+    def extend(self, T: np.ndarray, W: np.ndarray, F: np.ndarray) -> None:
+        """A block of increasing stamps after every buffered one (held as it is: the caller passes its own copy)."""
+        self._seal()
+        self.blocks.append((T, W, F))
+        self.n += T.shape[0]
+
+    def insert(self, t: float, w: np.ndarray, f: np.ndarray) -> None:
+        """One sample among the buffered ones (out of order): after those stamped at or before it."""
+        T, W, F = self.take(self.n)
+        k = int(np.searchsorted(T, t, side="right"))
+        self.blocks = [(np.insert(T, k, t), np.insert(W, k, w, axis=0), np.insert(F, k, f, axis=0))]
+        self.n = T.shape[0] + 1
+
+    def count_until(self, until: float) -> int:
+        """How many buffered samples are stamped at or before ``until``."""
+        self._seal()
+        c, off = 0, self.off
+        for T, _, _ in self.blocks:
+            k = int(np.searchsorted(T, until, side="right"))
+            if k < T.shape[0]:
+                return c + max(k - off, 0)
+            c += T.shape[0] - off
+            off = 0
+        return c
+
+    def take(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The first ``n`` samples as arrays (views when they lie in one block), removed from the buffer."""
+        self._seal()
+        parts = []
+        need = n
+        while need > 0:
+            T, W, F = self.blocks[0]
+            a = self.off
+            k = min(T.shape[0] - a, need)
+            parts.append((T[a:a + k], W[a:a + k], F[a:a + k]))
+            need -= k
+            self.off = a + k
+            if self.off == T.shape[0]:
+                del self.blocks[0]
+                self.off = 0
+        self.n -= n
+        if len(parts) == 1:
+            return parts[0]
+        if not parts:
+            return np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3))
+        return tuple(np.concatenate(x) for x in zip(*parts))
+
+    def first(self):
+        """(t, w, f) of the first buffered sample, or None."""
+        if self.n == 0:
+            return None
+        if self.blocks:
+            T, W, F = self.blocks[0]
+            return float(T[self.off]), W[self.off], F[self.off]
+        return self._t[0], self._w[0], self._f[0]
+
+    def t_at(self, k: int) -> float:
+        """Stamp of the ``k``-th buffered sample (0-based)."""
+        self._seal()
+        k += self.off
+        for T, _, _ in self.blocks:
+            if k < T.shape[0]:
+                return float(T[k])
+            k -= T.shape[0]
+        raise IndexError(k)
+
+    def iter_until(self, until: float):
+        """(t, w, f) of the buffered samples stamped at or before ``until``, in order (not removed)."""
+        self._seal()
+        off = self.off
+        for T, W, F in self.blocks:
+            for k in range(off, T.shape[0]):
+                if T[k] > until:
+                    return
+                yield float(T[k]), W[k], F[k]
+            off = 0
+
+
+class _Ring:
+    """The last ``maxlen`` values or rows appended (a deque held in one array of twice that length): rows or blocks
+    in, one view out. A row once written is never overwritten (a full array is replaced by a new one), so a view is
+    a snapshot that stays valid (``_LazySpread`` keeps one)."""
+
+    __slots__ = ("maxlen", "a", "e")
+
+    def __init__(self, maxlen: int, width: int = 0) -> None:
+        self.maxlen = maxlen
+        self.a = np.empty((2 * maxlen, width) if width else 2 * maxlen)
+        self.e = 0  # rows a[max(e - maxlen, 0):e] are held
+
+    def __len__(self) -> int:
+        return min(self.e, self.maxlen)
+
+    def _shift(self) -> None:
+        k = min(self.e, self.maxlen)
+        a = np.empty_like(self.a)
+        a[:k] = self.a[self.e - k:self.e]
+        self.a, self.e = a, k
+
+    def append(self, x) -> None:
+        if self.e == self.a.shape[0]:
+            self._shift()
+        self.a[self.e] = x
+        self.e += 1
+
+    def extend(self, X: np.ndarray) -> None:
+        m = X.shape[0]
+        if m >= self.maxlen:
+            self.a = np.empty_like(self.a)
+            self.a[:self.maxlen] = X[m - self.maxlen:]
+            self.e = self.maxlen
+            return
+        if self.e + m > self.a.shape[0]:
+            self._shift()
+        self.a[self.e:self.e + m] = X
+        self.e += m
+
+    def view(self) -> np.ndarray:
+        return self.a[max(self.e - self.maxlen, 0):self.e]
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        return np.array(self.view(), dtype=dtype)
+
+    def __getitem__(self, k: int):
+        if k != -1 or self.e == 0:
+            raise IndexError(k)
+        return self.a[self.e - 1]
+
+
+class _RecentStamps:
+    """The last ``maxlen`` IMU stamps taken into the buffer (``push_imu``'s duplicate check): single stamps in a
+    deque and the set ``set``; runs pushed as arrays (increasing, after every stamp held) kept as arrays and moved
+    into the set only when a single stamp is checked or added (never on the offline path)."""
+
+    __slots__ = ("rs", "set", "pending", "n_pending")
+
+    def __init__(self, maxlen: int) -> None:
+        self.rs: deque = deque(maxlen=maxlen)
+        self.set: set = set()
+        self.pending: list = []
+        self.n_pending = 0
+
+    def add(self, t: float) -> None:
+        if self.pending:
+            self._flush()
+        rs = self.rs
+        if len(rs) == rs.maxlen:
+            self.set.discard(rs[0])
+        rs.append(t)
+        self.set.add(t)
+
+    def add_block(self, T: np.ndarray) -> None:
+        self.pending.append(T)
+        self.n_pending += T.shape[0]
+        if self.n_pending > 8 * self.rs.maxlen:  # only the newest maxlen can matter
+            keep = np.concatenate(self.pending)[-self.rs.maxlen:]
+            self.pending, self.n_pending = [keep], keep.shape[0]
+
+    def __contains__(self, t: float) -> bool:
+        if self.pending:
+            self._flush()
+        return t in self.set
+
+    def _flush(self) -> None:
+        rs, rset = self.rs, self.set
+        tl = np.concatenate(self.pending)[-rs.maxlen:].tolist()
+        self.pending, self.n_pending = [], 0
+        drop = len(rs) + len(tl) - rs.maxlen
+        if drop >= len(rs):
+            rset.clear()
+        elif drop > 0:
+            for k in range(drop):
+                rset.discard(rs[k])
+        rs.extend(tl)
+        rset.update(tl)
 
 
 class _LazySpread:
@@ -1570,6 +1988,13 @@ def _median(x: list) -> float:
     s = sorted(x)
     h = len(s) // 2
     return float(s[h]) if len(s) % 2 else float((s[h - 1] + s[h]) / 2.0)
+
+
+def _dist3(a: list, b: list) -> float:
+    """|a - b| of two 3-vectors given as lists of floats: ``float(np.linalg.norm(a - b))`` bit for bit (the same
+    sum in the same order; test_speed_paths), without numpy's per-call overhead."""
+    x, y, z = a[0] - b[0], a[1] - b[1], a[2] - b[2]
+    return math.sqrt(x * x + y * y + z * z)
 
 
 def _row_norms(X: np.ndarray) -> np.ndarray:
