@@ -54,8 +54,8 @@ QUIET_WORKER_CONFIG = {"distributed.worker.profile.enabled": False, "distributed
 #: Environment of each LocalCluster worker process (set by its nanny; a variable already set in this process's
 #: environment wins): one thread in clarabel's rayon pool. Clarabel (PI-LIEKF's LMI solver) otherwise starts a pool of
 #: one thread per CPU in every process; with one worker process per CPU the pools oversubscribe the machine and their
-#: idle threads spin. Measured (docs/speed.md): 9 PI-LIEKF runs took 6 % less CPU on 2 workers with one rayon thread
-#: (5-15 % serially), same numbers.
+#: idle threads spin. Measured (docs/speed.md): 9 PI-LIEKF runs took 9 % less CPU on 2 workers with one rayon thread
+#: (7 pairs; 5-15 % serially), same numbers.
 WORKER_ENVIRON = {"RAYON_NUM_THREADS": "1"}
 
 
