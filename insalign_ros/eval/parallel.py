@@ -65,7 +65,8 @@ def _forkserver_preload(modules: tuple[str, ...]) -> dict:
     {} where there is no fork server (not POSIX). The preload list only acts before the server starts (the first
     cluster of this process); a module that fails to import is skipped by the server. Measured (docs/speed.md): each
     worker process used ~0.9 s less CPU at start-up, its first runs no longer import cvxpy, and a worker exits in
-    ~0.05 s instead of ~0.9 s (a forked child leaves with os._exit, without the interpreter's teardown)."""
+    ~0.05 s instead of ~0.9 s (a forked child leaves with os._exit, without the interpreter's teardown); the cluster is
+    up ~1 s later (the server imports everything before the first fork, on one core)."""
     import multiprocessing
 
     if not modules or "forkserver" not in multiprocessing.get_all_start_methods():
@@ -77,6 +78,9 @@ def _forkserver_preload(modules: tuple[str, ...]) -> dict:
     with dask.config.set(cfg):
         ctx = get_mp_context()  # distributed sets its own preload list once; ours replaces it before the start
     ctx.set_forkserver_preload(["distributed", "numpy", *modules])
+    import multiprocessing.forkserver
+
+    multiprocessing.forkserver.ensure_running()  # start importing now, while this process starts the scheduler
     return cfg
 
 
