@@ -358,3 +358,27 @@ def test_session_buffers_and_float_helpers():
         probe = float(T[0]) - 0.01 * int(rng.integers(0, 150))
         assert (probe in rec) == (probe in rdq)
         assert rec.set == set(rec.rs) == set(rdq)
+
+
+def test_usable_imu_arrays_compiled_decides_as_numpy(monkeypatch):
+    """The cores' array fast-path test (filters/liekf.usable_imu_arrays): the compiled pass accepts and rejects the
+    same blocks as the numpy test, with the same intervals."""
+    from insalign_ros.filters.liekf import usable_imu_arrays
+
+    rng = np.random.default_rng(5)
+    t = 10.0 + 0.008 * np.arange(12)
+    w, f = rng.normal(0.0, 0.1, (12, 3)), rng.normal(0.0, 9.8, (12, 3))
+    cases = [(t, w, f, 9.99), (t, w, f, 10.0), (t, w, f, 8.5)]  # clean; first interval 0; first interval > 1 s
+    for what, k, j, v in (("w", 4, 1, np.nan), ("f", 7, 2, np.inf), ("t", 3, None, 10.0), ("t", 11, None, 12.0)):
+        tt, ww, ff = t.copy(), w.copy(), f.copy()
+        {"w": ww, "f": ff}.get(what, tt)[(k, j) if j is not None else k] = v
+        cases.append((tt, ww, ff, 9.99))
+    for tt, ww, ff, t_last in cases:
+        monkeypatch.setattr(nb, "ENABLED", True)
+        a = usable_imu_arrays(tt, ww, ff, t_last)
+        monkeypatch.setattr(nb, "ENABLED", False)
+        b = usable_imu_arrays(tt, ww, ff, t_last)
+        assert (a is None) == (b is None)
+        if a is not None:
+            assert np.array_equal(a[3], b[3])
+    assert usable_imu_arrays(t, w, f, 9.99) is not None and usable_imu_arrays(*cases[4][:3], 9.99) is None

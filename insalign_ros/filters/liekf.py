@@ -328,6 +328,26 @@ def _check_imu(imu: ImuSample) -> str:
     return ""
 
 
+@nb._jit
+def _usable_nb(t, w, f, t_last, dt):
+    """``usable_imu_arrays``' test in one pass: every row finite (one running sum, as the numpy test: non-finite iff a
+    term is, or the sum overflows), the intervals from ``t_last`` in (0, 1] s; fills ``dt`` with them."""
+    n = t.shape[0]
+    s = 0.0
+    for k in range(n):
+        s += t[k] + w[k, 0] + w[k, 1] + w[k, 2] + f[k, 0] + f[k, 1] + f[k, 2]
+    if not math.isfinite(s):
+        return False
+    prev = t_last
+    for k in range(n):
+        d = t[k] - prev
+        dt[k] = d
+        if not (d > 0.0 and d <= 1.0):
+            return False
+        prev = t[k]
+    return True
+
+
 def usable_imu_arrays(t_s, omega_ib_b, f_ib_b, t_last_s: float):
     """(t (N,), omega (N, 3), f (N, 3), dt (N,)) as float arrays when every row is usable: finite, stamps after
     ``t_last_s`` and increasing by at most 1 s; else None (the caller takes the per-sample path, which rejects and
@@ -336,9 +356,13 @@ def usable_imu_arrays(t_s, omega_ib_b, f_ib_b, t_last_s: float):
     w = np.asarray(omega_ib_b, float)
     f = np.asarray(f_ib_b, float)
     n = t.shape[0] if t.ndim == 1 else 0
+    if n == 0 or w.shape != (n, 3) or f.shape != (n, 3):
+        return None
+    if nb.ENABLED:  # one compiled pass: ~1 us instead of ~6 us of numpy calls (runs of ~12 samples at 10-Hz updates)
+        dt = np.empty(n)
+        return (t, w, f, dt) if _usable_nb(t, w, f, float(t_last_s), dt) else None
     # one finiteness test: a sum is non-finite iff a term is (or it overflows: garbage, the per-sample path decides)
-    if n == 0 or w.shape != (n, 3) or f.shape != (n, 3) or not math.isfinite(
-            float(t.sum()) + float(w.sum()) + float(f.sum())):
+    if not math.isfinite(float(t.sum()) + float(w.sum()) + float(f.sum())):
         return None
     dt = np.empty(n)
     dt[0] = t[0] - t_last_s
