@@ -40,11 +40,12 @@ from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistWithC
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Imu, NavSatFix
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
-from ..core.types import GnssVelocity
+from ..core.types import GnssVelocity, ImuSample
 from ..eval.aligned import AlignedCriteria
 from ..filters import registry
 from ..filters.imu_grade import GRADES, grade_params
@@ -129,7 +130,9 @@ NODE_PARAMS = {
     "gnss_frame_id": ("", "required NavSatFix frame_id ('' accepts any)", False),
     "enu_frame_id": ("enu", "frame_id of ~/pose", False),
     "diagnostics_period_s": (1.0, "/diagnostics period [s wall]", True),
-    "process_rate_hz": (50.0, "rate of the processing timer [Hz wall]", True),
+    "process_rate_hz": (20.0, "rate of the processing timer [Hz wall]: an output is published up to one period after "
+                              "its Imu sample arrived; each tick costs CPU (50 Hz: +1.5 % of a core, docs/nodes.md)",
+                        True),
     "imu_qos": ("sensor_data", "Imu and ground-truth subscription QoS: sensor_data (best effort) or reliable", True),
     "imu_qos_depth": (1000, "keep-last depth of the Imu subscription", True),
     "gnss_qos": ("sensor_data", "NavSatFix and gps/vel subscription QoS: sensor_data (best effort) or reliable", True),
@@ -199,15 +202,19 @@ class AlignmentNode(Node):
                 self._declare(name, default, _CORE_DOC.get(name, f"{core} core parameter (config/{core}.yaml)"), False)
         p = {n: self._coerced(n) for n in self.defaults}
         self.session = AlignmentSession(*self._session_args(p), log=self._log)  # ValueError: bad value, exit 2
+        self.imu_sub = None  # the Imu subscription, polled by _take_imu (not dispatched per message by the executor)
+        self._polled: list = []  # subscriptions the executor does not see (_poll_only), destroyed with the node
         self._apply_node_params(p)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         qi = imu_qos(p["imu_qos"], p["imu_qos_depth"])
-        self.create_subscription(Imu, "imu/data", self._on_imu, qi)
+        self.imu_sub = self.create_subscription(Imu, "imu/data", self._on_imu, qi)
+        self._poll_only(self.imu_sub)
         self.create_subscription(NavSatFix, "gps/fix", self._on_fix, imu_qos(p["gnss_qos"], p["gnss_qos_depth"]))
         self.create_subscription(TwistWithCovarianceStamped, "gps/vel", self._on_vel,
                                  imu_qos(p["gnss_qos"], p["gnss_qos_depth"]))
-        self.create_subscription(PoseStamped, "ground_truth/pose", self._on_truth, qi)
+        self.truth_sub = self.create_subscription(PoseStamped, "ground_truth/pose", self._on_truth, qi)
+        self._poll_only(self.truth_sub)  # taken by the processing tick (_take_truth): it needs truth no sooner
         self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, "~/pose", 50)
         self.pub_err = self.create_publisher(Vector3Stamped, "~/euler_error", 50)
         self.pub_err3 = self.create_publisher(Vector3Stamped, "~/euler_error_3sigma", 50)
@@ -226,6 +233,7 @@ class AlignmentNode(Node):
         self.stamp_age_s: deque = deque(maxlen=100000)  # receive wall time minus header stamp [s]
         self.process_s: deque = deque(maxlen=10000)
         self._cov_ok: dict = {}
+        self._imu_ok: set = set()  # conversions.imu_cdr_key of Imu messages that passed the message-level checks
         self._prev_imu_stamp: float | None = None
         self._noise_done = False
         self.epoch_s: int | None = None
@@ -276,12 +284,14 @@ class AlignmentNode(Node):
             raise ValueError(f"imu_axes: must be one of {cv.IMU_AXES}, got {p['imu_axes']!r}")
         C = cv.imu_to_vehicle_matrix(p["imu_axes"], p["imu_mount_rpy_deg"])
         self.C_s_v = None if np.array_equal(C, np.eye(3)) else C  # driver axes -> vehicle FLU (None: identity)
+        self._imu_ok = set()  # imu_frame_id may have changed: every kind of Imu message is checked again
         self.params = p
         self.throttle_s = float(p["log_throttle_s"])
         self.criteria = self.session.flag.criteria
         self.pose_period_s = self.session.cfg.output_period_s
 
     def _on_set_parameters(self, params) -> SetParametersResult:
+        self._take_imu()
         p = dict(self.params)
         try:
             for prm in params:
@@ -325,7 +335,90 @@ class AlignmentNode(Node):
             self._log_state[key] = (last, suppressed + 1)
 
     # ------------------------------------------------------------------ callbacks: convert and push, nothing else
-    def _on_imu(self, msg: Imu) -> None:
+    def _poll_only(self, sub) -> None:
+        """Take ``sub`` out of the executor's view: its messages wait in the DDS reader (keep-last ``imu_qos_depth``)
+        until :meth:`_take_imu` takes them, instead of waking the executor once per message. At 125 Hz the wake-ups,
+        not the work, were most of the node's CPU (docs/nodes.md, "CPU share"). rclpy has no public switch for
+        this: the subscription stays in the node's graph, QoS and remaps, only the node's list the executors read
+        (``Node._subscriptions``) loses it, and :meth:`destroy_node` destroys it."""
+        self._subscriptions.remove(sub)
+        self._polled.append(sub)
+        self._wake_executor()
+
+    def _take_imu(self) -> None:
+        """Every Imu message waiting in the reader, serialized, then :meth:`_on_imu_batch`. Called before anything
+        else reaches the session (the processing tick, the other inputs' callbacks, a reset, a parameter change,
+        diagnostics), so the session sees the inputs in the order they arrived, as with one callback per message."""
+        sub = self.imu_sub
+        if sub is None:
+            return
+        raws, received_ns = [], []
+        t0 = time.perf_counter()
+        with sub.handle:
+            take = sub.handle.take_message
+            for _ in range(sub.qos_profile.depth + 1):  # bounded: a reader holds at most depth messages
+                got = take(Imu, True)
+                if got is None:
+                    break
+                raws.append(got[0])
+                received_ns.append(got[1]["received_timestamp"])
+        if raws:
+            self._on_imu_batch(raws, received_ns, t0)
+
+    def _take_truth(self) -> None:
+        """Every ground-truth pose waiting in its reader through :meth:`_on_truth`, in arrival order."""
+        sub = self.truth_sub
+        with sub.handle:
+            for _ in range(sub.qos_profile.depth + 1):
+                got = sub.handle.take_message(sub.msg_type, False)
+                if got is None:
+                    return
+                self._on_truth(got[0])
+
+    def _on_imu_batch(self, raws: list, received_ns: list, t0: float) -> None:
+        """Serialized Imu messages in arrival order -> the session, as :meth:`_on_imu` one by one would. A message
+        whose frame_id and covariances already passed the message-level checks (:func:`conversions.imu_cdr_key` in
+        ``_imu_ok``), with a stamp and a finite orientation, is read from numpy records
+        (:func:`conversions.imu_records_from_cdr`, one pass per batch); any other goes through rclpy's
+        deserialisation and :meth:`_on_imu` (the first of a kind, and every rejection with its reason)."""
+        n = len(raws)
+        fast = [None] * n
+        if self.epoch_s is not None and not (self.params["use_imu_covariance"] and not self._noise_done):
+            ok_keys = self._imu_ok
+            for rows, rec in cv.imu_records_from_cdr(raws):
+                sec, nsec, q = rec["sec"], rec["nanosec"], rec["q"]
+                t = (sec - self.epoch_s).astype(float) + 1e-9 * nsec  # as conversions.imu_sample_fast, per message
+                stamp = sec + 1e-9 * nsec
+                good = ((sec > 0) | (nsec > 0)) & np.isfinite(q[:, 0] + q[:, 1] + q[:, 2] + q[:, 3])
+                # copies: the records are read-only views of the message bytes
+                w, f = cv.imu_to_vehicle(np.array(rec["w"]), np.array(rec["f"]), self.C_s_v)
+                cw, cf = np.array(rec["cov_w"]), np.array(rec["cov_f"])
+                for i, k in enumerate(rows):
+                    if good[i] and cv.imu_cdr_key(raws[k]) in ok_keys:
+                        fast[k] = (float(t[i]), w[i], f[i], cw[i], cf[i], float(stamp[i]))
+        session, recent, ages = self.session, self._recent_imu, self.stamp_age_s
+        n_fast = 0
+        t_slow = 0.0
+        for k in range(n):
+            s = fast[k]
+            if s is None:
+                t1 = time.perf_counter()
+                if self._on_imu(deserialize_message(raws[k], Imu), received_ns[k]):
+                    if len(self._imu_ok) > 1000:
+                        self._imu_ok.clear()
+                    self._imu_ok.add(cv.imu_cdr_key(raws[k]))
+                t_slow += time.perf_counter() - t1
+                continue
+            n_fast += 1
+            if session.push_imu(ImuSample(s[0], s[1], s[2]), time.monotonic()):
+                recent[s[0]] = s[1:5]
+            ages.append(1e-9 * received_ns[k] - s[5])
+        if n_fast:  # the node's time per Imu message of the batch (take, records, push), for /diagnostics
+            self.timing_s.extend([(time.perf_counter() - t0 - t_slow) / n_fast] * n_fast)
+
+    def _on_imu(self, msg: Imu, received_ns: int | None = None) -> bool:
+        """One Imu message (``received_ns``: its DDS reception time [ns, system clock]; None: now). True when it
+        passed the message-level checks (frame_id, stamp, orientation, covariances), whatever the session did."""
         t0 = time.perf_counter()
         wall = time.monotonic()
         p = self.params
@@ -333,6 +426,7 @@ class AlignmentNode(Node):
         h = msg.header
         if h.frame_id not in self.frames_seen:
             self._note_frame("Imu", h.frame_id)
+        passed = False
         if frame and h.frame_id != frame:
             self.session.reject_input("imu", "imu_frame", f"frame_id {h.frame_id!r} is not {frame!r}", wall)
         else:
@@ -340,6 +434,7 @@ class AlignmentNode(Node):
             if sample is None:
                 self.session.reject_input("imu", "imu_invalid", reason, wall)
             else:
+                passed = True
                 if p["use_imu_covariance"] and not self._noise_done:
                     self._noise_from(msg, sample.stamp_s)
                 if self.session.push_imu(sample, wall):
@@ -347,7 +442,9 @@ class AlignmentNode(Node):
                                                         msg.angular_velocity_covariance,
                                                         msg.linear_acceleration_covariance)
         self.timing_s.append(time.perf_counter() - t0)
-        self.stamp_age_s.append(time.time() - (h.stamp.sec + 1e-9 * h.stamp.nanosec))
+        received = time.time() if received_ns is None else 1e-9 * received_ns
+        self.stamp_age_s.append(received - (h.stamp.sec + 1e-9 * h.stamp.nanosec))
+        return passed
 
     def _noise_from(self, msg: Imu, t: float) -> None:
         """use_imu_covariance: the noise densities from the Imu covariances and the interval of two messages."""
@@ -361,6 +458,7 @@ class AlignmentNode(Node):
             self.get_logger().info(f"noise from the Imu covariances: {noise}")
 
     def _on_fix(self, msg: NavSatFix) -> None:
+        self._take_imu()
         wall = time.monotonic()
         fix, reason = cv.fix_from_msg(msg, self.params["gnss_sigma_m"], self.params["gnss_frame_id"],
                                       self._epoch(msg))
@@ -374,12 +472,14 @@ class AlignmentNode(Node):
     def _on_vel(self, msg: TwistWithCovarianceStamped) -> None:
         """gps/vel: the ENU linear velocity and the linear block of the covariance, as they are (the session
         validates: non-finite values, a zero or unknown covariance and implausible speeds are counted and rejected)."""
+        self._take_imu()
         lin = msg.twist.twist.linear
         R = np.asarray(msg.twist.covariance, float).reshape(6, 6)[:3, :3]
         self.session.push_velocity(GnssVelocity(cv.stamp_s(msg, self._epoch(msg)), np.array([lin.x, lin.y, lin.z]), R),
                                    time.monotonic())
 
     def _on_truth(self, msg: PoseStamped) -> None:
+        self._take_imu()
         val, reason = cv.truth_from_msg(msg, self._epoch(msg))
         if val is None:
             self.session.counters["truth_invalid"] += 1
@@ -406,6 +506,8 @@ class AlignmentNode(Node):
 
     # ------------------------------------------------------------------ processing and outputs
     def _process(self) -> None:
+        self._take_imu()
+        self._take_truth()
         t0 = time.perf_counter()
         try:
             outs = self.session.process(time.monotonic())
@@ -417,9 +519,10 @@ class AlignmentNode(Node):
             self._publish_datum()
         for o in outs:
             est = o.estimate
-            self.pub_pose.publish(cv.pose_msg(est, self.session.anchor, frame, "", self.epoch_s))
+            q = cv.quat_xyzw(est.C_b_n)  # once for ~/pose and ~/imu
+            self.pub_pose.publish(cv.pose_msg(est, self.session.anchor, frame, "", self.epoch_s, q))
             self.pub_imu.publish(cv.imu_msg(est, self.params["body_frame_id"], self.epoch_s,
-                                            self._measured_sample(o.stamp_s)))
+                                            self._measured_sample(o.stamp_s), q))
             m3 = Vector3Stamped()
             cv.set_stamp(m3, o.stamp_s, self.epoch_s)
             m3.header.frame_id = frame
@@ -462,6 +565,7 @@ class AlignmentNode(Node):
 
     def _on_reset(self, request, response):
         """~/reset (std_srvs/Trigger): restart the alignment from nothing (the session's reset)."""
+        self._take_imu()
         was = self.session.status.value
         self.session.reset("reset service")
         self._recent_imu.clear()
@@ -489,6 +593,7 @@ class AlignmentNode(Node):
         return self.session.flag
 
     def _publish_diagnostics(self) -> None:
+        self._take_imu()
         s = self.session
         st = DiagnosticStatus()
         st.name = f"{self.get_name()}: alignment"
@@ -514,6 +619,9 @@ class AlignmentNode(Node):
 
     def destroy_node(self):
         self.session.close()
+        self._subscriptions.extend(self._polled)  # back in the node's list: rclpy destroys them with the node
+        self._polled = []
+        self.imu_sub = None
         return super().destroy_node()
 
 
