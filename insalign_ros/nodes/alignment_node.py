@@ -20,8 +20,10 @@ Topics (relative names, remappable as usual):
   published at each initialisation);
 - service ``~/reset`` std_srvs/Trigger: drop the estimate and every buffered input, start the alignment over.
 
-The callbacks only convert a message to a sample and push it into the session; a timer (``process_rate_hz``)
-lets the session process the buffered inputs in stamp order and publishes what comes out. The node decides
+The node only converts messages to samples and pushes them into the session; a timer (``process_rate_hz``) takes
+the Imu and ground-truth messages waiting in their readers (polled: one wake-up per tick, not one per message; the
+Imu read from the serialized bytes in one numpy pass, conversions.imu_records_from_cdr), lets the session process the
+buffered inputs in stamp order and publishes what comes out (docs/nodes.md, "CPU share"). The node decides
 nothing the session could (docs/session.md, docs/nodes.md). ``core`` and ``imu_grade`` are read-only after start: a different core
 means a different parameter set (restart the node, or call the reset with a new configuration file).
 """
