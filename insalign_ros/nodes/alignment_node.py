@@ -144,6 +144,8 @@ NODE_PARAMS = {
 _RANGES = {"pose_rate_hz": (0.0, 1000.0), "gnss_sigma_m": (1e-3, 1e4), "diagnostics_period_s": (0.01, 60.0),
            "process_rate_hz": (1.0, 1000.0), "log_throttle_s": (0.0, 3600.0), "max_gap_s": (0.05, 3600.0),
            "max_fix_lag_s": (0.0, 10.0), "gap_factor": (1.1, 100.0), "imu_timeout_s": (0.0, 3600.0)}
+#: Imu messages over which /diagnostics reports the node's time per message and the stamp age
+_STATS_WINDOW = 20000
 _INT_RANGES = {"imu_qos_depth": (1, 100000), "gnss_qos_depth": (1, 100000), "time_jump_confirm": (1, 1000),
                "backtrack_passes": (0, 10)}
 
@@ -211,12 +213,10 @@ class AlignmentNode(Node):
 
         qi = imu_qos(p["imu_qos"], p["imu_qos_depth"])
         self.imu_sub = self.create_subscription(Imu, "imu/data", self._on_imu, qi)
-        self._poll_only(self.imu_sub)
         self.create_subscription(NavSatFix, "gps/fix", self._on_fix, imu_qos(p["gnss_qos"], p["gnss_qos_depth"]))
         self.create_subscription(TwistWithCovarianceStamped, "gps/vel", self._on_vel,
                                  imu_qos(p["gnss_qos"], p["gnss_qos_depth"]))
         self.truth_sub = self.create_subscription(PoseStamped, "ground_truth/pose", self._on_truth, qi)
-        self._poll_only(self.truth_sub)  # taken by the processing tick (_take_truth): it needs truth no sooner
         self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, "~/pose", 50)
         self.pub_err = self.create_publisher(Vector3Stamped, "~/euler_error", 50)
         self.pub_err3 = self.create_publisher(Vector3Stamped, "~/euler_error_3sigma", 50)
@@ -231,8 +231,10 @@ class AlignmentNode(Node):
         self._log_state: dict = {}
         self.published_aligned = False
         self.pub_aligned.publish(Bool(data=False))
-        self.timing_s: deque = deque(maxlen=100000)  # per-Imu callback time [s] (benchmarks read it)
-        self.stamp_age_s: deque = deque(maxlen=100000)  # receive wall time minus header stamp [s]
+        # over the last _STATS_WINDOW Imu messages: /diagnostics sorts them every second (100,000 cost 9-12 ms, 1 % of
+        # a core, once full after 13 min at 125 Hz; 20,000 cost 1.6 ms)
+        self.timing_s: deque = deque(maxlen=_STATS_WINDOW)  # node time per Imu message [s] (benchmarks read it)
+        self.stamp_age_s: deque = deque(maxlen=_STATS_WINDOW)  # DDS reception time minus header stamp [s]
         self.process_s: deque = deque(maxlen=10000)
         self._cov_ok: dict = {}
         self._imu_ok: set = set()  # conversions.imu_cdr_key of Imu messages that passed the message-level checks
@@ -337,10 +339,20 @@ class AlignmentNode(Node):
             self._log_state[key] = (last, suppressed + 1)
 
     # ------------------------------------------------------------------ callbacks: convert and push, nothing else
+    def poll_imu_and_truth(self) -> None:
+        """Imu and ground truth taken by the processing tick (:meth:`_take_imu`, :meth:`_take_truth`) instead of one
+        executor dispatch per message. For the EventsExecutor (``main``): with rclpy's SingleThreadedExecutor the
+        polled subscriptions' QoS-event waitables kept its wait set busy (69 % of a core, measured), so there the
+        executor dispatches every message to :meth:`_on_imu` and :meth:`_on_truth` as before."""
+        for sub in (self.imu_sub, self.truth_sub):
+            if sub not in self._polled:
+                self._poll_only(sub)
+
     def _poll_only(self, sub) -> None:
         """Take ``sub`` out of the executor's view: its messages wait in the DDS reader (keep-last ``imu_qos_depth``)
-        until :meth:`_take_imu` takes them, instead of waking the executor once per message. At 125 Hz the wake-ups,
-        not the work, were most of the node's CPU (docs/nodes.md, "CPU share"). rclpy has no public switch for
+        until :meth:`_take_imu` takes them, instead of one executor dispatch (take, Python message, callback) per
+        message, the largest share of the node's Python work at 125 Hz (docs/nodes.md, "CPU share"); taken
+        serialized, a batch is read in one numpy pass. rclpy has no public switch for
         this: the subscription stays in the node's graph, QoS and remaps, only the node's list the executors read
         (``Node._subscriptions``) loses it, and :meth:`destroy_node` destroys it."""
         self._subscriptions.remove(sub)
@@ -352,7 +364,7 @@ class AlignmentNode(Node):
         else reaches the session (the processing tick, the other inputs' callbacks, a reset, a parameter change,
         diagnostics), so the session sees the inputs in the order they arrived, as with one callback per message."""
         sub = self.imu_sub
-        if sub is None:
+        if sub not in self._polled:
             return
         raws, received_ns = [], []
         t0 = time.perf_counter()
@@ -370,6 +382,8 @@ class AlignmentNode(Node):
     def _take_truth(self) -> None:
         """Every ground-truth pose waiting in its reader through :meth:`_on_truth`, in arrival order."""
         sub = self.truth_sub
+        if sub not in self._polled:
+            return
         with sub.handle:
             for _ in range(sub.qos_profile.depth + 1):
                 got = sub.handle.take_message(sub.msg_type, False)
@@ -604,13 +618,14 @@ class AlignmentNode(Node):
         st.message = s.message()
         vals = s.diagnostics()
         vals.pop("message", None)
-        if self.timing_s:  # over the last 100,000 Imu messages
+        if self.timing_s:  # over the last _STATS_WINDOW Imu messages
             tt = np.asarray(self.timing_s) * 1e6
             age = np.asarray(self.stamp_age_s) * 1e3
-            vals.update(imu_callback_median_us=f"{np.median(tt):.1f}", imu_callback_p99_us=f"{np.percentile(tt, 99):.1f}",
+            t50, t99 = np.percentile(tt, [50, 99])
+            a50, a99 = np.percentile(age, [50, 99])
+            vals.update(imu_callback_median_us=f"{t50:.1f}", imu_callback_p99_us=f"{t99:.1f}",
                         imu_callback_max_us=f"{np.max(tt):.1f}", imu_callback_total_s=f"{np.sum(tt) * 1e-6:.3f}",
-                        imu_stamp_age_median_ms=f"{np.median(age):.3f}",
-                        imu_stamp_age_p99_ms=f"{np.percentile(age, 99):.3f}")
+                        imu_stamp_age_median_ms=f"{a50:.3f}", imu_stamp_age_p99_ms=f"{a99:.3f}")
         vals.update(session_process_total_s=f"{s.timing['process_s']:.3f}",
                     session_samples=str(s.timing["samples"]))
         st.values = [KeyValue(key=k, value=v if isinstance(v, str) else _json(v)) for k, v in vals.items()]
@@ -669,7 +684,10 @@ def main(args=None) -> int:
             return 2
         import os
 
-        ex = make_executor(os.environ.get("INSALIGN_EXECUTOR", "events"))
+        kind = os.environ.get("INSALIGN_EXECUTOR", "events")
+        if kind == "events":
+            node.poll_imu_and_truth()
+        ex = make_executor(kind)
         ex.add_node(node)
         spin(ex)
         return 0
