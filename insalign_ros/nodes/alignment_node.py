@@ -30,6 +30,7 @@ means a different parameter set (restart the node, or call the reset with a new 
 
 from __future__ import annotations
 
+import bisect
 import math
 import sys
 import time
@@ -206,16 +207,17 @@ class AlignmentNode(Node):
                 self._declare(name, default, _CORE_DOC.get(name, f"{core} core parameter (config/{core}.yaml)"), False)
         p = {n: self._coerced(n) for n in self.defaults}
         self.session = AlignmentSession(*self._session_args(p), log=self._log)  # ValueError: bad value, exit 2
-        self.imu_sub = None  # the Imu subscription, polled by _take_imu (not dispatched per message by the executor)
+        self.imu_sub = None  # the Imu subscription, polled by _take_inputs (not dispatched per message by the executor)
         self._polled: list = []  # subscriptions the executor does not see (_poll_only), destroyed with the node
         self._apply_node_params(p)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         qi = imu_qos(p["imu_qos"], p["imu_qos_depth"])
         self.imu_sub = self.create_subscription(Imu, "imu/data", self._on_imu, qi)
-        self.create_subscription(NavSatFix, "gps/fix", self._on_fix, imu_qos(p["gnss_qos"], p["gnss_qos_depth"]))
-        self.create_subscription(TwistWithCovarianceStamped, "gps/vel", self._on_vel,
-                                 imu_qos(p["gnss_qos"], p["gnss_qos_depth"]))
+        self.fix_sub = self.create_subscription(NavSatFix, "gps/fix", self._on_fix,
+                                                imu_qos(p["gnss_qos"], p["gnss_qos_depth"]))
+        self.vel_sub = self.create_subscription(TwistWithCovarianceStamped, "gps/vel", self._on_vel,
+                                                imu_qos(p["gnss_qos"], p["gnss_qos_depth"]))
         self.truth_sub = self.create_subscription(PoseStamped, "ground_truth/pose", self._on_truth, qi)
         self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, "~/pose", 50)
         self.pub_err = self.create_publisher(Vector3Stamped, "~/euler_error", 50)
@@ -295,7 +297,7 @@ class AlignmentNode(Node):
         self.pose_period_s = self.session.cfg.output_period_s
 
     def _on_set_parameters(self, params) -> SetParametersResult:
-        self._take_imu()
+        self._take_inputs()
         p = dict(self.params)
         try:
             for prm in params:
@@ -339,18 +341,18 @@ class AlignmentNode(Node):
             self._log_state[key] = (last, suppressed + 1)
 
     # ------------------------------------------------------------------ callbacks: convert and push, nothing else
-    def poll_imu_and_truth(self) -> None:
-        """Imu and ground truth taken by the processing tick (:meth:`_take_imu`, :meth:`_take_truth`) instead of one
-        executor dispatch per message. For the EventsExecutor (``main``): with rclpy's SingleThreadedExecutor the
-        polled subscriptions' QoS-event waitables kept its wait set busy (69 % of a core, measured), so there the
-        executor dispatches every message to :meth:`_on_imu` and :meth:`_on_truth` as before."""
-        for sub in (self.imu_sub, self.truth_sub):
+    def poll_inputs(self) -> None:
+        """Every input taken by the processing tick (:meth:`_take_inputs`) instead of one executor dispatch per
+        message. For the EventsExecutor (``main``): with rclpy's SingleThreadedExecutor the polled subscriptions'
+        QoS-event waitables kept its wait set busy (69 % of a core, measured), so there the executor dispatches every
+        message to its callback as before."""
+        for sub in (self.imu_sub, self.fix_sub, self.vel_sub, self.truth_sub):
             if sub not in self._polled:
                 self._poll_only(sub)
 
     def _poll_only(self, sub) -> None:
         """Take ``sub`` out of the executor's view: its messages wait in the DDS reader (keep-last ``imu_qos_depth``)
-        until :meth:`_take_imu` takes them, instead of one executor dispatch (take, Python message, callback) per
+        until :meth:`_take_inputs` takes them, instead of one executor dispatch (take, Python message, callback) per
         message, the largest share of the node's Python work at 125 Hz (docs/nodes.md, "CPU share"); taken
         serialized, a batch is read in one numpy pass. rclpy has no public switch for
         this: the subscription stays in the node's graph, QoS and remaps, only the node's list the executors read
@@ -359,36 +361,41 @@ class AlignmentNode(Node):
         self._polled.append(sub)
         self._wake_executor()
 
-    def _take_imu(self) -> None:
-        """Every Imu message waiting in the reader, serialized, then :meth:`_on_imu_batch`. Called before anything
-        else reaches the session (the processing tick, the other inputs' callbacks, a reset, a parameter change,
-        diagnostics), so the session sees the inputs in the order they arrived, as with one callback per message."""
-        sub = self.imu_sub
-        if sub not in self._polled:
-            return
-        raws, received_ns = [], []
+    def _take_inputs(self) -> None:
+        """Every message waiting in the polled readers, to the session in DDS reception order (``received_timestamp``),
+        as one callback per message would have given them: the Imu messages first (serialized, :meth:`_on_imu_batch`
+        for each run between two fixes or velocities), then the fixes and velocities, which arrived after the Imu
+        messages taken before them are handed over, then the ground truth. Called by the processing tick and before a
+        reset, a parameter change and diagnostics."""
         t0 = time.perf_counter()
-        with sub.handle:
-            take = sub.handle.take_message
-            for _ in range(sub.qos_profile.depth + 1):  # bounded: a reader holds at most depth messages
-                got = take(Imu, True)
-                if got is None:
-                    break
-                raws.append(got[0])
-                received_ns.append(got[1]["received_timestamp"])
-        if raws:
-            self._on_imu_batch(raws, received_ns, t0)
-
-    def _take_truth(self) -> None:
-        """Every ground-truth pose waiting in its reader through :meth:`_on_truth`, in arrival order."""
-        sub = self.truth_sub
-        if sub not in self._polled:
-            return
-        with sub.handle:
-            for _ in range(sub.qos_profile.depth + 1):
-                got = sub.handle.take_message(sub.msg_type, False)
-                if got is None:
-                    return
+        raws, recv = [], []
+        if self.imu_sub in self._polled:
+            sub = self.imu_sub
+            with sub.handle:
+                take = sub.handle.take_message
+                for _ in range(sub.qos_profile.depth + 1):  # bounded: a reader holds at most depth messages
+                    got = take(Imu, True)
+                    if got is None:
+                        break
+                    raws.append(got[0])
+                    recv.append(got[1]["received_timestamp"])
+        others = []
+        for sub, on_msg in ((self.fix_sub, self._on_fix), (self.vel_sub, self._on_vel)):
+            if sub in self._polled:
+                others += [(got[1]["received_timestamp"], on_msg, got[0]) for got in _take_all(sub)]
+        others.sort(key=lambda e: e[0])
+        i = 0
+        for received_ns, on_msg, msg in others:
+            j = bisect.bisect_right(recv, received_ns, lo=i)
+            if j > i:
+                self._on_imu_batch(raws[i:j], recv[i:j], t0)
+                t0 = time.perf_counter()
+            i = j
+            on_msg(msg)
+        if i < len(raws):
+            self._on_imu_batch(raws[i:], recv[i:], t0)
+        if self.truth_sub in self._polled:
+            for got in _take_all(self.truth_sub):
                 self._on_truth(got[0])
 
     def _on_imu_batch(self, raws: list, received_ns: list, t0: float) -> None:
@@ -474,7 +481,6 @@ class AlignmentNode(Node):
             self.get_logger().info(f"noise from the Imu covariances: {noise}")
 
     def _on_fix(self, msg: NavSatFix) -> None:
-        self._take_imu()
         wall = time.monotonic()
         fix, reason = cv.fix_from_msg(msg, self.params["gnss_sigma_m"], self.params["gnss_frame_id"],
                                       self._epoch(msg))
@@ -488,14 +494,12 @@ class AlignmentNode(Node):
     def _on_vel(self, msg: TwistWithCovarianceStamped) -> None:
         """gps/vel: the ENU linear velocity and the linear block of the covariance, as they are (the session
         validates: non-finite values, a zero or unknown covariance and implausible speeds are counted and rejected)."""
-        self._take_imu()
         lin = msg.twist.twist.linear
         R = np.asarray(msg.twist.covariance, float).reshape(6, 6)[:3, :3]
         self.session.push_velocity(GnssVelocity(cv.stamp_s(msg, self._epoch(msg)), np.array([lin.x, lin.y, lin.z]), R),
                                    time.monotonic())
 
     def _on_truth(self, msg: PoseStamped) -> None:
-        self._take_imu()
         val, reason = cv.truth_from_msg(msg, self._epoch(msg))
         if val is None:
             self.session.counters["truth_invalid"] += 1
@@ -522,8 +526,7 @@ class AlignmentNode(Node):
 
     # ------------------------------------------------------------------ processing and outputs
     def _process(self) -> None:
-        self._take_imu()
-        self._take_truth()
+        self._take_inputs()
         t0 = time.perf_counter()
         try:
             outs = self.session.process(time.monotonic())
@@ -581,7 +584,7 @@ class AlignmentNode(Node):
 
     def _on_reset(self, request, response):
         """~/reset (std_srvs/Trigger): restart the alignment from nothing (the session's reset)."""
-        self._take_imu()
+        self._take_inputs()
         was = self.session.status.value
         self.session.reset("reset service")
         self._recent_imu.clear()
@@ -609,7 +612,7 @@ class AlignmentNode(Node):
         return self.session.flag
 
     def _publish_diagnostics(self) -> None:
-        self._take_imu()
+        self._take_inputs()
         s = self.session
         st = DiagnosticStatus()
         st.name = f"{self.get_name()}: alignment"
@@ -640,6 +643,18 @@ class AlignmentNode(Node):
         self._polled = []
         self.imu_sub = None
         return super().destroy_node()
+
+
+def _take_all(sub) -> list:
+    """Every message waiting in a polled subscription's reader: [(msg, info), ...] in reception order."""
+    out = []
+    with sub.handle:
+        for _ in range(sub.qos_profile.depth + 1):  # bounded: a reader holds at most depth messages
+            got = sub.handle.take_message(sub.msg_type, False)
+            if got is None:
+                break
+            out.append(got)
+    return out
 
 
 def _json(v) -> str:
@@ -686,7 +701,7 @@ def main(args=None) -> int:
 
         kind = os.environ.get("INSALIGN_EXECUTOR", "events")
         if kind == "events":
-            node.poll_imu_and_truth()
+            node.poll_inputs()
         ex = make_executor(kind)
         ex.add_node(node)
         spin(ex)
