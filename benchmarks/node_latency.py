@@ -2,14 +2,19 @@
 
 1. **cost**: per core, imu_sim_node ship at 125 Hz in real time (rate factor 1) for ``--cost-duration-s``; the node
    process's CPU time (user + system, /proc) over the streaming wall time = its share of one core, outputs at 10 Hz;
-   for one core also with rclpy's SingleThreadedExecutor (``INSALIGN_EXECUTOR=single``) to compare.
+   split into the node's Python thread and the other threads (DDS, executor timers; /proc/<pid>/task/*/schedstat),
+   with the Python thread's context switches per second (its wake-ups); for one core also with rclpy's
+   SingleThreadedExecutor (``INSALIGN_EXECUTOR=single``) to compare. ``--ref DIR``: before each core's run, the same
+   run of the node code in DIR (a checkout, e.g. ``git worktree add /tmp/old <commit>``; run with ``python -P`` and
+   PYTHONPATH=DIR, so that neither the current directory nor the installed package shadows it), and the ratio: this
+   machine's CPU figures move by 1.5x between minutes, a comparison needs both codes in the same minutes.
 2. **load**: the same at 1,250 Imu messages/s (rate factor 10, sensor-data QoS as a driver would use), optionally
    with ``--burners`` CPU burners running: sent vs received (drops), gaps counted by the session, the per-Imu
    callback time (median, p99; the callback only converts and pushes), the session's processing rate (samples per
    second of processing time), and the published estimates outside their own published 3-sigma (any axis, after
    ``--settle-s``) next to the same count for ``insalign_ros.align`` on the same data (the load's own effect).
 
-    .venv/bin/python benchmarks/node_latency.py [--cores liekf iekf ekf pi_liekf] [--burners 2]
+    .venv/bin/python benchmarks/node_latency.py [--cores liekf iekf ekf pi_liekf] [--burners 2] [--ref DIR]
 """
 
 from __future__ import annotations
@@ -27,7 +32,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from insalign_ros.cli.bringup import isolated_ros_env, start_node, stop_nodes, wait_for_exit  # noqa: E402
+from insalign_ros.cli.bringup import (isolated_ros_env, ros_args, start_node, start_process, stop_nodes,  # noqa: E402
+                                     wait_for_exit)
 
 TICK = os.sysconf("SC_CLK_TCK")
 #: the cost run's CPU share is measured from this long after the stream starts [s wall]
@@ -47,7 +53,38 @@ def _cpu_s(pid: int) -> float:
     return sum(int(x) for x in f[11:15]) / TICK
 
 
-def run_case(core, rate_hz, rate_factor, duration_s, qos, log_dir, executor="events", settle_s=60.0):
+def _threads(pid: int) -> dict:
+    """tid -> (CPU time [s] from schedstat (ns, exact), context switches) of every thread of a process."""
+    out = {}
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            ns = int((task / "schedstat").read_text().split()[0])
+            cs = sum(int(line.split()[1]) for line in (task / "status").read_text().splitlines()
+                     if "ctxt_switches:" in line)
+        except (OSError, ValueError, IndexError):
+            continue
+        out[int(task.name)] = (1e-9 * ns, cs)
+    return out
+
+
+def _split(pid: int, before: dict, after: dict, wall_s: float) -> tuple[float, float, float]:
+    """(Python thread's CPU share, the other threads' share, the Python thread's context switches per second)."""
+    main = other = 0.0
+    cs = 0
+    for tid, (c, n) in after.items():
+        c0, n0 = before.get(tid, (0.0, 0))
+        if tid == pid:
+            main, cs = c - c0, n - n0
+        else:
+            other += c - c0
+    return main / wall_s, other / wall_s, cs / wall_s
+
+
+#: static cores run the cost case on the static scenario (the ship moves)
+STATIC_CORES = {"pkf", "ekf10", "earth_iekf", "coarse"}
+
+
+def run_case(core, rate_hz, rate_factor, duration_s, qos, log_dir, executor="events", settle_s=60.0, ref=None):
     env = isolated_ros_env()
     env["INSALIGN_EXECUTOR"] = executor
     for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
@@ -57,13 +94,20 @@ def run_case(core, rate_hz, rate_factor, duration_s, qos, log_dir, executor="eve
     mon = AlignmentMonitor(keep_poses=10)
     nodes = []
     try:
-        align = start_node("insalign_ros.nodes.alignment_node", env, log_dir=log_dir, name=f"align_{core}",
-                           params={"core": core, "init_from_ground_truth": True, "imu_timeout_s": 0.0,
-                                   "init_rpy_error_deg": "[3.0, -3.0, 30.0]", "imu_qos": qos})
+        params = {"core": core, "init_from_ground_truth": True, "imu_timeout_s": 0.0,
+                  "init_rpy_error_deg": "[3.0, -3.0, 30.0]", "imu_qos": qos}
+        if ref:
+            ref_env = dict(env, PYTHONPATH=str(ref))
+            align = start_process([sys.executable, "-P", "-m", "insalign_ros.nodes.alignment_node", *ros_args(params)],
+                                  ref_env, f"align_{core}_ref", log_dir)
+        else:
+            align = start_node("insalign_ros.nodes.alignment_node", env, log_dir=log_dir, name=f"align_{core}",
+                               params=params)
         nodes.append(align)
         mon.wait_for(lambda m: m.diag_count > 0, 30.0)
         sim = start_node("insalign_ros.nodes.imu_sim_node", env, log_dir=log_dir, name=f"sim_{core}",
-                         params={"source": "scenario", "scenario": "ship", "rate_hz": rate_hz, "seed": 3,
+                         params={"source": "scenario", "scenario": "static" if core in STATIC_CORES else "ship",
+                                 "rate_hz": rate_hz, "seed": 3,
                                  "rate_factor": rate_factor, "duration_s": duration_s, "wait_for_subscribers": 1,
                                  "wait_timeout_s": 30.0, "qos_depth": 1000})
         nodes.append(sim)
@@ -72,9 +116,11 @@ def run_case(core, rate_hz, rate_factor, duration_s, qos, log_dir, executor="eve
         # numba's cache (a one-off of ~1-2 s of CPU that a 30-s run would spread over its share)
         warm = min(WARM_S, 0.3 * duration_s / rate_factor)
         time.sleep(warm)
-        c0, t0 = _cpu_s(align.popen.pid), time.monotonic()
+        pid = align.popen.pid
+        c0, t0, th0 = _cpu_s(pid), time.monotonic(), _threads(pid)
         rc = wait_for_exit(sim, duration_s / rate_factor + 60.0)
-        c1, t1 = _cpu_s(align.popen.pid), time.monotonic()
+        c1, t1, th1 = _cpu_s(pid), time.monotonic(), _threads(pid)
+        py_share, other_share, wakeups = _split(pid, th0, th1, t1 - t0)
         s = _summary(sim.output())
         sent = s.get("imu_sent", 0)
         mon.wait_for(lambda m: m.counter("imu_received") >= sent, 15.0)
@@ -93,7 +139,8 @@ def run_case(core, rate_hz, rate_factor, duration_s, qos, log_dir, executor="eve
                 "sent": sent, "received": int(d.get("imu_received", 0)), "gaps": int(d.get("imu_gaps", 0)),
                 "cb_median_us": float(d.get("imu_callback_median_us", "nan")),
                 "cb_p99_us": float(d.get("imu_callback_p99_us", "nan")),
-                "cpu_share": (c1 - c0) / (t1 - t0), "wall_s": t1 - t0,
+                "cpu_share": (c1 - c0) / (t1 - t0), "wall_s": t1 - t0, "python_thread_share": py_share,
+                "other_threads_share": other_share, "python_thread_switches_per_s": wakeups,
                 "cpu_share_with_start": (c1 - cs) / (t1 - ts),
                 "session_samples_per_s": int(d.get("session_samples", 0)) / proc_s if proc_s > 0 else float("nan"),
                 "outputs_checked": len(late), "outside_3sigma": outside,
@@ -122,19 +169,31 @@ def main(argv=None) -> int:
     ap.add_argument("--settle-s", type=float, default=60.0, help="3-sigma check from this data time on [s]")
     ap.add_argument("--burners", type=int, default=0, help="CPU burners (python busy loops) during the load runs")
     ap.add_argument("--skip-cost", action="store_true")
+    ap.add_argument("--ref", type=Path, help="a checkout of older node code: run before each cost run, same minutes")
+    ap.add_argument("--skip-load", action="store_true")
+    ap.add_argument("--no-single", action="store_true", help="no SingleThreadedExecutor run in the cost table")
     args = ap.parse_args(argv)
     log_dir = Path(tempfile.mkdtemp(prefix="node-latency-"))
     print(f"node logs in {log_dir}", flush=True)
     if not args.skip_cost:
-        print(f"\n| core | executor | Imu msgs/s (real time) | CPU share of one core (from {WARM_S:g} s on) | "
-              "with the first seconds | callback median / p99 [us] |")
-        print("|---|---|---|---|---|---|")
-        cases = [(c, "events") for c in args.cores] + [(args.cores[0], "single")]
+        print(f"\n| core | code | executor | Imu msgs/s (real time) | CPU share of one core (from {WARM_S:g} s on) | "
+              "Python thread / other threads | Python thread switches/s | with the first seconds | "
+              "Imu handling median / p99 [us] |")
+        print("|---|---|---|---|---|---|---|---|---|")
+        cases = [(c, "events") for c in args.cores] + ([] if args.no_single else [(args.cores[0], "single")])
         for core, ex in cases:
-            r = run_case(core, 125.0, 1.0, args.cost_duration_s, "sensor_data", log_dir, ex)
-            print(f"| {core} | {ex} | {r['msgs_per_s']:.0f} | {100 * r['cpu_share']:.1f} % | "
-                  f"{100 * r['cpu_share_with_start']:.1f} % | "
-                  f"{r['cb_median_us']:.0f} / {r['cb_p99_us']:.0f} |", flush=True)
+            for ref in ([args.ref] if args.ref else []) + [None]:
+                r = run_case(core, 125.0, 1.0, args.cost_duration_s, "sensor_data", log_dir, ex, ref=ref)
+                if ref:
+                    ref_share = r["cpu_share"]
+                ratio = f" ({r['cpu_share'] / ref_share:.2f}x the ref)" if args.ref and not ref else ""
+                print(f"| {core} | {'ref' if ref else 'this'} | {ex} | {r['msgs_per_s']:.0f} | "
+                      f"{100 * r['cpu_share']:.1f} %{ratio} | {100 * r['python_thread_share']:.1f} / "
+                      f"{100 * r['other_threads_share']:.1f} % | {r['python_thread_switches_per_s']:.0f} | "
+                      f"{100 * r['cpu_share_with_start']:.1f} % | "
+                      f"{r['cb_median_us']:.0f} / {r['cb_p99_us']:.0f} |", flush=True)
+    if args.skip_load:
+        return 0
     burners = [subprocess.Popen([sys.executable, "-c", "while 1: pass"]) for _ in range(args.burners)]
     try:
         print(f"\n1,250 Imu msg/s, sensor-data QoS, {args.burners} CPU burners, {args.load_duration_s:.0f} s of data")

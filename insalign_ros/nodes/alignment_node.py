@@ -20,14 +20,17 @@ Topics (relative names, remappable as usual):
   published at each initialisation);
 - service ``~/reset`` std_srvs/Trigger: drop the estimate and every buffered input, start the alignment over.
 
-The callbacks only convert a message to a sample and push it into the session; a timer (``process_rate_hz``)
-lets the session process the buffered inputs in stamp order and publishes what comes out. The node decides
+The node only converts messages to samples and pushes them into the session; a timer (``process_rate_hz``) takes
+the Imu and ground-truth messages waiting in their readers (polled: one wake-up per tick, not one per message; the
+Imu read from the serialized bytes in one numpy pass, conversions.imu_records_from_cdr), lets the session process the
+buffered inputs in stamp order and publishes what comes out (docs/nodes.md, "CPU share"). The node decides
 nothing the session could (docs/session.md, docs/nodes.md). ``core`` and ``imu_grade`` are read-only after start: a different core
 means a different parameter set (restart the node, or call the reset with a new configuration file).
 """
 
 from __future__ import annotations
 
+import bisect
 import math
 import sys
 import time
@@ -40,11 +43,12 @@ from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistWithC
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Imu, NavSatFix
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
-from ..core.types import GnssVelocity
+from ..core.types import GnssVelocity, ImuSample
 from ..eval.aligned import AlignedCriteria
 from ..filters import registry
 from ..filters.imu_grade import GRADES, grade_params
@@ -129,7 +133,9 @@ NODE_PARAMS = {
     "gnss_frame_id": ("", "required NavSatFix frame_id ('' accepts any)", False),
     "enu_frame_id": ("enu", "frame_id of ~/pose", False),
     "diagnostics_period_s": (1.0, "/diagnostics period [s wall]", True),
-    "process_rate_hz": (50.0, "rate of the processing timer [Hz wall]", True),
+    "process_rate_hz": (20.0, "rate of the processing timer [Hz wall]: an output is published up to one period after "
+                              "its Imu sample arrived; each tick costs CPU (50 Hz: +1.5 % of a core, docs/nodes.md)",
+                        True),
     "imu_qos": ("sensor_data", "Imu and ground-truth subscription QoS: sensor_data (best effort) or reliable", True),
     "imu_qos_depth": (1000, "keep-last depth of the Imu subscription", True),
     "gnss_qos": ("sensor_data", "NavSatFix and gps/vel subscription QoS: sensor_data (best effort) or reliable", True),
@@ -139,6 +145,8 @@ NODE_PARAMS = {
 _RANGES = {"pose_rate_hz": (0.0, 1000.0), "gnss_sigma_m": (1e-3, 1e4), "diagnostics_period_s": (0.01, 60.0),
            "process_rate_hz": (1.0, 1000.0), "log_throttle_s": (0.0, 3600.0), "max_gap_s": (0.05, 3600.0),
            "max_fix_lag_s": (0.0, 10.0), "gap_factor": (1.1, 100.0), "imu_timeout_s": (0.0, 3600.0)}
+#: Imu messages over which /diagnostics reports the node's time per message and the stamp age
+_STATS_WINDOW = 20000
 _INT_RANGES = {"imu_qos_depth": (1, 100000), "gnss_qos_depth": (1, 100000), "time_jump_confirm": (1, 1000),
                "backtrack_passes": (0, 10)}
 
@@ -199,15 +207,18 @@ class AlignmentNode(Node):
                 self._declare(name, default, _CORE_DOC.get(name, f"{core} core parameter (config/{core}.yaml)"), False)
         p = {n: self._coerced(n) for n in self.defaults}
         self.session = AlignmentSession(*self._session_args(p), log=self._log)  # ValueError: bad value, exit 2
+        self.imu_sub = None  # the Imu subscription, polled by _take_inputs (not dispatched per message by the executor)
+        self._polled: list = []  # subscriptions the executor does not see (_poll_only), destroyed with the node
         self._apply_node_params(p)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         qi = imu_qos(p["imu_qos"], p["imu_qos_depth"])
-        self.create_subscription(Imu, "imu/data", self._on_imu, qi)
-        self.create_subscription(NavSatFix, "gps/fix", self._on_fix, imu_qos(p["gnss_qos"], p["gnss_qos_depth"]))
-        self.create_subscription(TwistWithCovarianceStamped, "gps/vel", self._on_vel,
-                                 imu_qos(p["gnss_qos"], p["gnss_qos_depth"]))
-        self.create_subscription(PoseStamped, "ground_truth/pose", self._on_truth, qi)
+        self.imu_sub = self.create_subscription(Imu, "imu/data", self._on_imu, qi)
+        self.fix_sub = self.create_subscription(NavSatFix, "gps/fix", self._on_fix,
+                                                imu_qos(p["gnss_qos"], p["gnss_qos_depth"]))
+        self.vel_sub = self.create_subscription(TwistWithCovarianceStamped, "gps/vel", self._on_vel,
+                                                imu_qos(p["gnss_qos"], p["gnss_qos_depth"]))
+        self.truth_sub = self.create_subscription(PoseStamped, "ground_truth/pose", self._on_truth, qi)
         self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, "~/pose", 50)
         self.pub_err = self.create_publisher(Vector3Stamped, "~/euler_error", 50)
         self.pub_err3 = self.create_publisher(Vector3Stamped, "~/euler_error_3sigma", 50)
@@ -222,10 +233,13 @@ class AlignmentNode(Node):
         self._log_state: dict = {}
         self.published_aligned = False
         self.pub_aligned.publish(Bool(data=False))
-        self.timing_s: deque = deque(maxlen=100000)  # per-Imu callback time [s] (benchmarks read it)
-        self.stamp_age_s: deque = deque(maxlen=100000)  # receive wall time minus header stamp [s]
+        # over the last _STATS_WINDOW Imu messages: /diagnostics sorts them every second (100,000 cost 9-12 ms, 1 % of
+        # a core, once full after 13 min at 125 Hz; 20,000 cost 1.6 ms)
+        self.timing_s: deque = deque(maxlen=_STATS_WINDOW)  # node time per Imu message [s] (benchmarks read it)
+        self.stamp_age_s: deque = deque(maxlen=_STATS_WINDOW)  # DDS reception time minus header stamp [s]
         self.process_s: deque = deque(maxlen=10000)
         self._cov_ok: dict = {}
+        self._imu_ok: set = set()  # conversions.imu_cdr_key of Imu messages that passed the message-level checks
         self._prev_imu_stamp: float | None = None
         self._noise_done = False
         self.epoch_s: int | None = None
@@ -276,12 +290,14 @@ class AlignmentNode(Node):
             raise ValueError(f"imu_axes: must be one of {cv.IMU_AXES}, got {p['imu_axes']!r}")
         C = cv.imu_to_vehicle_matrix(p["imu_axes"], p["imu_mount_rpy_deg"])
         self.C_s_v = None if np.array_equal(C, np.eye(3)) else C  # driver axes -> vehicle FLU (None: identity)
+        self._imu_ok = set()  # imu_frame_id may have changed: every kind of Imu message is checked again
         self.params = p
         self.throttle_s = float(p["log_throttle_s"])
         self.criteria = self.session.flag.criteria
         self.pose_period_s = self.session.cfg.output_period_s
 
     def _on_set_parameters(self, params) -> SetParametersResult:
+        self._take_inputs()
         p = dict(self.params)
         try:
             for prm in params:
@@ -325,7 +341,107 @@ class AlignmentNode(Node):
             self._log_state[key] = (last, suppressed + 1)
 
     # ------------------------------------------------------------------ callbacks: convert and push, nothing else
-    def _on_imu(self, msg: Imu) -> None:
+    def poll_inputs(self) -> None:
+        """Every input taken by the processing tick (:meth:`_take_inputs`) instead of one executor dispatch per
+        message. For the EventsExecutor (``main``): with rclpy's SingleThreadedExecutor the polled subscriptions'
+        QoS-event waitables kept its wait set busy (69 % of a core, measured), so there the executor dispatches every
+        message to its callback as before."""
+        for sub in (self.imu_sub, self.fix_sub, self.vel_sub, self.truth_sub):
+            if sub not in self._polled:
+                self._poll_only(sub)
+
+    def _poll_only(self, sub) -> None:
+        """Take ``sub`` out of the executor's view: its messages wait in the DDS reader (keep-last ``imu_qos_depth``)
+        until :meth:`_take_inputs` takes them, instead of one executor dispatch (take, Python message, callback) per
+        message, the largest share of the node's Python work at 125 Hz (docs/nodes.md, "CPU share"); taken
+        serialized, a batch is read in one numpy pass. rclpy has no public switch for
+        this: the subscription stays in the node's graph, QoS and remaps, only the node's list the executors read
+        (``Node._subscriptions``) loses it, and :meth:`destroy_node` destroys it."""
+        self._subscriptions.remove(sub)
+        self._polled.append(sub)
+        self._wake_executor()
+
+    def _take_inputs(self) -> None:
+        """Every message waiting in the polled readers, to the session in DDS reception order (``received_timestamp``),
+        as one callback per message would have given them: the Imu messages first (serialized, :meth:`_on_imu_batch`
+        for each run between two fixes or velocities), then the fixes and velocities, which arrived after the Imu
+        messages taken before them are handed over, then the ground truth. Called by the processing tick and before a
+        reset, a parameter change and diagnostics."""
+        t0 = time.perf_counter()
+        raws, recv = [], []
+        if self.imu_sub in self._polled:
+            sub = self.imu_sub
+            with sub.handle:
+                take = sub.handle.take_message
+                for _ in range(sub.qos_profile.depth + 1):  # bounded: a reader holds at most depth messages
+                    got = take(Imu, True)
+                    if got is None:
+                        break
+                    raws.append(got[0])
+                    recv.append(got[1]["received_timestamp"])
+        others = []
+        for sub, on_msg in ((self.fix_sub, self._on_fix), (self.vel_sub, self._on_vel)):
+            if sub in self._polled:
+                others += [(got[1]["received_timestamp"], on_msg, got[0]) for got in _take_all(sub)]
+        others.sort(key=lambda e: e[0])
+        i = 0
+        for received_ns, on_msg, msg in others:
+            j = bisect.bisect_right(recv, received_ns, lo=i)
+            if j > i:
+                self._on_imu_batch(raws[i:j], recv[i:j], t0)
+                t0 = time.perf_counter()
+            i = j
+            on_msg(msg)
+        if i < len(raws):
+            self._on_imu_batch(raws[i:], recv[i:], t0)
+        if self.truth_sub in self._polled:
+            for got in _take_all(self.truth_sub):
+                self._on_truth(got[0])
+
+    def _on_imu_batch(self, raws: list, received_ns: list, t0: float) -> None:
+        """Serialized Imu messages in arrival order -> the session, as :meth:`_on_imu` one by one would. A message
+        whose frame_id and covariances already passed the message-level checks (:func:`conversions.imu_cdr_key` in
+        ``_imu_ok``), with a stamp and a finite orientation, is read from numpy records
+        (:func:`conversions.imu_records_from_cdr`, one pass per batch); any other goes through rclpy's
+        deserialisation and :meth:`_on_imu` (the first of a kind, and every rejection with its reason)."""
+        n = len(raws)
+        fast = [None] * n
+        if self.epoch_s is not None and not (self.params["use_imu_covariance"] and not self._noise_done):
+            ok_keys = self._imu_ok
+            for rows, rec in cv.imu_records_from_cdr(raws):
+                sec, nsec, q = rec["sec"], rec["nanosec"], rec["q"]
+                t = (sec - self.epoch_s).astype(float) + 1e-9 * nsec  # as conversions.imu_sample_fast, per message
+                stamp = sec + 1e-9 * nsec
+                good = ((sec > 0) | (nsec > 0)) & np.isfinite(q[:, 0] + q[:, 1] + q[:, 2] + q[:, 3])
+                # copies: the records are read-only views of the message bytes
+                w, f = cv.imu_to_vehicle(np.array(rec["w"]), np.array(rec["f"]), self.C_s_v)
+                cw, cf = np.array(rec["cov_w"]), np.array(rec["cov_f"])
+                for i, k in enumerate(rows):
+                    if good[i] and cv.imu_cdr_key(raws[k]) in ok_keys:
+                        fast[k] = (float(t[i]), w[i], f[i], cw[i], cf[i], float(stamp[i]))
+        session, recent, ages = self.session, self._recent_imu, self.stamp_age_s
+        n_fast = 0
+        t_slow = 0.0
+        for k in range(n):
+            s = fast[k]
+            if s is None:
+                t1 = time.perf_counter()
+                if self._on_imu(deserialize_message(raws[k], Imu), received_ns[k]):
+                    if len(self._imu_ok) > 1000:
+                        self._imu_ok.clear()
+                    self._imu_ok.add(cv.imu_cdr_key(raws[k]))
+                t_slow += time.perf_counter() - t1
+                continue
+            n_fast += 1
+            if session.push_imu(ImuSample(s[0], s[1], s[2]), time.monotonic()):
+                recent[s[0]] = s[1:5]
+            ages.append(1e-9 * received_ns[k] - s[5])
+        if n_fast:  # the node's time per Imu message of the batch (take, records, push), for /diagnostics
+            self.timing_s.extend([(time.perf_counter() - t0 - t_slow) / n_fast] * n_fast)
+
+    def _on_imu(self, msg: Imu, received_ns: int | None = None) -> bool:
+        """One Imu message (``received_ns``: its DDS reception time [ns, system clock]; None: now). True when it
+        passed the message-level checks (frame_id, stamp, orientation, covariances), whatever the session did."""
         t0 = time.perf_counter()
         wall = time.monotonic()
         p = self.params
@@ -333,6 +449,7 @@ class AlignmentNode(Node):
         h = msg.header
         if h.frame_id not in self.frames_seen:
             self._note_frame("Imu", h.frame_id)
+        passed = False
         if frame and h.frame_id != frame:
             self.session.reject_input("imu", "imu_frame", f"frame_id {h.frame_id!r} is not {frame!r}", wall)
         else:
@@ -340,6 +457,7 @@ class AlignmentNode(Node):
             if sample is None:
                 self.session.reject_input("imu", "imu_invalid", reason, wall)
             else:
+                passed = True
                 if p["use_imu_covariance"] and not self._noise_done:
                     self._noise_from(msg, sample.stamp_s)
                 if self.session.push_imu(sample, wall):
@@ -347,7 +465,9 @@ class AlignmentNode(Node):
                                                         msg.angular_velocity_covariance,
                                                         msg.linear_acceleration_covariance)
         self.timing_s.append(time.perf_counter() - t0)
-        self.stamp_age_s.append(time.time() - (h.stamp.sec + 1e-9 * h.stamp.nanosec))
+        received = time.time() if received_ns is None else 1e-9 * received_ns
+        self.stamp_age_s.append(received - (h.stamp.sec + 1e-9 * h.stamp.nanosec))
+        return passed
 
     def _noise_from(self, msg: Imu, t: float) -> None:
         """use_imu_covariance: the noise densities from the Imu covariances and the interval of two messages."""
@@ -406,6 +526,7 @@ class AlignmentNode(Node):
 
     # ------------------------------------------------------------------ processing and outputs
     def _process(self) -> None:
+        self._take_inputs()
         t0 = time.perf_counter()
         try:
             outs = self.session.process(time.monotonic())
@@ -417,9 +538,10 @@ class AlignmentNode(Node):
             self._publish_datum()
         for o in outs:
             est = o.estimate
-            self.pub_pose.publish(cv.pose_msg(est, self.session.anchor, frame, "", self.epoch_s))
+            q = cv.quat_xyzw(est.C_b_n)  # once for ~/pose and ~/imu
+            self.pub_pose.publish(cv.pose_msg(est, self.session.anchor, frame, "", self.epoch_s, q))
             self.pub_imu.publish(cv.imu_msg(est, self.params["body_frame_id"], self.epoch_s,
-                                            self._measured_sample(o.stamp_s)))
+                                            self._measured_sample(o.stamp_s), q))
             m3 = Vector3Stamped()
             cv.set_stamp(m3, o.stamp_s, self.epoch_s)
             m3.header.frame_id = frame
@@ -462,6 +584,7 @@ class AlignmentNode(Node):
 
     def _on_reset(self, request, response):
         """~/reset (std_srvs/Trigger): restart the alignment from nothing (the session's reset)."""
+        self._take_inputs()
         was = self.session.status.value
         self.session.reset("reset service")
         self._recent_imu.clear()
@@ -489,6 +612,7 @@ class AlignmentNode(Node):
         return self.session.flag
 
     def _publish_diagnostics(self) -> None:
+        self._take_inputs()
         s = self.session
         st = DiagnosticStatus()
         st.name = f"{self.get_name()}: alignment"
@@ -497,13 +621,14 @@ class AlignmentNode(Node):
         st.message = s.message()
         vals = s.diagnostics()
         vals.pop("message", None)
-        if self.timing_s:  # over the last 100,000 Imu messages
+        if self.timing_s:  # over the last _STATS_WINDOW Imu messages
             tt = np.asarray(self.timing_s) * 1e6
             age = np.asarray(self.stamp_age_s) * 1e3
-            vals.update(imu_callback_median_us=f"{np.median(tt):.1f}", imu_callback_p99_us=f"{np.percentile(tt, 99):.1f}",
+            t50, t99 = np.percentile(tt, [50, 99])
+            a50, a99 = np.percentile(age, [50, 99])
+            vals.update(imu_callback_median_us=f"{t50:.1f}", imu_callback_p99_us=f"{t99:.1f}",
                         imu_callback_max_us=f"{np.max(tt):.1f}", imu_callback_total_s=f"{np.sum(tt) * 1e-6:.3f}",
-                        imu_stamp_age_median_ms=f"{np.median(age):.3f}",
-                        imu_stamp_age_p99_ms=f"{np.percentile(age, 99):.3f}")
+                        imu_stamp_age_median_ms=f"{a50:.3f}", imu_stamp_age_p99_ms=f"{a99:.3f}")
         vals.update(session_process_total_s=f"{s.timing['process_s']:.3f}",
                     session_samples=str(s.timing["samples"]))
         st.values = [KeyValue(key=k, value=v if isinstance(v, str) else _json(v)) for k, v in vals.items()]
@@ -514,7 +639,22 @@ class AlignmentNode(Node):
 
     def destroy_node(self):
         self.session.close()
+        self._subscriptions.extend(self._polled)  # back in the node's list: rclpy destroys them with the node
+        self._polled = []
+        self.imu_sub = None
         return super().destroy_node()
+
+
+def _take_all(sub) -> list:
+    """Every message waiting in a polled subscription's reader: [(msg, info), ...] in reception order."""
+    out = []
+    with sub.handle:
+        for _ in range(sub.qos_profile.depth + 1):  # bounded: a reader holds at most depth messages
+            got = sub.handle.take_message(sub.msg_type, False)
+            if got is None:
+                break
+            out.append(got)
+    return out
 
 
 def _json(v) -> str:
@@ -559,7 +699,10 @@ def main(args=None) -> int:
             return 2
         import os
 
-        ex = make_executor(os.environ.get("INSALIGN_EXECUTOR", "events"))
+        kind = os.environ.get("INSALIGN_EXECUTOR", "events")
+        if kind == "events":
+            node.poll_inputs()
+        ex = make_executor(kind)
         ex.add_node(node)
         spin(ex)
         return 0

@@ -23,6 +23,7 @@ them into one constant rotation ``C_s_v``, applied once per message by :func:`im
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
@@ -139,6 +140,59 @@ def imu_sample_fast(msg: Imu, cov_ok: dict, epoch_s: int = 0,
     return ImuSample(t, omega, f), ""
 
 
+#: CDR encapsulation of plain little-endian CDR (XCDR1), what Fast DDS writes for ROS 2 messages on x86 and ARM
+CDR_LE = b"\x00\x01"
+#: sensor_msgs/Imu after header.frame_id: orientation (4), its covariance (9), angular_velocity (3), its covariance (9),
+#: linear_acceleration (3), its covariance (9), all float64
+_IMU_TAIL = (("q", 4), ("cov_q", 9), ("w", 3), ("cov_w", 9), ("f", 3), ("cov_f", 9))
+
+
+@lru_cache(maxsize=64)
+def _imu_dtype(frame_len: int) -> np.dtype:
+    """The record of one serialized sensor_msgs/Imu whose frame_id takes ``frame_len`` bytes (with its NUL): CDR
+    offsets count from after the 4-byte encapsulation header and float64 fields are aligned to 8 there."""
+    names, formats, offsets = ["sec", "nanosec", "frame"], ["<i4", "<u4", f"S{frame_len}"], [4, 8, 16]
+    off = 4 + ((12 + frame_len + 7) & ~7)
+    for name, n in _IMU_TAIL:
+        names.append(name)
+        formats.append(("<f8", (n,)))
+        offsets.append(off)
+        off += 8 * n
+    return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": off})
+
+
+def imu_records_from_cdr(raws: list) -> list:
+    """Serialized sensor_msgs/Imu messages (``take_message(Imu, raw=True)``) -> numpy records in one pass per layout,
+    without a Python message object per message (rclpy's deserialisation was the largest per-message cost of the
+    node: docs/nodes.md, "CPU share").
+
+    Returns ``[(rows, records), ...]``: ``rows`` the indices into ``raws`` of one layout (little-endian CDR, one
+    frame_id length), ``records`` a structured array with fields sec, nanosec, frame (bytes, NUL-stripped), q,
+    cov_q, w, cov_w, f, cov_f (:func:`_imu_dtype`). A message of any other encapsulation, or whose length does not
+    match its frame_id length, is in no group: the caller deserialises it with rclpy."""
+    groups: dict = {}
+    for k, r in enumerate(raws):
+        if len(r) >= 16 and r[:2] == CDR_LE:
+            groups.setdefault((len(r), r[12:16]), []).append(k)
+    out = []
+    for (length, flen_b), rows in groups.items():
+        flen = int.from_bytes(flen_b, "little")
+        if not 1 <= flen <= length:
+            continue
+        dt = _imu_dtype(flen)
+        if dt.itemsize != length:
+            continue
+        out.append((rows, np.frombuffer(b"".join([raws[k] for k in rows]), dtype=dt)))
+    return out
+
+
+def imu_cdr_key(raw: bytes) -> bytes:
+    """What the message-level checks of a serialized Imu read besides its stamp and orientation: the frame_id (with
+    its length) and the three covariances, as bytes (a node caches the keys that passed: drivers repeat them)."""
+    flen = int.from_bytes(raw[12:16], "little")
+    return raw[12:16 + flen] + raw[-8 * 33:-8 * 24] + raw[-8 * 21:-8 * 12] + raw[-8 * 9:]
+
+
 def imu_noise_from_msg(msg: Imu, dt_s: float) -> dict:
     """Noise densities implied by the Imu covariances of one sample [rad^2, (m/s^2)^2] over dt_s, as config fields.
 
@@ -231,8 +285,10 @@ def position_cov_n(est, C_b_n: np.ndarray) -> np.ndarray:
     return np.eye(3) * 1e6  # a core without position states: "unknown", large
 
 
-def pose_msg(est, anchor, frame_id: str, child_frame_id: str, epoch_s: int = 0) -> PoseWithCovarianceStamped:
-    """A core estimate -> PoseWithCovarianceStamped in the local ENU frame anchored at ``anchor`` (lat, lon, h)."""
+def pose_msg(est, anchor, frame_id: str, child_frame_id: str, epoch_s: int = 0,
+             q_xyzw: np.ndarray | None = None) -> PoseWithCovarianceStamped:
+    """A core estimate -> PoseWithCovarianceStamped in the local ENU frame anchored at ``anchor`` (lat, lon, h)
+    (``q_xyzw``: :func:`quat_xyzw` of ``est.C_b_n`` when the caller has it already)."""
     msg = PoseWithCovarianceStamped()
     set_stamp(msg, est.stamp_s, epoch_s)
     msg.header.frame_id = frame_id
@@ -240,14 +296,14 @@ def pose_msg(est, anchor, frame_id: str, child_frame_id: str, epoch_s: int = 0) 
     p_n = earth.ecef_to_enu(p_e, *anchor)
     pp = msg.pose.pose.position
     pp.x, pp.y, pp.z = (float(x) for x in p_n)
-    q = quat_xyzw(est.C_b_n)
+    q = quat_xyzw(est.C_b_n) if q_xyzw is None else q_xyzw
     o = msg.pose.pose.orientation
     o.x, o.y, o.z, o.w = (float(x) for x in q)
     msg.pose.covariance = pose_cov_ros(position_cov_n(est, est.C_b_n), est.P_att_n)
     return msg
 
 
-def imu_msg(est, frame_id: str, epoch_s: int = 0, sample=None) -> Imu:
+def imu_msg(est, frame_id: str, epoch_s: int = 0, sample=None, q_xyzw: np.ndarray | None = None) -> Imu:
     """A core estimate -> sensor_msgs/Imu (REP 145) in the vehicle FLU frame ``frame_id``, as robot_localization's
     navsat_transform takes it: orientation body FLU -> ENU (yaw from East, counter-clockwise) and its covariance
     P_att_n [rad^2] (attitude error about the fixed ENU axes x, y, z, as REP 145 asks).
@@ -255,12 +311,12 @@ def imu_msg(est, frame_id: str, epoch_s: int = 0, sample=None) -> Imu:
     ``sample``: (omega_ib_v [rad/s], f_ib_v [m/s^2], cov_omega (9,), cov_f (9,)) of the IMU sample at the estimate's
     stamp, in vehicle FLU, as measured (not bias-corrected); the covariances are the driver's rotated into the
     vehicle frame (all zeros: unknown). None (no measured sample at that stamp, e.g. one bridging a gap): zero vectors
-    with covariance element 0 set to -1 (REP 145: "no estimate")."""
+    with covariance element 0 set to -1 (REP 145: "no estimate"). ``q_xyzw``: as in :func:`pose_msg`."""
     msg = Imu()
     set_stamp(msg, est.stamp_s, epoch_s)
     msg.header.frame_id = frame_id
     o = msg.orientation
-    o.x, o.y, o.z, o.w = (float(x) for x in quat_xyzw(est.C_b_n))
+    o.x, o.y, o.z, o.w = (float(x) for x in (quat_xyzw(est.C_b_n) if q_xyzw is None else q_xyzw))
     P = np.asarray(est.P_att_n, float)
     msg.orientation_covariance = (0.5 * (P + P.T)).reshape(-1).tolist()
     if sample is None:
