@@ -18,6 +18,17 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def _pin_solver_threads() -> None:
+    """The runner's process (the serial path, the client) takes one rayon thread like the workers
+    (eval.parallel.pin_solver_threads)."""
+    from insalign_ros.eval.parallel import pin_solver_threads
+
+    pin_solver_threads()
+
+
+_pin_solver_threads()
+
+
 def add_arguments(ap) -> None:
     g = ap.add_argument_group("execution (Dask)")
     g.add_argument("--workers", type=int, default=os.cpu_count() or 1,

@@ -42,6 +42,9 @@ def _kv(items: list[str], what: str) -> dict:
 
 
 def main(argv=None) -> int:
+    from ..eval.parallel import pin_solver_threads
+
+    pin_solver_threads()  # PI-LIEKF's LMI solver: one rayon thread
     ap = argparse.ArgumentParser(prog="insalign-align", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("bag", nargs="?", help="contract bag (insalign_ros.io.bag), or a directory of bags (a fleet)")

@@ -59,6 +59,16 @@ QUIET_WORKER_CONFIG = {"distributed.worker.profile.enabled": False, "distributed
 WORKER_ENVIRON = {"RAYON_NUM_THREADS": "1"}
 
 
+def pin_solver_threads() -> None:
+    """``WORKER_ENVIRON`` for this process too (a value already set wins), before any LMI solve: the package's entry
+    points (alignment_node, insalign-align, the benchmarks' runner) call it; a library user decides for their own
+    process. Measured on the 20-seed ship sweep run serially on a quiet machine (docs/results.md, "Yaw sweep on
+    Dask"): 262 s of wall and 260 s of CPU with one rayon thread, 292 s and 308 s with the default pool; the same
+    numbers."""
+    for k, v in WORKER_ENVIRON.items():
+        os.environ.setdefault(k, v)
+
+
 def _forkserver_preload(modules: tuple[str, ...]) -> dict:
     """Dask config that starts the LocalCluster's worker processes from a multiprocessing fork server which has
     imported ``modules`` (and distributed, numpy) once, instead of spawning fresh interpreters that each import them;

@@ -686,6 +686,9 @@ def spin(executor, context=None) -> None:
 
 
 def main(args=None) -> int:
+    from ..eval.parallel import pin_solver_threads
+
+    pin_solver_threads()  # PI-LIEKF's LMI solver: one rayon thread (no os-wide pool of idle spinning threads)
     rclpy.init(args=args)
     node = None
     try:
