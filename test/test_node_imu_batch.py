@@ -112,8 +112,8 @@ def test_batch_path_gives_the_session_what_one_callback_per_message_gives(monkey
                 for m in msgs:
                     node._on_imu(m)
             ses = node.session
-            sessions.append((dict(ses.counters), [x[0] for x in ses.buf.imu], np.array([x[1] for x in ses.buf.imu]),
-                             np.array([x[2] for x in ses.buf.imu]), dict(node._recent_imu),
+            T, W, F = ses.buf.imu.peek()
+            sessions.append((dict(ses.counters), T.tolist(), W, F, dict(node._recent_imu),
                              sorted(node.frames_seen), len(node.timing_s)))
         finally:
             node.destroy_node()

@@ -1838,6 +1838,15 @@ class _ImuBuffer:
             return np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3))
         return tuple(np.concatenate(x) for x in zip(*parts))
 
+    def peek(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every buffered sample as (T, W, F) copies, the buffer unchanged (inspection, tests)."""
+        self._seal()
+        parts = [(T[self.off if i == 0 else 0:], W[self.off if i == 0 else 0:], F[self.off if i == 0 else 0:])
+                 for i, (T, W, F) in enumerate(self.blocks)]
+        if not parts:
+            return np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3))
+        return tuple(np.concatenate(x) for x in zip(*parts))
+
     def first(self):
         """(t, w, f) of the first buffered sample, or None."""
         if self.n == 0:
