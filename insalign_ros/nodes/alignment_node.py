@@ -140,10 +140,9 @@ NODE_PARAMS = {
     "imu_qos_depth": (1000, "keep-last depth of the Imu subscription", True),
     "gnss_qos": ("sensor_data", "NavSatFix and gps/vel subscription QoS: sensor_data (best effort) or reliable", True),
     "gnss_qos_depth": (100, "keep-last depth of the NavSatFix and gps/vel subscriptions", True),
-    "poll_inputs": (False, "take every input in the processing tick instead of one executor callback per message "
-                           "(serialized Imu read in one numpy pass per batch; EventsExecutor only; about half the "
-                           "node's CPU at 125 Hz, docs/nodes.md); off by default until a rare miscount under heavy load "
-                           "is understood", True),
+    "poll_inputs": (True, "take every input in the processing tick instead of one executor callback per message "
+                          "(serialized Imu read in one numpy pass per batch; EventsExecutor only; about half the "
+                          "node's CPU at 125 Hz, docs/nodes.md); false: one callback per message", True),
     "log_throttle_s": (2.0, "throttle of the rejection log lines, per kind [s]", False),
 }
 _RANGES = {"pose_rate_hz": (0.0, 1000.0), "gnss_sigma_m": (1e-3, 1e4), "diagnostics_period_s": (0.01, 60.0),
