@@ -373,15 +373,9 @@ class AlignmentNode(Node):
         t0 = time.perf_counter()
         raws, recv = [], []
         if self.imu_sub in self._polled:
-            sub = self.imu_sub
-            with sub.handle:
-                take = sub.handle.take_message
-                for _ in range(sub.qos_profile.depth + 1):  # bounded: a reader holds at most depth messages
-                    got = take(Imu, True)
-                    if got is None:
-                        break
-                    raws.append(got[0])
-                    recv.append(got[1]["received_timestamp"])
+            for raw, info in _take_all(self.imu_sub, raw=True):
+                raws.append(raw)
+                recv.append(info["received_timestamp"])
         others = []
         for sub, on_msg in ((self.fix_sub, self._on_fix), (self.vel_sub, self._on_vel)):
             if sub in self._polled:
@@ -648,12 +642,13 @@ class AlignmentNode(Node):
         return super().destroy_node()
 
 
-def _take_all(sub) -> list:
-    """Every message waiting in a polled subscription's reader: [(msg, info), ...] in reception order."""
+def _take_all(sub, raw: bool = False) -> list:
+    """Every message waiting in a polled subscription's reader: [(msg, info), ...] in reception order (``raw``: the
+    serialized CDR bytes instead of a Python message)."""
     out = []
     with sub.handle:
         for _ in range(sub.qos_profile.depth + 1):  # bounded: a reader holds at most depth messages
-            got = sub.handle.take_message(sub.msg_type, False)
+            got = sub.handle.take_message(sub.msg_type, raw)
             if got is None:
                 break
             out.append(got)
