@@ -1,6 +1,7 @@
 """Real rclpy over real Fast DDS: two processes, isolated domain, localhost discovery, timeouts, no leftovers."""
 
 import os
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -145,6 +146,27 @@ def test_domain_ids_of_xdist_workers_are_disjoint_slices_of_1_to_100(monkeypatch
         monkeypatch.setenv("PYTEST_XDIST_WORKER", worker)
         drawn = {int(isolated_ros_env(base={})["ROS_DOMAIN_ID"]) for _ in range(200)}
         assert lo <= min(drawn) and max(drawn) <= hi and len(drawn) > 10  # still random inside the slice
+
+
+@pytest.mark.timeout(60)
+def test_a_domain_held_by_another_process_is_never_drawn(monkeypatch):
+    """Two runs at the same time on one machine (a suite and a benchmark, two suites) never share a ROS_DOMAIN_ID:
+    a domain another process holds is skipped, and free again once that process has exited."""
+    import insalign_ros.cli.bringup as bringup
+
+    code = "import sys, time; from insalign_ros.cli import bringup; print(bringup.hold_domain(97), flush=True); time.sleep(30)"
+    child = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout.readline().strip() == "True"
+        monkeypatch.setattr(bringup, "domain_id_range", lambda env=None: (97, 98))
+        assert not bringup.hold_domain(97)
+        drawn = {int(bringup.isolated_ros_env(base={})["ROS_DOMAIN_ID"]) for _ in range(20)}
+        assert drawn == {98}
+    finally:
+        child.kill()
+        child.wait(10)
+    assert bringup.hold_domain(97)  # the kernel dropped the child's lock with the child
+    assert int(bringup.isolated_ros_env(base={}, domain_id=None)["ROS_DOMAIN_ID"]) in (97, 98)
 
 
 @pytest.mark.timeout(60)

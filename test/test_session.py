@@ -139,6 +139,30 @@ def test_time_jump_resets_and_a_fix_ahead_waits(ship60):
     assert s.core is None and s.newest_imu_t == pytest.approx(3600.05)
 
 
+@pytest.mark.parametrize("arrays", [False, True])
+def test_a_fix_far_ahead_before_the_first_imu_sample_is_rejected_when_it_comes(ship60, arrays):
+    """A GNSS reader that delivers before the IMU reader (DDS matches topics one by one): a fix and a velocity
+    stamped an hour ahead, pushed before any IMU sample, cannot be checked on arrival; the first IMU sample (one by
+    one or as arrays) rejects them as gnss_future / gnss_vel_future, and a fix within max_fix_ahead_s stays."""
+    from insalign_ros.core.types import GnssVelocity
+
+    d = ship60
+    s = AlignmentSession(SessionConfig.from_dict({"core": "liekf", "init_mode": "guess"}))
+    far = GnssFix(float(d.gnss_t_s[3]) + 3600.0, d.gnss_p_e[3], d.gnss_R_e[3])
+    near = GnssFix(float(d.gnss_t_s[3]), d.gnss_p_e[3], d.gnss_R_e[3])
+    for fix in (far, near):
+        assert s.push_fix(fix)  # no IMU time line yet: buffered
+    assert s.push_velocity(GnssVelocity(3603.0, np.zeros(3), 0.01 * np.eye(3)))
+    if arrays:
+        assert s.push_imu_arrays(d.t_s[:10], d.omega_ib_b[:10], d.f_ib_b[:10]) == 10
+    else:
+        assert s.push_imu(ImuSample(float(d.t_s[0]), d.omega_ib_b[0], d.f_ib_b[0]))
+    c = s.counters
+    assert (c["gnss_future"], c["gnss_vel_future"], c["gnss_rejected"], c["gnss_vel_rejected"]) == (1, 1, 1, 1)
+    assert s.buf.fix_t == [near.stamp_s] and s.buf.vel_t == []
+    assert "ahead of the first IMU sample" in s.last_reject
+
+
 def test_watchdog_drops_the_flag_when_the_imu_goes_silent(ship60):
     s = AlignmentSession(SessionConfig.from_dict({"core": "iekf", "init_mode": "truth", "imu_timeout_s": 1.0,
                                                   "init_rpy_error_deg": [1.0, 1.0, 2.0], "imu_grade": "paper_ship"}))

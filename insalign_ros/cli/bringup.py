@@ -7,11 +7,13 @@ Every child runs in its own process group so that it and anything it spawned can
 
 from __future__ import annotations
 
+import fcntl
 import os
 import random
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,18 +23,45 @@ def isolated_ros_env(domain_id: int | None = None, base: dict | None = None) -> 
     """The current environment plus a private ROS_DOMAIN_ID and localhost-only discovery.
 
     Domain ids 1..100 are used (Fast DDS derives UDP ports from the id; ids above ~101 collide with the
-    ephemeral range on Linux). The id is drawn from the pid and the clock so that parallel runs differ; under
-    pytest-xdist it is drawn from the worker's own share of 1..100 (``domain_id_range``), so that tests running
-    at the same time on different workers never share a domain.
+    ephemeral range on Linux). The id is drawn at random from this process's range (``domain_id_range``: under
+    pytest-xdist the worker's own share of 1..100) among the ids no other process on this machine holds: each draw
+    takes an exclusive lock on ``<tmp>/insalign_ros_domains/<id>.lock`` (:func:`hold_domain`) and keeps it until
+    this process draws again or exits, so that test suites, benchmarks and demos running at the same time never
+    share a domain (two runs of one suite drawing the same id made one test's monitor read another's node).
     """
     env = dict(os.environ if base is None else base)
     if domain_id is None:
         lo, hi = domain_id_range()
-        domain_id = random.Random(os.getpid() * 7919 + time.monotonic_ns()).randint(lo, hi)
+        ids = list(range(lo, hi + 1))
+        random.Random(os.getpid() * 7919 + time.monotonic_ns()).shuffle(ids)
+        domain_id = next((i for i in ids if hold_domain(i)), ids[0])  # all held: share one, as before the locks
     env["ROS_DOMAIN_ID"] = str(int(domain_id))
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     env.setdefault("PYTHONUNBUFFERED", "1")
     return env
+
+
+_HELD_DOMAIN: list = []  # [(domain id, open lock file)]: the one domain this process holds
+
+
+def hold_domain(domain_id: int) -> bool:
+    """Take the machine-wide lock of ``domain_id`` for this process (releasing the one it held before); False when
+    another process holds it. The lock is an ``flock`` on a file in the temporary directory: the kernel drops it
+    when the process exits, however it exits."""
+    d = os.path.join(tempfile.gettempdir(), "insalign_ros_domains")
+    os.makedirs(d, exist_ok=True)
+    if _HELD_DOMAIN and _HELD_DOMAIN[0][0] == domain_id:
+        return True
+    fh = open(os.path.join(d, f"{int(domain_id)}.lock"), "a")
+    try:
+        fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        fh.close()
+        return False
+    for _, old in _HELD_DOMAIN:
+        old.close()  # closing the file releases its lock
+    _HELD_DOMAIN[:] = [(int(domain_id), fh)]
+    return True
 
 
 def domain_id_range(env: dict | None = None) -> tuple[int, int]:

@@ -363,6 +363,8 @@ class AlignmentSession:
         if newest is None or t > newest:
             self.buf.imu.append(t, w, f)
             self.newest_imu_t = t
+            if newest is None:
+                self._check_early_fixes()
         else:
             c["imu_reordered"] += 1
             self.buf.imu.insert(t, w, f)
@@ -437,7 +439,22 @@ class AlignmentSession:
         t, w, f = t.copy(), w.copy(), f.copy()  # the caller may reuse its arrays
         self.recent_stamps.add_block(t)
         self.buf.imu.extend(t, w, f)
+        first = self.newest_imu_t is None
         self.newest_imu_t = float(t[m - 1])
+        if first:
+            self._check_early_fixes()
+
+    def _check_early_fixes(self) -> None:
+        """The first IMU sample of a time line: fixes and velocities buffered before it (a GNSS reader that matched or
+        delivered first) get the ``max_fix_ahead_s`` check they could not get on arrival, with the same counters."""
+        limit = self.newest_imu_t + self.cfg.max_fix_ahead_s
+        b = self.buf
+        for times, items, topic, what in ((b.fix_t, b.fix, "gnss", "fix"), (b.vel_t, b.vel, "gnss_vel", "velocity")):
+            while times and times[-1] > limit:
+                t = times.pop()
+                items.pop()
+                self._reject(topic, what, f"{topic}_future", f"stamp {t + self.stamp_offset_s:.6f} is "
+                             f"{t - self.newest_imu_t:.3f} s ahead of the first IMU sample (buffered before it)")
         self._check_overflow()
 
     def push_fix(self, fix: GnssFix, wall_s: float | None = None) -> bool:
