@@ -15,6 +15,13 @@ import time
 from pathlib import Path
 
 
+#: what aligning a bag imports (the runner, the cores, numba's kernels, the LMI solver, the bag reader): loaded once
+#: in the fork server the LocalCluster's workers start from, not once per worker (``eval.parallel.make_client``)
+PRELOAD = ("insalign_ros", "insalign_ros.cli.fleet", "insalign_ros.cli.align", "insalign_ros.session.offline",
+           "insalign_ros.filters.registry", "insalign_ros.core.mechanization_numba", "insalign_ros.filters.lmi",
+           "insalign_ros.io.bag", "cvxpy")
+
+
 def find_bags(root: Path) -> list[Path]:
     """rosbag2 directories (with a metadata.yaml) under ``root``, sorted by path."""
     return sorted(p.parent for p in Path(root).rglob("metadata.yaml"))
@@ -63,7 +70,7 @@ def run_fleet(root: str, argv: list[str], out_dir: str, workers: int, scheduler:
     names = [str(b.relative_to(root)).replace("/", "__") or b.name for b in bags]
     tasks = [(str(b), argv, str(out / n)) for b, n in zip(bags, names)]
     rows = run_tasks(align_bag, tasks, workers=workers, scheduler=scheduler, serial=serial, desc="bags",
-                     progress=progress)
+                     progress=progress, preload=PRELOAD)
     out.mkdir(parents=True, exist_ok=True)
     with open(out / "fleet_summary.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, COLUMNS, extrasaction="ignore")
