@@ -273,6 +273,16 @@ def test_compiled_update_helpers_match_numpy():
         assert np.abs(sm._corrected_attitude_nb(*phi, C) - mech.C_b_n).max() < 1e-15
     for p_e in rng.normal(scale=6e6, size=(10, 3)):
         np.testing.assert_array_equal(earth._omega_ie_cross(p_e), np.cross(earth.OMEGA_IE_E, p_e))
+    # the PKF gain's first rows by the 2p x 2p push-through form against eq. (16)'s 5p x 5p solve
+    from insalign_ros.filters import pkf
+    for p_h, re, qm in ((10, 1.0, np.array([1e10, 1e10, 1e10, 1e12, 1e10])), (3, 3.0, np.arange(1.0, 6.0)),
+                        (1, 1e-3, np.full(5, 1e2))):
+        for s in (1e-4, 0.1):
+            F5 = np.eye(5) + s * rng.normal(size=(5, 5))
+            K_ref = pkf.pkf_gain(F5, sm.H_ZUPT, p_h, np.eye(2 * p_h) * re, np.diag(np.tile(qm, p_h)))[:5]
+            K5 = np.empty((5, 5))
+            pkf._pkf_gain_rows_nb(F5, p_h, re, qm, K5)
+            assert np.abs(K5 - K_ref).max() <= 1e-13 * np.abs(K_ref).max()
     buf = liekf.ImuBuffer()  # rows (per-sample propagate) and blocks (propagate_arrays) in one buffer, in order
     buf.add(1.0, np.ones(3), 2 * np.ones(3))
     buf.add_block(np.array([2.0, 3.0]), np.arange(6.0).reshape(2, 3), np.arange(6.0, 12.0).reshape(2, 3))
