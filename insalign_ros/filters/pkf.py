@@ -16,13 +16,12 @@ optimisation over a horizon p, eqs. (11)-(17), with the decisions of docs/static
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..core import mechanization_numba as nb
-from .static_model import H_ZUPT, expm_taylor, StaticConfig, StaticZuptCore
+from .static_model import H_ZUPT, _pkf_gain_rows_nb, expm_taylor, StaticConfig, StaticZuptCore  # noqa: F401
 
 
 @dataclass
@@ -67,93 +66,6 @@ def pkf_gain(F_k: np.ndarray, H: np.ndarray, p: int, R_e: np.ndarray, Q_m: np.nd
     return -np.linalg.solve(A, D_p.T @ R_e @ C_p)
 
 
-@nb._jit
-def _pkf_gain_rows_nb(F_k, p, re, qm, K5):
-    """The first n rows of :func:`pkf_gain` (the only ones eq. (17) reads), compiled, with ``H = [I2 0]``,
-    ``R_e = re I`` and ``Q_m = diag(qm)`` tiled over the horizon (the PKF's own weights); writes K5 (n, n).
-
-    By the push-through identity ``(D^T R D + Q)^-1 D^T R = Q^-1 D^T (R^-1 + D Q^-1 D^T)^-1`` the 5p x 5p solve of
-    eq. (16) becomes one of 2p x 2p: ``K = -Q^-1 D^T M^-1 C`` with ``M = I / re + D Q^-1 D^T`` (symmetric positive
-    definite: a Cholesky factor). The same gain up to rounding (docs/speed.md, fifth pass); ~35 -> ~3 us."""
-    n = F_k.shape[0]
-    q = 2
-    # HP[k] = H F^k: the first two rows of the powers, k = 0..p
-    HP = np.zeros((p + 1, q, n))
-    HP[0, 0, 0] = 1.0
-    HP[0, 1, 1] = 1.0
-    for k in range(1, p + 1):
-        for a in range(q):
-            for c in range(n):
-                s = 0.0
-                for r in range(n):
-                    s += HP[k - 1, a, r] * F_k[r, c]
-                HP[k, a, c] = s
-    # M[(i,a),(l,b)] = delta / re + sum_{j <= min(i,l)} G(i-j, l-j)[a,b], G(u,v) = HP[u] Q^-1 HP[v]^T: for i >= l
-    # the block (i, l) is G(i, l) plus the block (i-1, l-1)
-    HQ = np.empty((p + 1, q, n))
-    for k in range(p + 1):
-        for b in range(q):
-            for c in range(n):
-                HQ[k, b, c] = HP[k, b, c] / qm[c]
-    m = q * p
-    M = np.zeros((m, m))
-    for i in range(p):
-        for l in range(i + 1):
-            for a in range(q):
-                for b in range(q):
-                    s = 0.0
-                    for c in range(n):
-                        s += HP[i, a, c] * HQ[l, b, c]
-                    if l > 0:
-                        s += M[q * (i - 1) + a, q * (l - 1) + b]
-                    M[q * i + a, q * l + b] = s
-                    M[q * l + b, q * i + a] = s
-    for i in range(m):
-        M[i, i] += 1.0 / re
-    # Y = M^-1 C, C rows (i, a) = HP[i + 1][a]; Cholesky M = L L^T
-    L = np.zeros((m, m))
-    for i in range(m):
-        for j in range(i + 1):
-            s = M[i, j]
-            for k in range(j):
-                s -= L[i, k] * L[j, k]
-            if i == j:
-                if not s > 0.0:  # not positive definite in floating point: the general solve
-                    Y = np.linalg.solve(M, np.ascontiguousarray(HP[1:].reshape(m, n)))
-                    _pkf_rows_from(HP, Y, qm, K5)
-                    return
-                L[i, i] = math.sqrt(s)
-            else:
-                L[i, j] = s / L[j, j]
-    Y = np.empty((m, n))
-    for c in range(n):
-        for i in range(m):
-            s = HP[i // q + 1, i % q, c]
-            for k in range(i):
-                s -= L[i, k] * Y[k, c]
-            Y[i, c] = s / L[i, i]
-        for i in range(m - 1, -1, -1):
-            s = Y[i, c]
-            for k in range(i + 1, m):
-                s -= L[k, i] * Y[k, c]
-            Y[i, c] = s / L[i, i]
-    _pkf_rows_from(HP, Y, qm, K5)
-
-
-@nb._jit
-def _pkf_rows_from(HP, Y, qm, K5):
-    """K5 = -Q^-1 (D^T)[:n] Y: block column 0 of D is H F^i, i = 0..p-1."""
-    p = HP.shape[0] - 1
-    q, n = HP.shape[1], HP.shape[2]
-    for c in range(n):
-        for col in range(n):
-            s = 0.0
-            for i in range(p):
-                for a in range(q):
-                    s += HP[i, a, c] * Y[q * i + a, col]
-            K5[c, col] = -s / qm[c]
-
-
 class Pkf(StaticZuptCore):
     """PKF static alignment core (5 states + predicted model error applied to the sensor outputs)."""
 
@@ -186,3 +98,8 @@ class Pkf(StaticZuptCore):
     def _full_jacobian(self, F5: np.ndarray) -> np.ndarray:
         self._F_last = F5
         return F5
+
+    _fused_zupt = True  # _after_update is the kernel's PKF step (_pkf_args)
+
+    def _pkf_args(self):
+        return self.cfg.horizon_p, self.cfg.re_weight_per_m2_s2, self._qm, self.m_rate.copy()
