@@ -423,3 +423,35 @@ def test_fused_zero_velocity_step_matches_reference(monkeypatch, data, core, par
     for (C0, P0), (C1, P1) in zip(ref, fast):
         assert np.linalg.norm(earth.heading_error_enu_rad(C0, C1)) < 1e-9
         assert np.abs(P0 - P1).max() <= 1e-9 * np.abs(P0).max()
+
+
+def test_compiled_gnss_checks_and_terms_match_numpy(monkeypatch):
+    """The fix checks in floats take numpy's decisions (same reasons), and the compiled (z, H, N) of a fix equals the
+    numpy one to rounding (the invariant cores' ``_gnss_terms``, lever arm included)."""
+    from insalign_ros.filters import liekf
+
+    rng = np.random.default_rng(11)
+    p = np.array([4.0e6, 1.0e6, 4.8e6])
+    bad_R = np.array([[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    fixes = [(p, np.eye(3)), (np.array([np.nan, 0.0, 6.5e6]), np.eye(3)), (p, np.diag([1.0, np.inf, 1.0])), (p * 1.5, np.eye(3)),
+             (p * 0.9, np.eye(3)), (p, bad_R), (p[:2], np.eye(3)), (p, -np.eye(3))]
+    fixes += [(p * 7.0e6 / np.linalg.norm(p) * (1 + s), np.eye(3)) for s in (-1e-15, 0.0, 1e-15)]
+    for pe, R in fixes:
+        fix = GnssFix(1.0, pe, R)
+        monkeypatch.setattr(nb, "ENABLED", False)
+        ref = liekf._check_fix(fix)
+        monkeypatch.setattr(nb, "ENABLED", True)
+        assert liekf._check_fix(fix) == ref
+    d = ia.simulate("ship", seed=2, duration_s=5.0)
+    for name, lever in (("liekf", (0.0, 0.0, 0.0)), ("iekf", (1.5, -0.4, 2.0))):
+        terms = []
+        for enabled in (False, True):
+            monkeypatch.setattr(nb, "ENABLED", enabled)
+            c = registry.make_core(name, {"gnss_lever_arm_b_m": list(lever)})
+            c.initialize(float(d.t_s[0]), float(d.lat_rad[0]), float(d.lon_rad[0]), float(d.h_m[0]), d.C_b_n[0],
+                         d.v_n[0], np.eye(3) * 1e-2, 0.1, 1.0)
+            c.propagate_arrays(d.t_s[1:200], d.omega_ib_b[1:200], d.f_ib_b[1:200])
+            A = rng.normal(size=(3, 3)) if not terms else A
+            terms.append(c._gnss_terms(GnssFix(float(d.t_s[199]), d.gnss_p_e[1] + 3.0, A @ A.T + np.eye(3))))
+        for a, b in zip(*terms):
+            assert a.shape == b.shape and np.abs(a - b).max() <= 1e-12 * max(np.abs(a).max(), 1.0)

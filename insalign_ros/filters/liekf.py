@@ -269,6 +269,22 @@ def _spd3(R: np.ndarray) -> bool:
     return True
 
 
+@nb._jit
+def _gnss_terms_nb(c, s, p_e, R_e, C, p, lever, z, H, N):
+    """``BatchedEciCore._gnss_terms`` without a floor, compiled: with ``C_e_i = [[c,-s,0],[s,c,0],[0,0,1]]``,
+    ``p_i = C_e_i p_e``, ``R_i = C_e_i R_e C_e_i^T``, then ``_gnss_model``: ``z = C^T (p_i - p) - l``,
+    ``H = [-l_x, 0, I]`` (H zero on entry), ``N = C^T R_i C``."""
+    Cei = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    Ct = np.ascontiguousarray(C.T)
+    z[:] = Ct @ (Cei @ p_e - p) - lever
+    N[:, :] = Ct @ (Cei @ R_e @ np.ascontiguousarray(Cei.T)) @ C
+    H[0, 1], H[0, 2] = lever[2], -lever[1]
+    H[1, 0], H[1, 2] = -lever[2], lever[0]
+    H[2, 0], H[2, 1] = lever[1], -lever[0]
+    for i in range(3):
+        H[i, 6 + i] = 1.0
+
+
 def nis(S: np.ndarray, z: np.ndarray) -> float:
     """Normalised innovation squared z^T S^-1 z."""
     if nb.ENABLED:
@@ -295,6 +311,14 @@ def _check_fix(fix: GnssFix) -> str:
     R = np.asarray(fix.R_e, float)
     if p.shape != (3,) or R.shape != (3, 3):
         return f"bad shapes p_e {p.shape}, R_e {R.shape}"
+    if nb.ENABLED:  # the same tests in floats (numpy's per-call overhead was most of the ~13 us; twice per fix)
+        pl = p.tolist()
+        if not all(map(math.isfinite, pl + R.ravel().tolist())):
+            return "non-finite position or covariance"
+        norm = math.sqrt(pl[0] * pl[0] + pl[1] * pl[1] + pl[2] * pl[2])  # np.linalg.norm's sum, same order
+        if not 6.0e6 < norm < 7.0e6:
+            return f"ECEF position norm {norm:.0f} m is not near the Earth's surface"
+        return "" if _spd3(R) else "covariance R_e is not positive definite"
     if not (np.all(np.isfinite(p)) and np.all(np.isfinite(R))):
         return "non-finite position or covariance"
     if not 6.0e6 < np.linalg.norm(p) < 7.0e6:
@@ -655,6 +679,13 @@ class BatchedEciCore(AlignmentCore):
     def _gnss_terms(self, fix: GnssFix):
         """(z, H, N) of a fix at the core's current time (after flushing the buffered samples)."""
         self.flush()
+        if nb.ENABLED and type(self)._gnss_model is BatchedEciCore._gnss_model \
+                and not getattr(self.cfg, "gnss_sigma_floor_m", 0.0) > 0:  # the same products, one compiled call
+            a = earth.OMEGA_IE_RAD_S * (self.t_s - self.t0_s)
+            z, H, N = np.empty(3), np.zeros((3, self._n_states)), np.empty((3, 3))
+            _gnss_terms_nb(math.cos(a), math.sin(a), np.asarray(fix.p_e, float), np.asarray(fix.R_e, float),
+                           np.ascontiguousarray(self.C), np.asarray(self.p, float), self.lever_b, z, H, N)
+            return z, H, N
         Cei = earth.C_e_i(self.t_s, self.t0_s)
         p_i = Cei @ np.asarray(fix.p_e, float)
         R_i = Cei @ np.asarray(fix.R_e, float) @ Cei.T
