@@ -202,6 +202,15 @@ def _joseph_nb(P, H, N):
 
 
 @nb._jit
+def _prediction_nb(P, H, N, z):
+    """``BatchedEciCore._prediction`` compiled: ``S = H P H^T + N`` symmetrised (the products of :func:`_joseph_nb`)
+    and the NIS; returns (S, nis)."""
+    S = (H @ P) @ np.ascontiguousarray(H.T) + N
+    S = 0.5 * (S + S.T)
+    return S, _nis_nb(S, z)
+
+
+@nb._jit
 def _nis_nb(S, z):
     """z^T S^-1 z (LAPACK solve)."""
     y = np.linalg.solve(S, z)
@@ -711,6 +720,10 @@ class BatchedEciCore(AlignmentCore):
 
     def _prediction(self, terms) -> UpdateResult:
         z, H, N = terms
+        if nb.ENABLED:  # the same S (as in _joseph_nb) and NIS, one compiled call
+            S, nis_v = _prediction_nb(np.ascontiguousarray(self.P, dtype=float), np.ascontiguousarray(H, dtype=float),
+                                      np.ascontiguousarray(N, dtype=float), np.ascontiguousarray(z, dtype=float))
+            return UpdateResult(False, z, S, float(nis_v), "prediction only")
         S = H @ self.P @ H.T + N
         S = 0.5 * (S + S.T)
         return UpdateResult(False, z, S, nis(S, z), "prediction only")
