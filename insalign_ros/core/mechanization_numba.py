@@ -305,6 +305,29 @@ def eci_invariant_steps(C, v, p, W, F, DT, zn, zj, P, qrate, want_tot, tot):
 
 
 @_jit
+def eci_invariant_block(C, v, p, T, W, F, t_prev, b_g, b_a, zn, zj, P, qrate, want_tot, tot):
+    """One batch of ``BatchedEciCore._propagate_block`` on the fused path in one call: the intervals from
+    ``t_prev`` and the stamps T, the bias-corrected increments ``W - b_g``, ``F - b_a``,
+    :func:`eci_invariant_steps`, then the re-orthonormalisation of ``liekf.orthonormalize`` (one polar Newton step
+    ``C (3 I - C^T C) / 2``). Updates C, v, p, P (and tot) in place; returns the last corrected rate [rad/s]."""
+    n = T.shape[0]
+    DT = np.empty(n)
+    DT[0] = T[0] - t_prev
+    for k in range(1, n):
+        DT[k] = T[k] - T[k - 1]
+    Wc = np.empty((n, 3))
+    Fc = np.empty((n, 3))
+    for k in range(n):
+        for i in range(3):
+            Wc[k, i] = W[k, i] - b_g[i]
+            Fc[k, i] = F[k, i] - b_a[i]
+    eci_invariant_steps(C, v, p, Wc, Fc, DT, zn, zj, P, qrate, want_tot, tot)
+    M = 1.5 * np.eye(3) - 0.5 * (np.ascontiguousarray(C.T) @ C)
+    C[:, :] = C @ M
+    return Wc[n - 1].copy()
+
+
+@_jit
 def covariance_steps(P, Phi, q):
     """P <- Phi_k P Phi_k^T + diag(q_k) for k = 0..N-1 (Phi (N, d, d), q (N, d)); returns (P, Phi_N ... Phi_1).
 

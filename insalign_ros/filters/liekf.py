@@ -45,6 +45,7 @@ from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, GnssFix, Gn
 from .config import LiekfConfig
 
 _I3 = np.eye(3)
+_NO_TOT = np.eye(1)  # the fused kernel's transition product when no correction reads it (not written)
 
 
 # ------------------------------------------------------------------------------------ batched helpers
@@ -560,22 +561,27 @@ class BatchedEciCore(AlignmentCore):
 
     def _propagate_block(self, t: np.ndarray, w: np.ndarray, f: np.ndarray) -> None:
         """Propagate state and covariance over samples (t (N,) [s], raw omega_ib_b, f_ib_b (N, 3))."""
+        fs = self._fused_setup() if nb.ENABLED else None
+        if fs is not None and fs[0]:  # state, transitions, covariance and re-orthonormalisation in one compiled call
+            _, want_tot, qrate = fs
+            C, v, p = self.C.copy(), self.v.copy(), self.p.copy()
+            P = np.array(self.P, dtype=float)  # exactly symmetric on return (the kernel mirrors its upper triangle)
+            tot = np.eye(self._n_states) if want_tot else _NO_TOT
+            self.omega_b = nb.eci_invariant_block(C, v, p, np.asarray(t, float), np.asarray(w, float),
+                                                  np.asarray(f, float), self.t_s, np.asarray(self.b_g, float),
+                                                  np.asarray(self.b_a, float), nb._ZONAL_N, nb._ZONAL_J, P, qrate,
+                                                  want_tot, tot)
+            if want_tot:
+                self._Phi_since_update = tot @ self._Phi_since_update
+            self.P, self.C, self.v, self.p = P, C, v, p
+            self.t_s = float(t[-1])
+            return
         w = w - self.b_g
         f = f - self.b_a
         dt = np.empty(t.shape[0])
         dt[0] = t[0] - self.t_s
         np.subtract(t[1:], t[:-1], out=dt[1:])
-        fused = nb.ENABLED and self._fused_setup()[0]
-        if fused:  # state, transitions and covariance in one compiled loop (docs/speed.md)
-            _, want_tot, qrate = self._fused_setup()
-            C, v, p = self.C.copy(), self.v.copy(), self.p.copy()
-            P = np.array(self.P, dtype=float)  # exactly symmetric on return (the kernel mirrors its upper triangle)
-            tot = np.eye(self._n_states)
-            nb.eci_invariant_steps(C, v, p, w, f, dt, nb._ZONAL_N, nb._ZONAL_J, P, qrate, want_tot, tot)
-            self.P = P
-            if want_tot:
-                self._Phi_since_update = tot @ self._Phi_since_update
-        elif nb.ENABLED:  # compiled sequential loops (docs/speed.md); the numpy batch below is the reference path
+        if nb.ENABLED:  # compiled sequential loops (docs/speed.md); the numpy batch below is the reference path
             n = dt.shape[0]
             C, v, p = self.C.copy(), self.v.copy(), self.p.copy()
             dC, C_prev = np.empty((n, 3, 3)), np.empty((n, 3, 3))
@@ -593,8 +599,7 @@ class BatchedEciCore(AlignmentCore):
             C_prev, C, v, p = propagate_eci_batch(self.C, self.v, self.p, dt, dC, dv_b, dp_b)
             Phi, Qd = self._transitions(dC, dv_b, dp_b, dt, C_prev, f)
             self.P, Phi_tot = covariance_batch(self.P, Phi, Qd)
-        if not fused:
-            self._Phi_since_update = Phi_tot @ self._Phi_since_update
+        self._Phi_since_update = Phi_tot @ self._Phi_since_update
         self.omega_b = w[-1].copy()
         self.C = orthonormalize(C)  # once per batch
         self.v, self.p = v, p
