@@ -669,7 +669,8 @@ class AlignmentSession:
         mc = self._dts_min_cache  # (a lower bound of min(dts), at interval count, exact at count, that deque)
         if mc is None or mc[1] != c0 or mc[3] is not self.dts or c0 - mc[2] > self.dts.maxlen:
             mc = (min(self.dts), c0, c0, self.dts)
-        lb = min(mc[0], min(d), self._median_dt)
+        d_min = min(d)
+        lb = min(mc[0], d_min, self._median_dt)
         if max(d) > fac * lb or plan.dnextl[j - 1] > fac * lb:
             old = list(self.dts)
             alld = np.array(old + d)
@@ -685,6 +686,7 @@ class AlignmentSession:
                 d = d[:j - i]
             if j - i < 1:
                 return i
+            d_min = min(d)
         m = j - i
         # period tracking as _track_period per sample: the median at the last multiple of 20 intervals in the run
         p = (c0 + m) // 20 * 20
@@ -696,7 +698,7 @@ class AlignmentSession:
             self.dts.extend(d)
         self._dt_count = c0 + m
         # intervals only leave the window: the smaller of the old bound and the run's stays a lower bound
-        self._dts_min_cache = (min(mc[0], min(d)), c0 + m, mc[2], self.dts)
+        self._dts_min_cache = (min(mc[0], d_min), c0 + m, mc[2], self.dts)
         # the spike check's spread statistic, due at sample k when its interval count % 100 == 1: lazily
         if cfg.imu_spike_rad_s > 0 or cfg.imu_spike_m_s2 > 0:
             due = None if self._spread is not None else 0
