@@ -273,6 +273,16 @@ def test_compiled_update_helpers_match_numpy():
         assert np.abs(sm._corrected_attitude_nb(*phi, C) - mech.C_b_n).max() < 1e-15
     for p_e in rng.normal(scale=6e6, size=(10, 3)):
         np.testing.assert_array_equal(earth._omega_ie_cross(p_e), np.cross(earth.OMEGA_IE_E, p_e))
+    # the PKF gain's first rows by the 2p x 2p push-through form against eq. (16)'s 5p x 5p solve
+    from insalign_ros.filters import pkf
+    for p_h, re, qm in ((10, 1.0, np.array([1e10, 1e10, 1e10, 1e12, 1e10])), (3, 3.0, np.arange(1.0, 6.0)),
+                        (1, 1e-3, np.full(5, 1e2))):
+        for s in (1e-4, 0.1):
+            F5 = np.eye(5) + s * rng.normal(size=(5, 5))
+            K_ref = pkf.pkf_gain(F5, sm.H_ZUPT, p_h, np.eye(2 * p_h) * re, np.diag(np.tile(qm, p_h)))[:5]
+            K5 = np.empty((5, 5))
+            pkf._pkf_gain_rows_nb(F5, p_h, re, qm, K5)
+            assert np.abs(K5 - K_ref).max() <= 1e-13 * np.abs(K_ref).max()
     buf = liekf.ImuBuffer()  # rows (per-sample propagate) and blocks (propagate_arrays) in one buffer, in order
     buf.add(1.0, np.ones(3), 2 * np.ones(3))
     buf.add_block(np.array([2.0, 3.0]), np.arange(6.0).reshape(2, 3), np.arange(6.0, 12.0).reshape(2, 3))
@@ -382,3 +392,66 @@ def test_usable_imu_arrays_compiled_decides_as_numpy(monkeypatch):
         if a is not None:
             assert np.array_equal(a[3], b[3])
     assert usable_imu_arrays(t, w, f, 9.99) is not None and usable_imu_arrays(*cases[4][:3], 9.99) is None
+
+
+@pytest.mark.parametrize("core,params", [("ekf10", {"azimuth_bootstrap_s": 0.0}),
+                                         ("pkf", {"azimuth_bootstrap_s": 0.0, "azimuth_feedback_sigma_deg": 5.0})])
+def test_fused_zero_velocity_step_matches_reference(monkeypatch, data, core, params):
+    """The static cores' whole compiled zero-velocity step (``_zupt_step_nb``: prediction, OC nullspace, update, PKF
+    model-error step, feedback) against the numpy reference, driven directly with a 5 deg azimuth sigma so that both
+    feedback branches run (through ``ia.align`` the 10-state EKF never feeds the azimuth back: its sigma stays large):
+    attitude < 1e-9 rad, covariance 1e-9 relative, after every update."""
+    d = data["static"]
+    runs = []
+    for enabled in (False, True):
+        monkeypatch.setattr(nb, "ENABLED", enabled)
+        c = registry.make_core(core, params)
+        c.initialize(float(d.t_s[0]), float(d.lat_rad[0]), float(d.lon_rad[0]), float(d.h_m[0]),
+                     earth.C_b_n_from_rpy(0.01, -0.01, 0.05) @ d.C_b_n[0], np.zeros(3),
+                     np.diag(np.radians([1.0, 1.0, 5.0]) ** 2), 0.1, 1.0)
+        seen, branches = [], set()
+        for k0 in range(1, 1200, 12):
+            c.propagate_arrays(d.t_s[k0:k0 + 12], d.omega_ib_b[k0:k0 + 12], d.f_ib_b[k0:k0 + 12])
+            sig = np.sqrt(c.P[4, 4])
+            assert c.update_zero_velocity(float(d.t_s[k0 + 11]), 0.01).accepted
+            branches.add(bool(sig < c.cfg.azimuth_feedback_sigma_deg * np.pi / 180.0))
+            e = c.estimate()
+            seen.append((e.C_b_n, e.P))
+        runs.append((seen, branches))
+    (ref, b_ref), (fast, _) = runs
+    assert b_ref == ({True} if core == "ekf10" else {False, True}), b_ref  # the azimuth fed back (both branches)
+    for (C0, P0), (C1, P1) in zip(ref, fast):
+        assert np.linalg.norm(earth.heading_error_enu_rad(C0, C1)) < 1e-9
+        assert np.abs(P0 - P1).max() <= 1e-9 * np.abs(P0).max()
+
+
+def test_compiled_gnss_checks_and_terms_match_numpy(monkeypatch):
+    """The fix checks in floats take numpy's decisions (same reasons), and the compiled (z, H, N) of a fix equals the
+    numpy one to rounding (the invariant cores' ``_gnss_terms``, lever arm included)."""
+    from insalign_ros.filters import liekf
+
+    rng = np.random.default_rng(11)
+    p = np.array([4.0e6, 1.0e6, 4.8e6])
+    bad_R = np.array([[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    fixes = [(p, np.eye(3)), (np.array([np.nan, 0.0, 6.5e6]), np.eye(3)), (p, np.diag([1.0, np.inf, 1.0])), (p * 1.5, np.eye(3)),
+             (p * 0.9, np.eye(3)), (p, bad_R), (p[:2], np.eye(3)), (p, -np.eye(3))]
+    fixes += [(p * 7.0e6 / np.linalg.norm(p) * (1 + s), np.eye(3)) for s in (-1e-15, 0.0, 1e-15)]
+    for pe, R in fixes:
+        fix = GnssFix(1.0, pe, R)
+        monkeypatch.setattr(nb, "ENABLED", False)
+        ref = liekf._check_fix(fix)
+        monkeypatch.setattr(nb, "ENABLED", True)
+        assert liekf._check_fix(fix) == ref
+    d = ia.simulate("ship", seed=2, duration_s=5.0)
+    for name, lever in (("liekf", (0.0, 0.0, 0.0)), ("iekf", (1.5, -0.4, 2.0))):
+        terms = []
+        for enabled in (False, True):
+            monkeypatch.setattr(nb, "ENABLED", enabled)
+            c = registry.make_core(name, {"gnss_lever_arm_b_m": list(lever)})
+            c.initialize(float(d.t_s[0]), float(d.lat_rad[0]), float(d.lon_rad[0]), float(d.h_m[0]), d.C_b_n[0],
+                         d.v_n[0], np.eye(3) * 1e-2, 0.1, 1.0)
+            c.propagate_arrays(d.t_s[1:200], d.omega_ib_b[1:200], d.f_ib_b[1:200])
+            A = rng.normal(size=(3, 3)) if not terms else A
+            terms.append(c._gnss_terms(GnssFix(float(d.t_s[199]), d.gnss_p_e[1] + 3.0, A @ A.T + np.eye(3))))
+        for a, b in zip(*terms):
+            assert a.shape == b.shape and np.abs(a - b).max() <= 1e-12 * max(np.abs(a).max(), 1.0)

@@ -241,6 +241,26 @@ def _sparse_rows_mm(A, B, hi, d, dt, out):
 
 
 @_jit
+def _sparse_rows_mm_lower(A, T, hi, d, dt, out):
+    """The lower triangle (j <= i) of ``out = A T^T`` for the structure of :func:`_sparse_rows_mm`, reading T^T in
+    place: each out[i, j] is the sum of :func:`_sparse_rows_mm` on the transposed copy, in the same order (the same
+    numbers, without the copy and the upper triangle that the caller overwrites by symmetry)."""
+    for i in range(9):
+        for j in range(i + 1):
+            out[i, j] = 0.0
+        for m in range(hi[i]):
+            a = A[i, m]
+            for j in range(i + 1):
+                out[i, j] += a * T[j, m]
+        if d == 15 and i < 6:
+            for j in range(i + 1):
+                out[i, j] += -dt * T[j, 9 + i]
+    for i in range(9, d):
+        for j in range(i + 1):
+            out[i, j] = T[j, i]
+
+
+@_jit
 def eci_invariant_steps(C, v, p, W, F, DT, zn, zj, P, qrate, want_tot, tot):
     """:func:`eci_steps` fused with the left-invariant error transition and the covariance, sample by sample,
     without forming the (N, d, d) transitions: per step ``Phi = [[R, 0, 0], [a_x R, R, 0], [b_x R, dt R, R]]`` with
@@ -261,7 +281,6 @@ def eci_invariant_steps(C, v, p, W, F, DT, zn, zj, P, qrate, want_tot, tot):
     for i in range(9, d):
         A[i, i] = 1.0
     T = np.empty((d, d))
-    U = np.empty((d, d))
     tot2 = np.empty((d, d))
     for k in range(W.shape[0]):
         dt = DT[k]
@@ -291,10 +310,7 @@ def eci_invariant_steps(C, v, p, W, F, DT, zn, zj, P, qrate, want_tot, tot):
         if want_tot:
             _sparse_rows_mm(A, tot, hi, d, dt, tot2)
             tot[:, :] = tot2
-        for i in range(d):
-            for j in range(d):
-                U[i, j] = T[j, i]
-        _sparse_rows_mm(A, U, hi, d, dt, P)  # P = A (A P)^T = A P A^T; row j holds the sums of the upper triangle
+        _sparse_rows_mm_lower(A, T, hi, d, dt, P)  # P = A (A P)^T = A P A^T; its lower triangle, mirrored below
         for i in range(d):
             for j in range(i + 1, d):
                 P[i, j] = P[j, i]
@@ -302,6 +318,29 @@ def eci_invariant_steps(C, v, p, W, F, DT, zn, zj, P, qrate, want_tot, tot):
     for i in range(3):
         p[i] = p[i] + dpa[i]
         v[i] = v[i] + dva[i]
+
+
+@_jit
+def eci_invariant_block(C, v, p, T, W, F, t_prev, b_g, b_a, zn, zj, P, qrate, want_tot, tot):
+    """One batch of ``BatchedEciCore._propagate_block`` on the fused path in one call: the intervals from
+    ``t_prev`` and the stamps T, the bias-corrected increments ``W - b_g``, ``F - b_a``,
+    :func:`eci_invariant_steps`, then the re-orthonormalisation of ``liekf.orthonormalize`` (one polar Newton step
+    ``C (3 I - C^T C) / 2``). Updates C, v, p, P (and tot) in place; returns the last corrected rate [rad/s]."""
+    n = T.shape[0]
+    DT = np.empty(n)
+    DT[0] = T[0] - t_prev
+    for k in range(1, n):
+        DT[k] = T[k] - T[k - 1]
+    Wc = np.empty((n, 3))
+    Fc = np.empty((n, 3))
+    for k in range(n):
+        for i in range(3):
+            Wc[k, i] = W[k, i] - b_g[i]
+            Fc[k, i] = F[k, i] - b_a[i]
+    eci_invariant_steps(C, v, p, Wc, Fc, DT, zn, zj, P, qrate, want_tot, tot)
+    M = 1.5 * np.eye(3) - 0.5 * (np.ascontiguousarray(C.T) @ C)
+    C[:, :] = C @ M
+    return Wc[n - 1].copy()
 
 
 @_jit

@@ -80,14 +80,15 @@ class Ekf10(StaticZuptCore):
         F[:5, 5:] = G
         return F
 
-    def _process_noise(self, dt: float) -> np.ndarray:
-        Q = np.zeros((10, 10))
-        Q[:5, :5] = super()._process_noise(dt)
+    def _q_rate(self) -> np.ndarray:
         qa = (self.cfg.acc_bias_rw_mg_sqrt_h * MG / 60.0) ** 2
         qg = (self.cfg.gyro_bias_rw_deg_h_sqrt_h * DEG_H / 60.0) ** 2
-        Q[5:7, 5:7] = np.eye(2) * qa * dt
-        Q[7:10, 7:10] = np.eye(3) * qg * dt
-        return Q
+        return np.r_[super()._q_rate(), qa, qa, qg, qg, qg]
+
+    _fused_zupt = True  # G, the nullspace (_oc_w_h) and _feedback_bias are the kernel's 10-state branches
+
+    def _oc_w_h(self) -> float:
+        return earth.OMEGA_IE_RAD_S * math.cos(self.mech.lat_rad)
 
     def _feedback_bias(self) -> None:
         x = self.x

@@ -45,6 +45,7 @@ from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, GnssFix, Gn
 from .config import LiekfConfig
 
 _I3 = np.eye(3)
+_NO_TOT = np.eye(1)  # the fused kernel's transition product when no correction reads it (not written)
 
 
 # ------------------------------------------------------------------------------------ batched helpers
@@ -202,6 +203,15 @@ def _joseph_nb(P, H, N):
 
 
 @nb._jit
+def _prediction_nb(P, H, N, z):
+    """``BatchedEciCore._prediction`` compiled: ``S = H P H^T + N`` symmetrised (the products of :func:`_joseph_nb`)
+    and the NIS; returns (S, nis)."""
+    S = (H @ P) @ np.ascontiguousarray(H.T) + N
+    S = 0.5 * (S + S.T)
+    return S, _nis_nb(S, z)
+
+
+@nb._jit
 def _nis_nb(S, z):
     """z^T S^-1 z (LAPACK solve)."""
     y = np.linalg.solve(S, z)
@@ -269,6 +279,22 @@ def _spd3(R: np.ndarray) -> bool:
     return True
 
 
+@nb._jit
+def _gnss_terms_nb(c, s, p_e, R_e, C, p, lever, z, H, N):
+    """``BatchedEciCore._gnss_terms`` without a floor, compiled: with ``C_e_i = [[c,-s,0],[s,c,0],[0,0,1]]``,
+    ``p_i = C_e_i p_e``, ``R_i = C_e_i R_e C_e_i^T``, then ``_gnss_model``: ``z = C^T (p_i - p) - l``,
+    ``H = [-l_x, 0, I]`` (H zero on entry), ``N = C^T R_i C``."""
+    Cei = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    Ct = np.ascontiguousarray(C.T)
+    z[:] = Ct @ (Cei @ p_e - p) - lever
+    N[:, :] = Ct @ (Cei @ R_e @ np.ascontiguousarray(Cei.T)) @ C
+    H[0, 1], H[0, 2] = lever[2], -lever[1]
+    H[1, 0], H[1, 2] = -lever[2], lever[0]
+    H[2, 0], H[2, 1] = lever[1], -lever[0]
+    for i in range(3):
+        H[i, 6 + i] = 1.0
+
+
 def nis(S: np.ndarray, z: np.ndarray) -> float:
     """Normalised innovation squared z^T S^-1 z."""
     if nb.ENABLED:
@@ -295,6 +321,14 @@ def _check_fix(fix: GnssFix) -> str:
     R = np.asarray(fix.R_e, float)
     if p.shape != (3,) or R.shape != (3, 3):
         return f"bad shapes p_e {p.shape}, R_e {R.shape}"
+    if nb.ENABLED:  # the same tests in floats (numpy's per-call overhead was most of the ~13 us; twice per fix)
+        pl = p.tolist()
+        if not all(map(math.isfinite, pl + R.ravel().tolist())):
+            return "non-finite position or covariance"
+        norm = math.sqrt(pl[0] * pl[0] + pl[1] * pl[1] + pl[2] * pl[2])  # np.linalg.norm's sum, same order
+        if not 6.0e6 < norm < 7.0e6:
+            return f"ECEF position norm {norm:.0f} m is not near the Earth's surface"
+        return "" if _spd3(R) else "covariance R_e is not positive definite"
     if not (np.all(np.isfinite(p)) and np.all(np.isfinite(R))):
         return "non-finite position or covariance"
     if not 6.0e6 < np.linalg.norm(p) < 7.0e6:
@@ -527,22 +561,27 @@ class BatchedEciCore(AlignmentCore):
 
     def _propagate_block(self, t: np.ndarray, w: np.ndarray, f: np.ndarray) -> None:
         """Propagate state and covariance over samples (t (N,) [s], raw omega_ib_b, f_ib_b (N, 3))."""
+        fs = self._fused_setup() if nb.ENABLED else None
+        if fs is not None and fs[0]:  # state, transitions, covariance and re-orthonormalisation in one compiled call
+            _, want_tot, qrate = fs
+            C, v, p = self.C.copy(), self.v.copy(), self.p.copy()
+            P = np.array(self.P, dtype=float)  # exactly symmetric on return (the kernel mirrors its upper triangle)
+            tot = np.eye(self._n_states) if want_tot else _NO_TOT
+            self.omega_b = nb.eci_invariant_block(C, v, p, np.asarray(t, float), np.asarray(w, float),
+                                                  np.asarray(f, float), self.t_s, np.asarray(self.b_g, float),
+                                                  np.asarray(self.b_a, float), nb._ZONAL_N, nb._ZONAL_J, P, qrate,
+                                                  want_tot, tot)
+            if want_tot:
+                self._Phi_since_update = tot @ self._Phi_since_update
+            self.P, self.C, self.v, self.p = P, C, v, p
+            self.t_s = float(t[-1])
+            return
         w = w - self.b_g
         f = f - self.b_a
         dt = np.empty(t.shape[0])
         dt[0] = t[0] - self.t_s
         np.subtract(t[1:], t[:-1], out=dt[1:])
-        fused = nb.ENABLED and self._fused_setup()[0]
-        if fused:  # state, transitions and covariance in one compiled loop (docs/speed.md)
-            _, want_tot, qrate = self._fused_setup()
-            C, v, p = self.C.copy(), self.v.copy(), self.p.copy()
-            P = np.array(self.P, dtype=float)  # exactly symmetric on return (the kernel mirrors its upper triangle)
-            tot = np.eye(self._n_states)
-            nb.eci_invariant_steps(C, v, p, w, f, dt, nb._ZONAL_N, nb._ZONAL_J, P, qrate, want_tot, tot)
-            self.P = P
-            if want_tot:
-                self._Phi_since_update = tot @ self._Phi_since_update
-        elif nb.ENABLED:  # compiled sequential loops (docs/speed.md); the numpy batch below is the reference path
+        if nb.ENABLED:  # compiled sequential loops (docs/speed.md); the numpy batch below is the reference path
             n = dt.shape[0]
             C, v, p = self.C.copy(), self.v.copy(), self.p.copy()
             dC, C_prev = np.empty((n, 3, 3)), np.empty((n, 3, 3))
@@ -560,8 +599,7 @@ class BatchedEciCore(AlignmentCore):
             C_prev, C, v, p = propagate_eci_batch(self.C, self.v, self.p, dt, dC, dv_b, dp_b)
             Phi, Qd = self._transitions(dC, dv_b, dp_b, dt, C_prev, f)
             self.P, Phi_tot = covariance_batch(self.P, Phi, Qd)
-        if not fused:
-            self._Phi_since_update = Phi_tot @ self._Phi_since_update
+        self._Phi_since_update = Phi_tot @ self._Phi_since_update
         self.omega_b = w[-1].copy()
         self.C = orthonormalize(C)  # once per batch
         self.v, self.p = v, p
@@ -655,6 +693,13 @@ class BatchedEciCore(AlignmentCore):
     def _gnss_terms(self, fix: GnssFix):
         """(z, H, N) of a fix at the core's current time (after flushing the buffered samples)."""
         self.flush()
+        if nb.ENABLED and type(self)._gnss_model is BatchedEciCore._gnss_model \
+                and not getattr(self.cfg, "gnss_sigma_floor_m", 0.0) > 0:  # the same products, one compiled call
+            a = earth.OMEGA_IE_RAD_S * (self.t_s - self.t0_s)
+            z, H, N = np.empty(3), np.zeros((3, self._n_states)), np.empty((3, 3))
+            _gnss_terms_nb(math.cos(a), math.sin(a), np.asarray(fix.p_e, float), np.asarray(fix.R_e, float),
+                           np.ascontiguousarray(self.C), np.asarray(self.p, float), self.lever_b, z, H, N)
+            return z, H, N
         Cei = earth.C_e_i(self.t_s, self.t0_s)
         p_i = Cei @ np.asarray(fix.p_e, float)
         R_i = Cei @ np.asarray(fix.R_e, float) @ Cei.T
@@ -680,6 +725,10 @@ class BatchedEciCore(AlignmentCore):
 
     def _prediction(self, terms) -> UpdateResult:
         z, H, N = terms
+        if nb.ENABLED:  # the same S (as in _joseph_nb) and NIS, one compiled call
+            S, nis_v = _prediction_nb(np.ascontiguousarray(self.P, dtype=float), np.ascontiguousarray(H, dtype=float),
+                                      np.ascontiguousarray(N, dtype=float), np.ascontiguousarray(z, dtype=float))
+            return UpdateResult(False, z, S, float(nis_v), "prediction only")
         S = H @ self.P @ H.T + N
         S = 0.5 * (S + S.T)
         return UpdateResult(False, z, S, nis(S, z), "prediction only")

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core import mechanization_numba as nb
-from .static_model import H_ZUPT, expm_taylor, StaticConfig, StaticZuptCore
+from .static_model import H_ZUPT, _pkf_gain_rows_nb, expm_taylor, StaticConfig, StaticZuptCore  # noqa: F401
 
 
 @dataclass
@@ -66,29 +66,6 @@ def pkf_gain(F_k: np.ndarray, H: np.ndarray, p: int, R_e: np.ndarray, Q_m: np.nd
     return -np.linalg.solve(A, D_p.T @ R_e @ C_p)
 
 
-@nb._jit
-def _pkf_gain_nb(F_k, H, p, R_e, Q_m, K):
-    """:func:`pkf_gain` compiled (the same C_p, D_p, products and solve); writes K (n p, n)."""
-    n = F_k.shape[0]
-    q = H.shape[0]
-    powers = np.empty((p + 1, n, n))
-    powers[0] = np.eye(n)
-    for i in range(1, p + 1):
-        powers[i] = powers[i - 1] @ F_k
-    HP = np.empty((p + 1, q, n))
-    for i in range(p + 1):
-        HP[i] = H @ powers[i]
-    C_p = np.empty((q * p, n))
-    D_p = np.zeros((q * p, n * p))
-    for i in range(p):
-        C_p[q * i:q * (i + 1), :] = HP[i + 1]
-        for j in range(i + 1):
-            D_p[q * i:q * (i + 1), n * j:n * (j + 1)] = HP[i - j]
-    DtR = np.ascontiguousarray(D_p.T) @ R_e
-    A = DtR @ D_p + Q_m
-    K[:, :] = -np.linalg.solve(A, DtR @ C_p)
-
-
 class Pkf(StaticZuptCore):
     """PKF static alignment core (5 states + predicted model error applied to the sensor outputs)."""
 
@@ -103,15 +80,16 @@ class Pkf(StaticZuptCore):
         qm = np.array([c.qm_velocity_per_m2_s2] * 2
                       + [c.qm_attitude_north_per_rad2, c.qm_attitude_east_per_rad2, c.qm_attitude_down_per_rad2])
         self._Q_m = np.diag(np.tile(qm, p))
+        self._qm = qm
 
     def _after_update(self, x_start: np.ndarray, dt: float) -> None:
         dx = self.x - x_start
         if nb.ENABLED:  # exp(F5 dt) is the transition the compiled update formed (no OC correction in the PKF)
-            K = np.empty((5 * self.cfg.horizon_p, 5))
-            _pkf_gain_nb(self._Phi_raw, H_ZUPT, self.cfg.horizon_p, self._R_e, self._Q_m, K)
+            K5 = np.empty((5, 5))
+            _pkf_gain_rows_nb(self._Phi_raw, self.cfg.horizon_p, self.cfg.re_weight_per_m2_s2, self._qm, K5)
         else:
-            K = pkf_gain(expm_taylor(self._F_last * dt), H_ZUPT, self.cfg.horizon_p, self._R_e, self._Q_m)
-        dm = K[:5] @ dx
+            K5 = pkf_gain(expm_taylor(self._F_last * dt), H_ZUPT, self.cfg.horizon_p, self._R_e, self._Q_m)[:5]
+        dm = K5 @ dx
         self.m_rate = self.m_rate + dm / dt
         # apply: velocity rows gain +m  -> f_corr = f + C^b m_v ; attitude rows gain +m -> w_corr = w - C^b m_att
         self.mech.acc_correction_b = -self.body_from_ned(np.array([self.m_rate[0], self.m_rate[1], 0.0]))
@@ -120,3 +98,8 @@ class Pkf(StaticZuptCore):
     def _full_jacobian(self, F5: np.ndarray) -> np.ndarray:
         self._F_last = F5
         return F5
+
+    _fused_zupt = True  # _after_update is the kernel's PKF step (_pkf_args)
+
+    def _pkf_args(self):
+        return self.cfg.horizon_p, self.cfg.re_weight_per_m2_s2, self._qm, self.m_rate.copy()

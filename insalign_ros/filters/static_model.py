@@ -129,6 +129,7 @@ def _jacobian_nb(x, f_np, lat, r_m, m, F):
 
 _OMEGA_IE = earth.OMEGA_IE_RAD_S
 _M0 = np.zeros(5)
+_NE_PAIRS = np.array([0, 2, 5, 7])
 
 
 @nb._jit
@@ -261,6 +262,172 @@ def _zupt_cov_update_nb(x, P, F, dt, Q, N_k, N_next, use_oc, z, r2, Phi_raw, inn
     return innov[0] * sol[0] + innov[1] * sol[1]
 
 
+@nb._jit
+def _pkf_gain_rows_nb(F_k, p, re, qm, K5):
+    """The first n rows of :func:`pkf.pkf_gain` (the only ones eq. (17) reads), compiled, with ``H = [I2 0]``,
+    ``R_e = re I`` and ``Q_m = diag(qm)`` tiled over the horizon (the PKF's own weights); writes K5 (n, n).
+
+    By the push-through identity ``(D^T R D + Q)^-1 D^T R = Q^-1 D^T (R^-1 + D Q^-1 D^T)^-1`` the 5p x 5p solve of
+    eq. (16) becomes one of 2p x 2p: ``K = -Q^-1 D^T M^-1 C`` with ``M = I / re + D Q^-1 D^T`` (symmetric positive
+    definite: a Cholesky factor). The same gain up to rounding (docs/speed.md, fifth pass); ~35 -> ~3 us."""
+    n = F_k.shape[0]
+    q = 2
+    # HP[k] = H F^k: the first two rows of the powers, k = 0..p
+    HP = np.zeros((p + 1, q, n))
+    HP[0, 0, 0] = 1.0
+    HP[0, 1, 1] = 1.0
+    for k in range(1, p + 1):
+        for a in range(q):
+            for c in range(n):
+                s = 0.0
+                for r in range(n):
+                    s += HP[k - 1, a, r] * F_k[r, c]
+                HP[k, a, c] = s
+    # M[(i,a),(l,b)] = delta / re + sum_{j <= min(i,l)} G(i-j, l-j)[a,b], G(u,v) = HP[u] Q^-1 HP[v]^T: for i >= l
+    # the block (i, l) is G(i, l) plus the block (i-1, l-1)
+    HQ = np.empty((p + 1, q, n))
+    for k in range(p + 1):
+        for b in range(q):
+            for c in range(n):
+                HQ[k, b, c] = HP[k, b, c] / qm[c]
+    m = q * p
+    M = np.zeros((m, m))
+    for i in range(p):
+        for l in range(i + 1):
+            for a in range(q):
+                for b in range(q):
+                    s = 0.0
+                    for c in range(n):
+                        s += HP[i, a, c] * HQ[l, b, c]
+                    if l > 0:
+                        s += M[q * (i - 1) + a, q * (l - 1) + b]
+                    M[q * i + a, q * l + b] = s
+                    M[q * l + b, q * i + a] = s
+    for i in range(m):
+        M[i, i] += 1.0 / re
+    # Y = M^-1 C, C rows (i, a) = HP[i + 1][a]; Cholesky M = L L^T
+    L = np.zeros((m, m))
+    for i in range(m):
+        for j in range(i + 1):
+            s = M[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            if i == j:
+                if not s > 0.0:  # not positive definite in floating point: the general solve
+                    Y = np.linalg.solve(M, np.ascontiguousarray(HP[1:].reshape(m, n)))
+                    _pkf_rows_from(HP, Y, qm, K5)
+                    return
+                L[i, i] = math.sqrt(s)
+            else:
+                L[i, j] = s / L[j, j]
+    Y = np.empty((m, n))
+    for c in range(n):
+        for i in range(m):
+            s = HP[i // q + 1, i % q, c]
+            for k in range(i):
+                s -= L[i, k] * Y[k, c]
+            Y[i, c] = s / L[i, i]
+        for i in range(m - 1, -1, -1):
+            s = Y[i, c]
+            for k in range(i + 1, m):
+                s -= L[k, i] * Y[k, c]
+            Y[i, c] = s / L[i, i]
+    _pkf_rows_from(HP, Y, qm, K5)
+
+
+@nb._jit
+def _pkf_rows_from(HP, Y, qm, K5):
+    """K5 = -Q^-1 (D^T)[:n] Y: block column 0 of D is H F^i, i = 0..p-1."""
+    p = HP.shape[0] - 1
+    q, n = HP.shape[1], HP.shape[2]
+    for c in range(n):
+        for col in range(n):
+            s = 0.0
+            for i in range(p):
+                for a in range(q):
+                    s += HP[i, a, c] * Y[q * i + a, col]
+            K5[c, col] = -s / qm[c]
+
+
+@nb._jit
+def _zupt_step_nb(x, P, f_np, lat, r_m, m, dt, with_G, qrate, oc_w_h, N_k, r2, pkf_p, re, qm, m_rate, C, v,
+                  acc_corr, gyro_corr, az_thr, innov, S, N_next, Phi_raw):
+    """One whole compiled zero-velocity step of :meth:`StaticZuptCore.update_zero_velocity` after the interval's
+    flush: the eq. (34) prediction (:func:`_zupt_predict_nb`; with ``with_G`` the 10-state EKF's model-error columns
+    :func:`model_error_jacobian_nb`), the OC-EKF nullspace at the predicted azimuth when ``oc_w_h > 0`` (the
+    10-state EKF's ``_nullspace``: ``[0,0,0,0,1,0,0,w_h sin, w_h cos,0]``, written to N_next), the covariance
+    prediction with ``Q = diag(qrate) dt`` and the eq. (32) update (:func:`_zupt_cov_update_nb`, z = the mechanised
+    velocity in NED), with ``pkf_p > 0`` the PKF's model-error step (eq. (16)-(17), :func:`_pkf_gain_rows_nb`,
+    ``m_rate`` and the sensor corrections), then the feedback of :meth:`StaticZuptCore._feedback` (velocity, the
+    attitude, the azimuth reset Jacobian on P and N_next when ``sqrt(P[4,4]) < az_thr``) and the 10-state EKF's
+    bias feedback. x, P, m_rate, C, v, acc_corr, gyro_corr are updated in place; returns the NIS."""
+    n = x.shape[0]
+    x_start = x.copy()
+    x5 = x[:5].copy()
+    x5n = np.empty(5)
+    F5 = np.empty((5, 5))
+    _zupt_predict_nb(x5, f_np, lat, r_m, m, dt, x5n, F5)
+    F = np.zeros((n, n))
+    F[:5, :5] = F5
+    if with_G:
+        G = np.zeros((5, 5))
+        model_error_jacobian_nb(x5, f_np, lat, r_m, G)
+        F[:5, 5:10] = G
+    x[:5] = x5n
+    use_oc = oc_w_h > 0.0
+    if use_oc:
+        N_next[:] = 0.0
+        N_next[4] = 1.0
+        N_next[7], N_next[8] = oc_w_h * math.sin(x[4]), oc_w_h * math.cos(x[4])
+    Q = np.zeros((n, n))
+    for i in range(n):
+        Q[i, i] = qrate[i] * dt
+    z = np.array([v[1], v[0]])  # ned_from_enu(v)[0:2]
+    nis = _zupt_cov_update_nb(x, P, F, dt, Q, N_k, N_next, use_oc, z, r2, Phi_raw, innov, S)
+    if pkf_p > 0:  # Pkf._after_update: dm = K[:5] dx, m += dm / dt, applied to the sensor outputs in body axes
+        K5 = np.empty((5, 5))
+        _pkf_gain_rows_nb(Phi_raw, pkf_p, re, qm, K5)
+        for c in range(5):
+            s = 0.0
+            for r in range(5):
+                s += K5[c, r] * (x[r] - x_start[r])
+            m_rate[c] = m_rate[c] + s / dt
+        _body_from_ned(C, m_rate[1], m_rate[0], -0.0, -1.0, acc_corr, False)
+        _body_from_ned(C, m_rate[3], m_rate[2], -m_rate[4], 1.0, gyro_corr, False)
+    # StaticZuptCore._feedback
+    v[0] = v[0] - x[1]
+    v[1] = v[1] - x[0]
+    v[2] = 0.0
+    if math.sqrt(max(P[4, 4], 0.0)) < az_thr:
+        C[:, :] = _corrected_attitude_nb(x[2], x[3], x[4], C)
+        c, s = math.cos(x[4]), math.sin(x[4])
+        J = np.eye(n)
+        for k in range(2 + (n - 5) // 2):  # the (N, E) pairs: velocity, level (and the 10-state EKF's biases)
+            i = _NE_PAIRS[k]
+            J[i, i], J[i, i + 1], J[i + 1, i], J[i + 1, i + 1] = c, -s, s, c
+        Pn = J @ P @ np.ascontiguousarray(J.T)
+        P[:, :] = Pn
+        if use_oc:
+            N_next[:] = J @ N_next
+        x[4] = 0.0
+    else:
+        C[:, :] = _corrected_attitude_nb(x[2], x[3], 0.0, C)
+    x[0:4] = 0.0
+    if n > 5:  # Ekf10._feedback_bias
+        _body_from_ned(C, x[6], x[5], -0.0, 1.0, acc_corr, True)
+        _body_from_ned(C, x[8], x[7], -x[9], 1.0, gyro_corr, True)
+        x[5:] = 0.0
+    return nis
+
+
+@nb._jit
+def _body_from_ned(C, a, b, c, sign, out, add):
+    """out (+)= sign C^T [a, b, c] (``body_from_ned`` of a NED vector whose ENU form is [a, b, c])."""
+    for i in range(3):
+        y = sign * (C[0, i] * a + C[1, i] * b + C[2, i] * c)
+        out[i] = out[i] + y if add else y
+
+
 def f_model(x: np.ndarray, u: StaticModelInputs, m_prime: np.ndarray | None = None) -> np.ndarray:
     """Continuous nonlinear model f(x, m') of eq. (34) (derivation in the module docstring).
 
@@ -390,6 +557,7 @@ class StaticZuptCore(AlignmentCore):
 
     name = "static"
     supports_zero_velocity = True
+    _fused_zupt = True  #: this class's hooks are the ones :func:`_zupt_step_nb` implements (declared per class)
     vel_index = (0, 1)  # dvN dvE
     att_index = (2, 3, 4)  # phiN phiE phiD
 
@@ -472,11 +640,7 @@ class StaticZuptCore(AlignmentCore):
         m.C_b_n, m.v_n = C, v
 
     def _process_noise(self, dt: float) -> np.ndarray:
-        q = np.zeros(5)
-        vrw = (self.cfg.acc_vrw_m_s_sqrt_h / 60.0) ** 2 + self.cfg.vibration_vrw_m_s_sqrt_s**2
-        q[0:2] = vrw
-        q[2:5] = (self.cfg.gyro_arw_deg_sqrt_h * D2R / 60.0) ** 2
-        return np.diag(q) * dt
+        return np.diag(self._q_rate()) * dt
 
     def _full_jacobian(self, F5: np.ndarray) -> np.ndarray:
         return F5
@@ -547,6 +711,52 @@ class StaticZuptCore(AlignmentCore):
         return UpdateResult(True, innovation=innov, S=S, nis=nis)
 
     def _zupt_compiled(self, u, m_prime, x_start, dt, stamp_s, sigma_v_m_s) -> UpdateResult:
+        """The prediction, update, model-error step and feedback of :meth:`update_zero_velocity` in one compiled
+        call (:func:`_zupt_step_nb`, the same formulas) for the classes that declare ``_fused_zupt`` (their hooks are
+        the ones the kernel implements); any other subclass takes the compiled steps with its Python hooks."""
+        if not type(self).__dict__.get("_fused_zupt", False):
+            return self._zupt_compiled_steps(u, m_prime, x_start, dt, stamp_s, sigma_v_m_s)
+        m = self.mech
+        n = self.x.shape[0]
+        P = np.array(self.P, dtype=float)  # new arrays, as the reference path assigns them
+        C, v = np.array(m.C_b_n, dtype=float), np.array(m.v_n, dtype=float)
+        acc, gyro = np.array(m.acc_correction_b, dtype=float), np.array(m.gyro_correction_b, dtype=float)
+        oc_w_h = self._oc_w_h()
+        N_k = np.zeros(n) if oc_w_h <= 0 else self._N_prev if self._N_prev is not None else self._nullspace(self.x[4])
+        N_next = np.zeros(n)
+        p, re, qm, m_rate = self._pkf_args()
+        innov, S = np.empty(2), np.empty((2, 2))
+        nis = _zupt_step_nb(self.x, P, np.asarray(u.f_np_ned, float), float(u.lat_rad), float(u.r_m),
+                            _M0 if m_prime is None else np.asarray(m_prime, float), dt, self.n_bias > 0,
+                            self._q_rate(), oc_w_h, np.asarray(N_k, float), sigma_v_m_s**2, p, re, qm, m_rate, C, v,
+                            acc, gyro, self.cfg.azimuth_feedback_sigma_deg * D2R, innov, S, N_next,
+                            np.empty((n, n)))
+        self.P = P
+        m.C_b_n, m.v_n, m.acc_correction_b, m.gyro_correction_b = C, v, acc, gyro
+        if oc_w_h > 0:
+            self._N_prev = N_next
+        if p > 0:
+            self.m_rate = m_rate
+        self.t_last_update_s = stamp_s
+        return UpdateResult(True, innovation=innov, S=S, nis=nis)
+
+    def _oc_w_h(self) -> float:
+        """The fused kernel's OC-EKF switch: w_h of the nullspace (``_nullspace``), 0 for a core without one."""
+        return 0.0
+
+    def _pkf_args(self):
+        """The fused kernel's PKF model-error step: (horizon p, R_e weight, Q_m diagonal, m_rate copy); p = 0: none."""
+        return 0, 1.0, _M0, np.zeros(5)
+
+    def _q_rate(self) -> np.ndarray:
+        """Diagonal of the process noise per second (``_process_noise(dt) = diag(q) dt``)."""
+        q = np.zeros(5)
+        vrw = (self.cfg.acc_vrw_m_s_sqrt_h / 60.0) ** 2 + self.cfg.vibration_vrw_m_s_sqrt_s**2
+        q[0:2] = vrw
+        q[2:5] = (self.cfg.gyro_arw_deg_sqrt_h * D2R / 60.0) ** 2
+        return q
+
+    def _zupt_compiled_steps(self, u, m_prime, x_start, dt, stamp_s, sigma_v_m_s) -> UpdateResult:
         """The prediction and update of :meth:`update_zero_velocity` through the compiled kernels (same formulas)."""
         x5_new = np.empty(5)
         F5 = np.empty((5, 5))

@@ -638,6 +638,10 @@ class AlignmentSession:
         self.timing["samples"] += n
         return out
 
+    #: ``_fast_run``'s lower bound of the smallest interval in ``dts``: (value, valid at ``_dt_count``, exact at that
+    #: count, for that deque: a reset makes a new one)
+    _dts_min_cache = None
+
     def _fast_run(self, plan: "_FastPlan", i: int, out: list[Output]) -> int:
         """Process samples ``i:j`` of the plan in one batch when none of them needs per-sample attention, the last
         one possibly a sample at which events fall due (fixes, a zero-velocity update, an output: handled after the
@@ -667,7 +671,9 @@ class AlignmentSession:
         j = min(plan.n_fast, bisect.bisect_left(Tl, t_end, i) + 1)
         if plan.cand is not None:  # spike candidates after the first sample; the first against the history
             j = min(j, plan.next_candidate(i + 1))
-            if j == i or plan.candidate_at(i, self.hist_w[-1], self.hist_f[-1]):
+            # the history ends with the plan's previous sample (the run goes on): its test is the plan's, bit for bit
+            if j == i or (plan.next_candidate(i) == i if i > 0 and self.hist_t[-1] == Tl[i - 1]
+                          else plan.candidate_at(i, self.hist_w[-1], self.hist_f[-1])):
                 return i
         # intervals: none may be a gap or exceed 3 medians (the spike check's early return), for any median the
         # running window can take during the run (>= the 51st smallest interval of the old window and the run)
@@ -676,7 +682,12 @@ class AlignmentSession:
         fac = min(3.0, cfg.gap_factor)
         # cheap bound first (the smallest interval anywhere; the median now may come from a window partly older than
         # the window now), the 51st smallest of the old window and the run when jitter makes the cheap one too tight
-        lb = min(min(self.dts), min(d), self._median_dt)
+        c0 = self._dt_count
+        mc = self._dts_min_cache  # (a lower bound of min(dts), at interval count, exact at count, that deque)
+        if mc is None or mc[1] != c0 or mc[3] is not self.dts or c0 - mc[2] > self.dts.maxlen:
+            mc = (min(self.dts), c0, c0, self.dts)
+        d_min = min(d)
+        lb = min(mc[0], d_min, self._median_dt)
         if max(d) > fac * lb or plan.dnextl[j - 1] > fac * lb:
             old = list(self.dts)
             alld = np.array(old + d)
@@ -692,14 +703,19 @@ class AlignmentSession:
                 d = d[:j - i]
             if j - i < 1:
                 return i
+            d_min = min(d)
         m = j - i
         # period tracking as _track_period per sample: the median at the last multiple of 20 intervals in the run
-        c0 = self._dt_count
         p = (c0 + m) // 20 * 20
         if p > c0:
-            self._median_dt = _median((list(self.dts) + d[:p - c0])[-self.dts.maxlen:])
-        self.dts.extend(d)
+            self.dts.extend(d[:p - c0])
+            self._median_dt = _median(self.dts)
+            self.dts.extend(d[p - c0:])
+        else:
+            self.dts.extend(d)
         self._dt_count = c0 + m
+        # intervals only leave the window: the smaller of the old bound and the run's stays a lower bound
+        self._dts_min_cache = (min(mc[0], d_min), c0 + m, mc[2], self.dts)
         # the spike check's spread statistic, due at sample k when its interval count % 100 == 1: lazily
         if cfg.imu_spike_rad_s > 0 or cfg.imu_spike_m_s2 > 0:
             due = None if self._spread is not None else 0
