@@ -193,7 +193,7 @@ def one(scenario: str, seed: int, core: str, case: str, t_ev: float = 60.0, bloc
         s, t, al, ye, logs = run(d, {"core": core, "imu_grade": SCENARIO_IMU_GRADE[scenario], **TRUTH}, params,
                                  at_s=t_ev, action=yaw_kick(60.0, rec))
         t_end = t_ev
-        det = [tf for k, _, tf in logs if k == "divergence"]
+        det = [tf for k, _, tf in logs if k == "divergence" and tf >= t_ev]  # not a false alarm before the kick
         if rec.get("M") is not None:
             floor = detection_floor(d, rec["t"], 60.0, rec["M"], cfg.gnss_gate_nis)
     else:

@@ -130,13 +130,6 @@ class AlignedFlag:
         self.nis_dof = int(dof)
         self.last_update_s = float(stamp_s)
 
-    def one_update_bound(self, dof: int = 3) -> float:
-        """Upper bound of the flag's NIS band for one update alone (``nis_band(1, dof, nis_alpha_drop)``: 17.7 for
-        3 dof, exceeded by a consistent filter's NIS with probability nis_alpha_drop / 2 = 5e-4); inf with the NIS
-        test off. The session drops a flag that is up at once at an update beyond it (docs/session.md)."""
-        c = self.criteria
-        return nis_band(1, int(dof), c.nis_alpha_drop)[1] if c.nis_window > 0 else math.inf
-
     def _failing(self, stamp_s: float, P_att_n: np.ndarray) -> str:
         c = self.criteria
         s = self.sigma3_deg = attitude_3sigma_deg(P_att_n)

@@ -190,6 +190,7 @@ class PiLiekf(Liekf):
         self.Z_I = np.zeros(3)
         self._d = np.zeros(9)  # offset to the plain LIEKF (module docstring), left-invariant [phi, nu, rho]
         self._nis_plain = None  # the plain LIEKF's NIS of the update in progress
+        self._pi_gain = None  # (L k_P, H, N) of the update in progress
         self.k_P = np.eye(3)
         self.k_I = self.cfg.safe_k_I_per_s * np.eye(3)
         self._n_updates = 0
@@ -342,6 +343,7 @@ class PiLiekf(Liekf):
         self._nis_plain = nis(H @ self._P_prior @ H.T + N, z_plain)
         Z_PI = self.k_P @ z + self.Z_I
         self._d = d + L[0:9] @ (z_plain - Z_PI)
+        self._pi_gain = (L @ self.k_P, H, N)
         self.Z_I = self.Z_I + self.k_I @ z * Ts
         c = self.cfg.integral_clamp_m
         if c > 0:
@@ -360,8 +362,13 @@ class PiLiekf(Liekf):
 
     def update_gnss(self, fix) -> UpdateResult:
         """The update of :class:`Liekf` (the PI correction), reporting the plain LIEKF's NIS (module docstring)."""
-        self._nis_plain = None
+        self._nis_plain = self._pi_gain = None
         res = super().update_gnss(fix)
+        if res.accepted and self._pi_gain is not None:
+            K, H, N = self._pi_gain  # Joseph form with the gain the correction used (L k_P), valid for any gain
+            A = np.eye(self._n_states) - K @ H
+            self.P = A @ self._P_prior @ A.T + K @ N @ K.T
+        self._pi_gain = None
         if self._nis_plain is not None and res.accepted:
             res = replace(res, nis=float(self._nis_plain))
         self._nis_plain = None

@@ -923,8 +923,6 @@ class AlignmentSession:
             self.last_reject = f"gnss: core: {res.reason}"
             self.log("warn", "gnss_filter_rejected", f"fix rejected by the core: {res.reason}")
         self.flag.on_update(self.processed_t, res.accepted, res.nis, len(res.innovation) or 3)
-        if res.accepted:
-            self._fix_beyond_band(res.nis, len(res.innovation) or 3)  # divergence guard
 
     # -- divergence guard (issue 15): fix-sequence jumps, the hold through bad fixes, the windowed NIS test and the
     # attitude-covariance sanity checks; docs/session.md "Outliers and divergence"
@@ -1037,15 +1035,6 @@ class AlignmentSession:
         self.counters["divergences_cusum"] += 1
         self._diverged(f"{reason}; {self.gated_run} gated fixes in a row")
         return True
-
-    def _fix_beyond_band(self, nis: float, dof: int) -> None:
-        """A flag that is up drops at once at a fused fix whose NIS alone is beyond the flag's band
-        (:meth:`AlignedFlag.one_update_bound`, 17.7 for 3 dof: p = 5e-4 for a consistent filter), before any
-        divergence decision: the first sign of a lost filter (a kick shows first as one large NIS) or of an outlier
-        under the gate; both mean "do not trust the attitude now". It rises again after hold_s of criteria."""
-        if self.flag.aligned and nis > self.flag.one_update_bound(dof):
-            self._lower_flag(f"a fix's NIS {nis:.3g} beyond the flag's one-update band "
-                             f"({self.flag.one_update_bound(dof):.3g})")
 
     def _restart_young_reinit(self) -> bool:
         """A GNSS jump within ``gnss_hold_max_s`` of a re-initialisation after a divergence, before the new filter
