@@ -231,6 +231,11 @@ def test_a_reinitialisation_during_a_walking_gnss_restarts_at_the_jump_back():
     assert again.size and again[0] < 70.0 + 60.0, again[:1]
 
 
+#: the PI-LIEKF's LMI solve under a wall-time budget falls back to safe gains on a loaded CPU: a budget no solve
+#: reaches makes the gains (and so the run) independent of the machine's load
+NO_LMI_BUDGET = {"lmi_time_budget_s": 600.0}
+
+
 def test_the_pi_liekf_loop_no_longer_hides_a_lost_attitude_on_the_car():
     """Car seed 0, PI-LIEKF, a 60-deg yaw kick at 60 s while driving straight. Its PI loop (k_P 1.6, k_I 0.5 from
     the LMI solved at 60 s) pulled the position onto the fixes: its own NIS stayed 6-11 while the open-loop error
@@ -243,7 +248,7 @@ def test_the_pi_liekf_loop_no_longer_hides_a_lost_attitude_on_the_car():
     rec = {}
     s, t, aligned, yaw_err, logs = run(d, {"core": "pi_liekf", "imu_grade": SCENARIO_IMU_GRADE["car"],
                                            "init_mode": "truth", "init_rpy_error_deg": [2.0, -2.0, 10.0]},
-                                       at_s=60.0, action=yaw_kick(60.0, rec))
+                                       NO_LMI_BUDGET, at_s=60.0, action=yaw_kick(60.0, rec))
     floor_gate, floor_any = detection_floor(d, rec["t"], 60.0, rec["M"], 100.0)
     fault = [tf for k, _, tf in logs if k == "divergence"]
     assert len(fault) == 1, dict(s.counters)
@@ -259,7 +264,7 @@ def test_a_car_kick_before_a_turn_faults_within_10_s(core):
     d = make_scenario("car", seed=1, duration_s=150.0).until(80.0)
     s, t, aligned, yaw_err, logs = run(d, {"core": core, "imu_grade": SCENARIO_IMU_GRADE["car"],
                                            "init_mode": "truth", "init_rpy_error_deg": [2.0, -2.0, 10.0]},
-                                       at_s=66.0, action=yaw_kick(60.0))
+                                       NO_LMI_BUDGET if core == "pi_liekf" else None, at_s=66.0, action=yaw_kick(60.0))
     fault = [tf for k, _, tf in logs if k == "divergence" and tf >= 66.0]
     assert fault and 66.0 < fault[0] <= 66.0 + 10.0 + 0.02, (fault, dict(s.counters))
     assert not np.any(aligned & (t >= fault[0]) & (np.abs(yaw_err) > YAW_BOUND_DEG))
