@@ -5,7 +5,8 @@ Per GNSS update k (our sign convention: :mod:`.liekf`):
 * ``Z_p = X_hat^-1 Y - d`` restricted to the position block, ``= C^T (p_gps_i - p_hat)`` (eqs. (16), (29); the
   error-state prediction is zero after the reset of eq. (33));
 * ``Z_PI = k_P Z_p + Z_I_{k-1}``, ``Z_I_k = Z_I_{k-1} + k_I T_s Z_p`` (eq. (29)); ``xi_hat = L_k Z_PI``
-  (eq. (30)); covariance by eq. (31) (Joseph, unchanged: the covariance does not know about the PI loop);
+  (eq. (30)); covariance by eq. (31) in Joseph form with the gain the correction applies, L k_P (valid for
+  any gain; the paper's L under-states P when k_P > I; the integral term is not in P);
 * gains ``k_P, k_I`` from the LMI (:mod:`.lmi`; the one-interval LMI of eq. (22) is never feasible on the INS,
   docs/inmotion_cores.md): eq. (20) as an analysis LMI (J variable) on the exact closed loop of eq. (18) over
   windows of ``lmi_window_updates`` intervals; the first certified candidate of ``lmi_candidates`` is used.
