@@ -341,7 +341,8 @@ class PiLiekf(Liekf):
         self._n_updates += 1
         d = self._Phi_since_update[0:9, 0:9] @ self._d
         z_plain = z - H[:, 0:9] @ d
-        self._nis_plain = nis(H @ self._P_prior @ H.T + N, z_plain)
+        # S before the fading step (it scales the whole 9-state prior by last_fading_factor), as the LIEKF's NIS
+        self._nis_plain = nis(H @ self._P_prior @ H.T / self.last_fading_factor + N, z_plain)
         Z_PI = self.k_P @ z + self.Z_I
         self._d = d + L[0:9] @ (z_plain - Z_PI)
         self._pi_gain = (L @ self.k_P, H, N)

@@ -1026,8 +1026,11 @@ class AlignmentSession:
         signature) is evidence for the CUSUM too, from the second fix of the run on and capped at the gate (the
         first may be a lone outlier, and a single gated fix must not decide): a filter whose CUSUM had already risen
         faults at its second gated fix, any other at its third, instead of the fifth (``gnss_gate_max_consecutive``).
+        From the first fix of the run when the CUSUM is already above ``divergence_cusum_flag_llr`` (the fixes
+        before it were inconsistent already: the gated fix corroborates them, it is not a lone outlier).
         True when the session restarted."""
-        if self.gated_run < 2:
+        flag_llr = self.cfg.divergence_cusum_flag_llr
+        if self.gated_run < 2 and not (self.gated_run == 1 and 0 < flag_llr < self._cusum_llr):
             return False
         reason = self._cusum(min(nis, self.cfg.gnss_gate_nis), dof)
         if not reason:
