@@ -865,9 +865,11 @@ class AlignmentSession:
             b.fix_t.pop(0)
             fix = b.fix.pop(0)
             if fix.stamp_s == self._used_fix_stamp:
+                self._fix_seq.append(_fix_point(fix))  # divergence guard: the jump test goes on from the init's fixes
                 continue  # gave the initial position: not fused twice
             if fix.stamp_s < self.init_t:
                 self.counters["gnss_before_init"] += 1
+                self._fix_seq.append(_fix_point(fix))  # divergence guard (as above)
                 continue
             self._est_memo = None
             self._fuse_fix(fix)
