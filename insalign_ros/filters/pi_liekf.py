@@ -369,7 +369,8 @@ class PiLiekf(Liekf):
         if res.accepted and self._pi_gain is not None:
             K, H, N = self._pi_gain  # Joseph form with the gain the correction used (L k_P), valid for any gain
             A = np.eye(self._n_states) - K @ H
-            self.P = A @ self._P_prior @ A.T + K @ N @ K.T
+            P = A @ self._P_prior @ A.T + K @ N @ K.T
+            self.P = 0.5 * (P + P.T)  # exactly symmetric, as joseph_update's
         self._pi_gain = None
         if self._nis_plain is not None and res.accepted:
             res = replace(res, nis=float(self._nis_plain))
