@@ -38,7 +38,6 @@ import threading
 import time
 import weakref
 from collections import deque
-from dataclasses import replace
 
 import numpy as np
 
@@ -46,6 +45,8 @@ from ..core import lie
 from .base import UpdateResult
 from .config import PiLiekfConfig
 from .liekf import Liekf, nis
+
+_I3 = np.eye(3)
 
 
 class _Job:
@@ -190,9 +191,10 @@ class PiLiekf(Liekf):
         super().initialize(*args, **kwargs)
         self.Z_I = np.zeros(3)
         self._d = np.zeros(9)  # offset to the plain LIEKF (module docstring), left-invariant [phi, nu, rho]
-        self._nis_plain = None  # the plain LIEKF's NIS of the update in progress
-        self._pi_gain = None  # (L k_P, H, N) of the update in progress
+        self._pi_gain = None  # (z_plain, N, L (k_P - I)) of the update in progress
+        self._H_pos = None  # predict_gnss: the fix's H (built at the first prediction)
         self.k_P = np.eye(3)
+        self._k_P_excess = None
         self.k_I = self.cfg.safe_k_I_per_s * np.eye(3)
         self._n_updates = 0
         self._window: deque = deque(maxlen=self._history_needed())
@@ -288,6 +290,8 @@ class PiLiekf(Liekf):
     def _apply(self, res) -> None:
         self.lmi = res
         self.k_P, self.k_I = res.k_P, res.k_I
+        dk = np.asarray(res.k_P, float) - _I3
+        self._k_P_excess = dk if dk.any() else None  # k_P - I: the correction's gain beyond Kalman's
         self.lmi_history.append((self.t_s, res))
         self.lmi_budget_misses += int(res.budget_miss)
         self.lmi_fallbacks += int(res.used_fallback)
@@ -339,13 +343,13 @@ class PiLiekf(Liekf):
         if self._solve_due():
             self._submit(H)
         self._n_updates += 1
-        d = self._Phi_since_update[0:9, 0:9] @ self._d
-        z_plain = z - H[:, 0:9] @ d
-        # S before the fading step (it scales the whole 9-state prior by last_fading_factor), as the LIEKF's NIS
-        self._nis_plain = nis(H @ self._P_prior @ H.T / self.last_fading_factor + N, z_plain)
+        d = self._Phi_since_update @ self._d
+        z_plain = z - H @ d
         Z_PI = self.k_P @ z + self.Z_I
-        self._d = d + L[0:9] @ (z_plain - Z_PI)
-        self._pi_gain = (L @ self.k_P, H, N)
+        self._d = d + L @ (z_plain - Z_PI)
+        dk = self._k_P_excess
+        # (z_plain, N, L (k_P - I) or None): update_gnss finishes the NIS and the covariance with the S it returns
+        self._pi_gain = (z_plain, N, None if dk is None else L @ dk)
         self.Z_I = self.Z_I + self.k_I @ z * Ts
         c = self.cfg.integral_clamp_m
         if c > 0:
@@ -356,25 +360,28 @@ class PiLiekf(Liekf):
         """The prediction of :class:`Liekf` with the NIS of the plain LIEKF's innovation ``z - H Phi d``."""
         res = super().predict_gnss(fix)
         if res.S.size and self._init:
-            H = np.zeros((3, 9))  # the position rows of _gnss_model: z = rho - l_x phi
-            H[:, 0:3], H[:, 6:9] = -lie.hat3(self.lever_b), np.eye(3)
-            z = res.innovation - H @ (self._Phi_since_update[0:9, 0:9] @ self._d)
-            res = replace(res, nis=nis(res.S, z))
+            if self._H_pos is None:  # the position rows of _gnss_model: z = rho - l_x phi (the lever arm is fixed)
+                self._H_pos = np.zeros((3, 9))
+                self._H_pos[:, 0:3], self._H_pos[:, 6:9] = -lie.hat3(self.lever_b), _I3
+            res.nis = nis(res.S, res.innovation - self._H_pos @ (self._Phi_since_update @ self._d))  # a fresh result
         return res
 
     def update_gnss(self, fix) -> UpdateResult:
         """The update of :class:`Liekf` (the PI correction), reporting the plain LIEKF's NIS (module docstring)."""
-        self._nis_plain = self._pi_gain = None
-        res = super().update_gnss(fix)
-        if res.accepted and self._pi_gain is not None:
-            K, H, N = self._pi_gain  # Joseph form with the gain the correction used (L k_P), valid for any gain
-            A = np.eye(self._n_states) - K @ H
-            P = A @ self._P_prior @ A.T + K @ N @ K.T
-            self.P = 0.5 * (P + P.T)  # exactly symmetric, as joseph_update's
         self._pi_gain = None
-        if self._nis_plain is not None and res.accepted:
-            res = replace(res, nis=float(self._nis_plain))
-        self._nis_plain = None
+        res = super().update_gnss(fix)
+        pi, self._pi_gain = self._pi_gain, None
+        if not (res.accepted and pi is not None):
+            return res
+        z_plain, N, G = pi
+        if G is not None:
+            # Joseph form with the gain the correction applied, K = L k_P: for any gain P(K) = P(L) + (K - L) S
+            # (K - L)^T, L the Kalman gain (P(L): the core's update), K - L = L (k_P - I)
+            M = G @ res.S @ G.T
+            self.P = self.P + 0.5 * (M + M.T)
+        # the NIS with S before the fading step (which scales the 9-state prior by last_fading_factor), as the LIEKF's
+        lam = self.last_fading_factor
+        res.nis = nis(res.S if lam == 1.0 else (res.S - N) / lam + N, z_plain)  # the core's own result object
         return res
 
     @property
