@@ -5,7 +5,8 @@ Per GNSS update k (our sign convention: :mod:`.liekf`):
 * ``Z_p = X_hat^-1 Y - d`` restricted to the position block, ``= C^T (p_gps_i - p_hat)`` (eqs. (16), (29); the
   error-state prediction is zero after the reset of eq. (33));
 * ``Z_PI = k_P Z_p + Z_I_{k-1}``, ``Z_I_k = Z_I_{k-1} + k_I T_s Z_p`` (eq. (29)); ``xi_hat = L_k Z_PI``
-  (eq. (30)); covariance by eq. (31) (Joseph, unchanged: the covariance does not know about the PI loop);
+  (eq. (30)); covariance by eq. (31) in Joseph form with the gain the correction applies, L k_P (valid for
+  any gain; the paper's L under-states P when k_P > I; the integral term is not in P);
 * gains ``k_P, k_I`` from the LMI (:mod:`.lmi`; the one-interval LMI of eq. (22) is never feasible on the INS,
   docs/inmotion_cores.md): eq. (20) as an analysis LMI (J variable) on the exact closed loop of eq. (18) over
   windows of ``lmi_window_updates`` intervals; the first certified candidate of ``lmi_candidates`` is used.
@@ -18,6 +19,13 @@ Per GNSS update k (our sign convention: :mod:`.liekf`):
   discarded, so it can never overwrite newer gains.
 * ``Z_I`` is clamped per axis at ``integral_clamp_m`` (anti-windup while a large initial attitude error makes the
   innovations meaningless as a bias signal).
+* **The NIS it reports is the plain LIEKF's** (issue 15): the PI loop pulls the position onto the fixes beyond the
+  Kalman correction (k_P > I, the integral), so its own innovation stays small while the attitude is lost (a 60-deg
+  yaw kick on the car: NIS 6-11 while the open-loop error grows to 49 m). The core carries the first-order offset
+  ``d`` (left-invariant, X_plain = X_hat exp(d)) to the LIEKF that would have made the plain correction L z from the
+  same data and covariance: between updates ``d <- Phi d``; at an update the plain innovation is ``z - H d`` and
+  ``d <- d + L (z - H d) - L Z_PI``. ``predict_gnss`` and ``update_gnss`` report the NIS of ``z - H d`` (with the
+  same S): what the session's gate, CUSUM and flag test (docs/session.md "PI-LIEKF"). The estimate is unchanged.
 
 ``diagnostics()`` returns the latest LMI status, reason, solver time, whether the safe gains are in use, and the
 counters ``lmi_budget_misses`` and ``lmi_fallbacks``.
@@ -33,8 +41,12 @@ from collections import deque
 
 import numpy as np
 
+from ..core import lie
+from .base import UpdateResult
 from .config import PiLiekfConfig
-from .liekf import Liekf
+from .liekf import Liekf, nis
+
+_I3 = np.eye(3)
 
 
 class _Job:
@@ -178,7 +190,11 @@ class PiLiekf(Liekf):
     def initialize(self, *args, **kwargs) -> None:
         super().initialize(*args, **kwargs)
         self.Z_I = np.zeros(3)
+        self._d = np.zeros(9)  # offset to the plain LIEKF (module docstring), left-invariant [phi, nu, rho]
+        self._pi_gain = None  # (z_plain, N, L (k_P - I)) of the update in progress
+        self._H_pos = None  # predict_gnss: the fix's H (built at the first prediction)
         self.k_P = np.eye(3)
+        self._k_P_excess = None
         self.k_I = self.cfg.safe_k_I_per_s * np.eye(3)
         self._n_updates = 0
         self._window: deque = deque(maxlen=self._history_needed())
@@ -274,6 +290,8 @@ class PiLiekf(Liekf):
     def _apply(self, res) -> None:
         self.lmi = res
         self.k_P, self.k_I = res.k_P, res.k_I
+        dk = np.asarray(res.k_P, float) - _I3
+        self._k_P_excess = dk if dk.any() else None  # k_P - I: the correction's gain beyond Kalman's
         self.lmi_history.append((self.t_s, res))
         self.lmi_budget_misses += int(res.budget_miss)
         self.lmi_fallbacks += int(res.used_fallback)
@@ -325,12 +343,46 @@ class PiLiekf(Liekf):
         if self._solve_due():
             self._submit(H)
         self._n_updates += 1
+        d = self._Phi_since_update @ self._d
+        z_plain = z - H @ d
         Z_PI = self.k_P @ z + self.Z_I
+        self._d = d + L @ (z_plain - Z_PI)
+        dk = self._k_P_excess
+        # (z_plain, N, L (k_P - I) or None): update_gnss finishes the NIS and the covariance with the S it returns
+        self._pi_gain = (z_plain, N, None if dk is None else L @ dk)
         self.Z_I = self.Z_I + self.k_I @ z * Ts
         c = self.cfg.integral_clamp_m
         if c > 0:
             self.Z_I = np.clip(self.Z_I, -c, c)
         return L @ Z_PI
+
+    def predict_gnss(self, fix) -> UpdateResult:
+        """The prediction of :class:`Liekf` with the NIS of the plain LIEKF's innovation ``z - H Phi d``."""
+        res = super().predict_gnss(fix)
+        if res.S.size and self._init:
+            if self._H_pos is None:  # the position rows of _gnss_model: z = rho - l_x phi (the lever arm is fixed)
+                self._H_pos = np.zeros((3, 9))
+                self._H_pos[:, 0:3], self._H_pos[:, 6:9] = -lie.hat3(self.lever_b), _I3
+            res.nis = nis(res.S, res.innovation - self._H_pos @ (self._Phi_since_update @ self._d))  # a fresh result
+        return res
+
+    def update_gnss(self, fix) -> UpdateResult:
+        """The update of :class:`Liekf` (the PI correction), reporting the plain LIEKF's NIS (module docstring)."""
+        self._pi_gain = None
+        res = super().update_gnss(fix)
+        pi, self._pi_gain = self._pi_gain, None
+        if not (res.accepted and pi is not None):
+            return res
+        z_plain, N, G = pi
+        if G is not None:
+            # Joseph form with the gain the correction applied, K = L k_P: for any gain P(K) = P(L) + (K - L) S
+            # (K - L)^T, L the Kalman gain (P(L): the core's update), K - L = L (k_P - I)
+            M = G @ res.S @ G.T
+            self.P = self.P + 0.5 * (M + M.T)
+        # the NIS with S before the fading step (which scales the 9-state prior by last_fading_factor), as the LIEKF's
+        lam = self.last_fading_factor
+        res.nis = nis(res.S if lam == 1.0 else (res.S - N) / lam + N, z_plain)  # the core's own result object
+        return res
 
     @property
     def busy(self) -> bool:

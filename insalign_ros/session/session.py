@@ -898,9 +898,11 @@ class AlignmentSession:
             b.fix_t.pop(0)
             fix = b.fix.pop(0)
             if fix.stamp_s == self._used_fix_stamp:
+                self._fix_seq.append(_fix_point(fix))  # divergence guard: the jump test goes on from the init's fixes
                 continue  # gave the initial position: not fused twice
             if fix.stamp_s < self.init_t:
                 self.counters["gnss_before_init"] += 1
+                self._fix_seq.append(_fix_point(fix))  # divergence guard (as above)
                 continue
             self._est_memo = None
             self._fuse_fix(fix)
@@ -1059,8 +1061,11 @@ class AlignmentSession:
         signature) is evidence for the CUSUM too, from the second fix of the run on and capped at the gate (the
         first may be a lone outlier, and a single gated fix must not decide): a filter whose CUSUM had already risen
         faults at its second gated fix, any other at its third, instead of the fifth (``gnss_gate_max_consecutive``).
+        From the first fix of the run when the CUSUM is already above ``divergence_cusum_flag_llr`` (the fixes
+        before it were inconsistent already: the gated fix corroborates them, it is not a lone outlier).
         True when the session restarted."""
-        if self.gated_run < 2:
+        flag_llr = self.cfg.divergence_cusum_flag_llr
+        if self.gated_run < 2 and not (self.gated_run == 1 and 0 < flag_llr < self._cusum_llr):
             return False
         reason = self._cusum(min(nis, self.cfg.gnss_gate_nis), dof)
         if not reason:
