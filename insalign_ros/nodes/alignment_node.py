@@ -533,22 +533,33 @@ class AlignmentNode(Node):
         frame = self.params["enu_frame_id"]
         if self.session.anchor is not self._datum_anchor:
             self._publish_datum()
+        # the volatile outputs are built only for a publisher with a matched subscription: a message published
+        # without one is dropped by DDS anyway (~/aligned, ~/datum: transient local, always; docs/nodes.md, "CPU share")
+        pose, imu, err, err3 = ((p.get_subscription_count() > 0 for p in (self.pub_pose, self.pub_imu, self.pub_err,
+                                                                          self.pub_err3)) if outs else (False,) * 4)
         for o in outs:
             est = o.estimate
-            q = cv.quat_xyzw(est.C_b_n)  # once for ~/pose and ~/imu
-            self.pub_pose.publish(cv.pose_msg(est, self.session.anchor, frame, "", self.epoch_s, q))
-            self.pub_imu.publish(cv.imu_msg(est, self.params["body_frame_id"], self.epoch_s,
-                                            self._measured_sample(o.stamp_s), q))
+            if pose or imu:
+                q = cv.quat_xyzw(est.C_b_n)  # once for ~/pose and ~/imu
+            if pose:
+                self.pub_pose.publish(cv.pose_msg(est, self.session.anchor, frame, "", self.epoch_s, q))
+            if imu:
+                self.pub_imu.publish(cv.imu_msg(est, self.params["body_frame_id"], self.epoch_s,
+                                                self._measured_sample(o.stamp_s), q))
+            err_o = err and o.euler_error_deg is not None
+            if not (err3 or err_o):
+                continue
             m3 = Vector3Stamped()
             cv.set_stamp(m3, o.stamp_s, self.epoch_s)
             m3.header.frame_id = frame
-            m3.vector.x, m3.vector.y, m3.vector.z = (float(x) for x in o.euler_3sigma_deg)
-            if o.euler_error_deg is not None:
+            if err_o:
                 me = Vector3Stamped()
                 me.header = m3.header
                 me.vector.x, me.vector.y, me.vector.z = (float(x) for x in o.euler_error_deg)
                 self.pub_err.publish(me)
-            self.pub_err3.publish(m3)
+            if err3:
+                m3.vector.x, m3.vector.y, m3.vector.z = (float(x) for x in o.euler_3sigma_deg)
+                self.pub_err3.publish(m3)
         self._publish_flag()
         self._forget_samples()
         if outs:
