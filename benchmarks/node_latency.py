@@ -205,6 +205,8 @@ def main(argv=None) -> int:
         cases = [(c, "events", tr) for c in args.cores for tr in truths]
         cases += [] if args.no_single else [(args.cores[0], "single", truths[0])]
         if args.profile:
+            if not Path(sys.executable).with_name("py-spy").exists():
+                ap.error("--profile needs py-spy in this interpreter's environment (pip install py-spy)")
             args.profile.mkdir(parents=True, exist_ok=True)
         for core, ex, tr in cases:
             for ref in ([args.ref] if args.ref else []) + [None]:
