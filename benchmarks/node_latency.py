@@ -15,6 +15,7 @@
    ``--settle-s``) next to the same count for ``insalign_ros.align`` on the same data (the load's own effect).
 
     .venv/bin/python benchmarks/node_latency.py [--cores liekf iekf ekf pi_liekf] [--burners 2] [--ref DIR]
+        [--truth on|off|both] [--profile DIR]
 """
 
 from __future__ import annotations
@@ -84,7 +85,13 @@ def _split(pid: int, before: dict, after: dict, wall_s: float) -> tuple[float, f
 STATIC_CORES = {"pkf", "ekf10", "earth_iekf", "coarse"}
 
 
-def run_case(core, rate_hz, rate_factor, duration_s, qos, log_dir, executor="events", settle_s=60.0, ref=None):
+def run_case(core, rate_hz, rate_factor, duration_s, qos, log_dir, executor="events", settle_s=60.0, ref=None,
+             truth=True, profile=None):
+    """One run. ``truth``: the simulator publishes ground_truth/pose (10 Hz) and the node starts from it with an
+    error (the benchmark's case); False: what a user runs, no truth topic and the node's default parameters (only
+    ``core`` and ``imu_qos`` given; initialised from the sensors). ``profile``: a path for a py-spy flame graph
+    (raw/collapsed format) of the node over the measured window (py-spy's sampling costs the node CPU: not for the
+    cost figures)."""
     env = isolated_ros_env()
     env["INSALIGN_EXECUTOR"] = executor
     for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
@@ -94,8 +101,9 @@ def run_case(core, rate_hz, rate_factor, duration_s, qos, log_dir, executor="eve
     mon = AlignmentMonitor(keep_poses=10)
     nodes = []
     try:
-        params = {"core": core, "init_from_ground_truth": True, "imu_timeout_s": 0.0,
-                  "init_rpy_error_deg": "[3.0, -3.0, 30.0]", "imu_qos": qos}
+        params = {"core": core, "imu_qos": qos}
+        if truth:
+            params.update(init_from_ground_truth=True, imu_timeout_s=0.0, init_rpy_error_deg="[3.0, -3.0, 30.0]")
         if ref:
             ref_env = dict(env, PYTHONPATH=str(ref))
             align = start_process([sys.executable, "-P", "-m", "insalign_ros.nodes.alignment_node", *ros_args(params)],
@@ -109,7 +117,7 @@ def run_case(core, rate_hz, rate_factor, duration_s, qos, log_dir, executor="eve
                          params={"source": "scenario", "scenario": "static" if core in STATIC_CORES else "ship",
                                  "rate_hz": rate_hz, "seed": 3,
                                  "rate_factor": rate_factor, "duration_s": duration_s, "wait_for_subscribers": 1,
-                                 "wait_timeout_s": 30.0, "qos_depth": 1000})
+                                 "wait_timeout_s": 30.0, "qos_depth": 1000, "publish_ground_truth": truth})
         nodes.append(sim)
         cs, ts = _cpu_s(align.popen.pid), time.monotonic()
         # steady state from WARM_S on: the first samples initialise the core and load its compiled kernels from
@@ -118,7 +126,15 @@ def run_case(core, rate_hz, rate_factor, duration_s, qos, log_dir, executor="eve
         time.sleep(warm)
         pid = align.popen.pid
         c0, t0, th0 = _cpu_s(pid), time.monotonic(), _threads(pid)
+        spy = None
+        if profile:
+            spy = subprocess.Popen([str(Path(sys.executable).with_name("py-spy")), "record", "--pid", str(pid),
+                                    "--format", "raw", "--rate", "200", "--nonblocking", "--output", str(profile),
+                                    "--duration", str(max(1, int(duration_s / rate_factor - warm - 2)))],
+                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         rc = wait_for_exit(sim, duration_s / rate_factor + 60.0)
+        if spy is not None:
+            spy.wait(30)
         c1, t1, th1 = _cpu_s(pid), time.monotonic(), _threads(pid)
         py_share, other_share, wakeups = _split(pid, th0, th1, t1 - t0)
         s = _summary(sim.output())
@@ -172,22 +188,37 @@ def main(argv=None) -> int:
     ap.add_argument("--ref", type=Path, help="a checkout of older node code: run before each cost run, same minutes")
     ap.add_argument("--skip-load", action="store_true")
     ap.add_argument("--no-single", action="store_true", help="no SingleThreadedExecutor run in the cost table")
+    ap.add_argument("--truth", choices=("on", "off", "both"), default="both",
+                    help="cost runs with the 10-Hz ground-truth topic and init from it (on), as a user runs the node "
+                         "(off: no truth topic, default parameters), or both, interleaved")
+    ap.add_argument("--profile", type=Path, help="a directory: py-spy raw profiles of this code's cost runs (the "
+                                                 "profiled runs' CPU figures include py-spy's cost)")
     args = ap.parse_args(argv)
     log_dir = Path(tempfile.mkdtemp(prefix="node-latency-"))
     print(f"node logs in {log_dir}", flush=True)
     if not args.skip_cost:
-        print(f"\n| core | code | executor | Imu msgs/s (real time) | CPU share of one core (from {WARM_S:g} s on) | "
-              "Python thread / other threads | Python thread switches/s | with the first seconds | "
+        print(f"\n| core | truth topic | code | executor | Imu msgs/s (real time) | CPU share of one core (from "
+              f"{WARM_S:g} s on) | Python thread / other threads | Python thread switches/s | with the first seconds | "
               "Imu handling median / p99 [us] |")
-        print("|---|---|---|---|---|---|---|---|---|")
-        cases = [(c, "events") for c in args.cores] + ([] if args.no_single else [(args.cores[0], "single")])
-        for core, ex in cases:
+        print("|---|---|---|---|---|---|---|---|---|---|")
+        truths = {"on": [True], "off": [False], "both": [True, False]}[args.truth]
+        cases = [(c, "events", tr) for c in args.cores for tr in truths]
+        cases += [] if args.no_single else [(args.cores[0], "single", truths[0])]
+        if args.profile:
+            if not Path(sys.executable).with_name("py-spy").exists():
+                ap.error("--profile needs py-spy in this interpreter's environment (pip install py-spy)")
+            args.profile.mkdir(parents=True, exist_ok=True)
+        for core, ex, tr in cases:
             for ref in ([args.ref] if args.ref else []) + [None]:
-                r = run_case(core, 125.0, 1.0, args.cost_duration_s, "sensor_data", log_dir, ex, ref=ref)
+                prof = (args.profile / f"{core}_{ex}_truth-{'on' if tr else 'off'}.txt"
+                        if args.profile and not ref else None)
+                r = run_case(core, 125.0, 1.0, args.cost_duration_s, "sensor_data", log_dir, ex, ref=ref, truth=tr,
+                             profile=prof)
                 if ref:
                     ref_share = r["cpu_share"]
                 ratio = f" ({r['cpu_share'] / ref_share:.2f}x the ref)" if args.ref and not ref else ""
-                print(f"| {core} | {'ref' if ref else 'this'} | {ex} | {r['msgs_per_s']:.0f} | "
+                print(f"| {core} | {'yes' if tr else 'no (defaults)'} | {'ref' if ref else 'this'} | {ex} | "
+                      f"{r['msgs_per_s']:.0f} | "
                       f"{100 * r['cpu_share']:.1f} %{ratio} | {100 * r['python_thread_share']:.1f} / "
                       f"{100 * r['other_threads_share']:.1f} % | {r['python_thread_switches_per_s']:.0f} | "
                       f"{100 * r['cpu_share_with_start']:.1f} % | "

@@ -247,11 +247,47 @@ def truth_from_msg(msg: PoseStamped, epoch_s: int = 0) -> tuple[tuple[float, np.
     nq = math.sqrt(q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w)
     if abs(nq - 1.0) > 1e-3:
         return None, f"ground-truth quaternion norm {nq:.4f} is not 1"
-    return (stamp_s(msg, epoch_s), Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix(), np.array([p.x, p.y, p.z])), ""
+    return (stamp_s(msg, epoch_s), quat_matrix(q.x, q.y, q.z, q.w), np.array([p.x, p.y, p.z])), ""
+
+
+def quat_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:
+    """Rotation matrix of a quaternion (x, y, z, w), normalised first: ``Rotation.from_quat(q).as_matrix()`` to
+    ~1e-16 (test_node_conversions_fast.py) in scalar floats, ~2 us against ~8 us a call (each ground-truth message;
+    docs/nodes.md, "CPU share")."""
+    n = 1.0 / math.sqrt(x * x + y * y + z * z + w * w)
+    x, y, z, w = x * n, y * n, z * n, w * n
+    xx, yy, zz, xy, xz, yz, wx, wy, wz = x * x, y * y, z * z, x * y, x * z, y * z, w * x, w * y, w * z
+    return np.array([[1.0 - 2.0 * (yy + zz), 2.0 * (xy - wz), 2.0 * (xz + wy)],
+                     [2.0 * (xy + wz), 1.0 - 2.0 * (xx + zz), 2.0 * (yz - wx)],
+                     [2.0 * (xz - wy), 2.0 * (yz + wx), 1.0 - 2.0 * (xx + yy)]])
 
 
 def quat_xyzw(C: np.ndarray) -> np.ndarray:
-    return Rotation.from_matrix(C).as_quat()
+    """Unit quaternion (x, y, z, w) of a rotation matrix ``C``: ``Rotation.from_matrix(C).as_quat()`` for an
+    orthonormal C, the same method and sign (Markley: the branch of the largest of the diagonal and the trace), in
+    scalar floats: ~3 us against ~30 us a call, once per output (test_node_conversions_fast.py; docs/nodes.md, "CPU
+    share"). A matrix that is not orthonormal to 1e-6 goes to scipy, which first takes the nearest rotation."""
+    (a, b, c), (d, e, f), (g, h, i) = C.tolist()
+    tr = a + e + i
+    big = max(a, e, i, tr)
+    if big == tr:
+        m = 1.0 + tr
+        q = (h - f, c - g, d - b, m)
+    elif big == a:
+        m = 1.0 - tr + 2.0 * a
+        q = (m, d + b, g + c, h - f)
+    elif big == e:
+        m = 1.0 - tr + 2.0 * e
+        q = (d + b, m, h + f, c - g)
+    else:
+        m = 1.0 - tr + 2.0 * i
+        q = (g + c, h + f, m, d - b)
+    n2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]
+    # a rotation has |q|^2 = 4 m (m = 4 x the square of the largest component); otherwise scipy's projection
+    if not abs(n2 - 4.0 * m) <= 1e-6 * n2:
+        return Rotation.from_matrix(C).as_quat()
+    n = 1.0 / math.sqrt(n2)
+    return np.array([q[0] * n, q[1] * n, q[2] * n, q[3] * n])
 
 
 def pose_cov_ros(P_pos_n: np.ndarray, P_att_n: np.ndarray, P_pos_att: np.ndarray | None = None) -> list[float]:
