@@ -405,6 +405,31 @@ def test_outputs_of_a_full_buffer_are_not_lost(ship60):
     outs = s.finish()
     assert [round(o.stamp_s, 6) for o in outs] == [round(o.stamp_s, 6) for o in ref.outputs]
     assert _angle(outs[-1].estimate.C_b_n, ref.outputs[-1].estimate.C_b_n) < 1e-9
+    # the same with the IMU pushed as arrays (blocks of up to 50 samples between the other inputs): the bound holds
+    s = AlignmentSession(SessionConfig.from_dict(cfg))
+    s.MAX_BUFFER = 500
+    block, longest = [], 0
+
+    def flush():
+        nonlocal longest
+        if block:
+            s.push_imu_arrays([x.stamp_s for x in block], [x.omega_ib_b for x in block], [x.f_ib_b for x in block])
+            block.clear()
+            longest = max(longest, len(s.buf.imu))
+
+    for kind, item in events_in_arrival_order(ship60):
+        if kind == "imu":
+            block.append(item)
+            if len(block) == 50:
+                flush()
+            continue
+        flush()
+        {"fix": s.push_fix, "truth": s.push_truth}[kind](item)
+    flush()
+    assert longest <= s.MAX_BUFFER
+    outs = s.finish()
+    assert [round(o.stamp_s, 6) for o in outs] == [round(o.stamp_s, 6) for o in ref.outputs]
+    assert _angle(outs[-1].estimate.C_b_n, ref.outputs[-1].estimate.C_b_n) < 1e-9
 
 
 def test_reject_lines_print_the_users_stamps():

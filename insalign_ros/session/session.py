@@ -443,6 +443,7 @@ class AlignmentSession:
         self.newest_imu_t = float(t[m - 1])
         if first:
             self._check_early_fixes()
+        self._check_overflow()
 
     def _check_early_fixes(self) -> None:
         """The first IMU sample of a time line: fixes and velocities buffered before it (a GNSS reader that matched or
@@ -455,7 +456,6 @@ class AlignmentSession:
                 items.pop()
                 self._reject(topic, what, f"{topic}_future", f"stamp {t + self.stamp_offset_s:.6f} is "
                              f"{t - self.newest_imu_t:.3f} s ahead of the first IMU sample (buffered before it)")
-        self._check_overflow()
 
     def push_fix(self, fix: GnssFix, wall_s: float | None = None) -> bool:
         """Validate and buffer one GNSS position fix (ECEF p_e [m], R_e [m^2]). False if rejected."""
