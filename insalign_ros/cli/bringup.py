@@ -48,11 +48,14 @@ def hold_domain(domain_id: int) -> bool:
     """Take the machine-wide lock of ``domain_id`` for this process (releasing the one it held before); False when
     another process holds it. The lock is an ``flock`` on a file in the temporary directory: the kernel drops it
     when the process exits, however it exits."""
-    d = os.path.join(tempfile.gettempdir(), "insalign_ros_domains")
-    os.makedirs(d, exist_ok=True)
     if _HELD_DOMAIN and _HELD_DOMAIN[0][0] == domain_id:
         return True
-    fh = open(os.path.join(d, f"{int(domain_id)}.lock"), "a")
+    try:
+        d = os.path.join(tempfile.gettempdir(), "insalign_ros_domains")
+        os.makedirs(d, exist_ok=True)
+        fh = open(os.path.join(d, f"{int(domain_id)}.lock"), "a")
+    except OSError:  # no writable temporary directory: no lock, the random draw alone (as before the locks)
+        return True
     try:
         fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:
