@@ -52,6 +52,15 @@ def test_node_backtracking_two_position_keeps_publishing_and_ends_aligned(monkey
             orig(msg)
 
         node.pub_pose.publish = rec
+        # ~/pose is built only for a matched subscription (docs/nodes.md, "CPU share"): one, in this context
+        from geometry_msgs.msg import PoseWithCovarianceStamped
+
+        sink = rclpy.create_node("pose_sink", context=ctx)
+        sink.create_subscription(PoseWithCovarianceStamped, "/alignment_node/pose", lambda m: None, 50)
+        end = time.monotonic() + 10.0
+        while node.pub_pose.get_subscription_count() < 1:
+            assert time.monotonic() < end, "the pose sink did not match"
+            time.sleep(0.01)
         busy_spans = []
         for k in range(d.n):
             m = Imu()
