@@ -55,10 +55,11 @@ def test_truth_slerp_between_two_poses_is_scipys_slerp():
 def test_diagnostics_window_and_quantiles_equal_a_deque_and_numpy_percentile():
     from collections import deque
 
-    from insalign_ros.nodes.alignment_node import _quantiles, _Window
+    from insalign_ros.nodes.alignment_node import _quantiles
+    from insalign_ros.session.session import Ring
 
     rng = np.random.default_rng(5)
-    w, d = _Window(1000), deque(maxlen=1000)
+    w, d = Ring(1000), deque(maxlen=1000)
     for m in (1, 7, 300, 0, 999, 1000, 2500, 3, 640):  # batches that wrap the ring, and one longer than it
         xs = rng.exponential(size=m)
         w.extend(xs)
@@ -66,6 +67,6 @@ def test_diagnostics_window_and_quantiles_equal_a_deque_and_numpy_percentile():
         w.append(m + 0.5)
         d.append(m + 0.5)
         assert len(w) == len(d)
-        assert np.array_equal(np.sort(w.values()), np.sort(np.asarray(d)))
-        got = _quantiles(w.values(), (50.0, 99.0, 100.0))
+        assert np.array_equal(np.sort(w.view()), np.sort(np.asarray(d)))
+        got = _quantiles(w.view(), (50.0, 99.0, 100.0))
         assert np.allclose(got, np.percentile(np.asarray(d), [50, 99, 100]), rtol=1e-14, atol=0), m

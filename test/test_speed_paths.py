@@ -347,8 +347,8 @@ def test_session_buffers_and_float_helpers():
             np.testing.assert_array_equal(Ft, np.array([r[2] for r in ref[:n]]).reshape(-1, 3))
             del ref[:n]
         assert len(buf) == len(ref) and (buf.first() is None if not ref else buf.first()[0] == ref[0][0])
-    # _Ring = deque(maxlen) of rows; _RecentStamps = the deque + set of the last maxlen stamps
-    ring, dq = S._Ring(50, 3), deque(maxlen=50)
+    # Ring = deque(maxlen) of rows; _RecentStamps = the deque + set of the last maxlen stamps
+    ring, dq = S.Ring(50, 3), deque(maxlen=50)
     rec, rdq = S._RecentStamps(64), deque(maxlen=64)
     s0 = 0.0
     for k in range(300):

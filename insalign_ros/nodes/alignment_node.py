@@ -55,7 +55,7 @@ from ..filters import registry
 from ..filters.imu_grade import GRADES, grade_params
 from ..filters.liekf import Liekf
 from ..session.config import SessionConfig
-from ..session.session import AlignmentSession, TruthSample
+from ..session.session import AlignmentSession, Ring, TruthSample
 from . import conversions as cv
 from .qos import QOS_CHOICES, imu_qos
 
@@ -238,8 +238,8 @@ class AlignmentNode(Node):
         self.pub_aligned.publish(Bool(data=False))
         # over the last _STATS_WINDOW Imu messages: /diagnostics reads their quantiles every second (deques of 100,000
         # cost 9-12 ms, 1 % of a core, once full after 13 min at 125 Hz; of 20,000 ~3 ms; rings of 20,000 ~0.7 ms)
-        self.timing_s = _Window(_STATS_WINDOW)  # node time per Imu message [s] (benchmarks read it)
-        self.stamp_age_s = _Window(_STATS_WINDOW)  # DDS reception time minus header stamp [s]
+        self.timing_s = Ring(_STATS_WINDOW)  # node time per Imu message [s] (benchmarks read it)
+        self.stamp_age_s = Ring(_STATS_WINDOW)  # DDS reception time minus header stamp [s]
         self.process_s: deque = deque(maxlen=10000)
         self._cov_ok: dict = {}
         self._imu_ok: set = set()  # conversions.imu_cdr_key of Imu messages that passed the message-level checks
@@ -434,8 +434,8 @@ class AlignmentNode(Node):
                 recent[s[0]] = s[1:5]
             ages.append(1e-9 * received_ns[k] - s[5])
         if n_fast:  # the node's time per Imu message of the batch (take, records, push), for /diagnostics
-            self.timing_s.extend([(time.perf_counter() - t0 - t_slow) / n_fast] * n_fast)
-            self.stamp_age_s.extend(ages)
+            self.timing_s.extend(np.full(n_fast, (time.perf_counter() - t0 - t_slow) / n_fast))
+            self.stamp_age_s.extend(np.asarray(ages))
 
     def _on_imu(self, msg: Imu, received_ns: int | None = None) -> bool:
         """One Imu message (``received_ns``: its DDS reception time [ns, system clock]; None: now). True when it
@@ -631,9 +631,9 @@ class AlignmentNode(Node):
         vals = s.diagnostics()
         vals.pop("message", None)
         if len(self.timing_s):  # over the last _STATS_WINDOW Imu messages
-            tt = self.timing_s.values()
+            tt = self.timing_s.view()
             t50, t99, tmax = _quantiles(tt, (50.0, 99.0, 100.0))
-            a50, a99 = _quantiles(self.stamp_age_s.values(), (50.0, 99.0))
+            a50, a99 = _quantiles(self.stamp_age_s.view(), (50.0, 99.0))
             vals.update(imu_callback_median_us=f"{t50 * 1e6:.1f}", imu_callback_p99_us=f"{t99 * 1e6:.1f}",
                         imu_callback_max_us=f"{tmax * 1e6:.1f}", imu_callback_total_s=f"{np.sum(tt):.3f}",
                         imu_stamp_age_median_ms=f"{a50 * 1e3:.3f}", imu_stamp_age_p99_ms=f"{a99 * 1e3:.3f}")
@@ -651,37 +651,6 @@ class AlignmentNode(Node):
         self._polled = []
         self.imu_sub = None
         return super().destroy_node()
-
-
-class _Window:
-    """The last ``n`` floats in a preallocated ring (append, extend, ``values()``: the held ones, unordered): the
-    quantiles /diagnostics reads every second need no conversion of a deque (np.asarray of 20,000 floats ~0.7 ms)."""
-
-    def __init__(self, n: int) -> None:
-        self.buf = np.empty(n)
-        self.i = 0  # next slot
-        self.full = False
-
-    def __len__(self) -> int:
-        return self.buf.shape[0] if self.full else self.i
-
-    def append(self, x: float) -> None:
-        self.buf[self.i] = x
-        self.i += 1
-        if self.i == self.buf.shape[0]:
-            self.i, self.full = 0, True
-
-    def extend(self, xs) -> None:
-        xs = np.asarray(xs, float)[-self.buf.shape[0]:]
-        m, n = xs.shape[0], self.buf.shape[0]
-        k = min(m, n - self.i)
-        self.buf[self.i:self.i + k] = xs[:k]
-        self.buf[:m - k] = xs[k:]
-        self.full = self.full or self.i + m >= n
-        self.i = (self.i + m) % n
-
-    def values(self) -> np.ndarray:
-        return self.buf if self.full else self.buf[:self.i]
 
 
 def _quantiles(x: np.ndarray, qs) -> list[float]:

@@ -315,9 +315,9 @@ class AlignmentSession:
         self._cusum_llr = 0.0  # divergence guard: CUSUM of the NIS log-likelihood ratio while the attitude is claimed
         self._kept_level = None  # divergence guard: (t, C_b_n, level 1-sigma) of the lost filter, if it claimed its level
         self.pre_init: deque = deque(maxlen=4000)  # IMU samples before the initialisation (level from sensors)
-        self.hist_t = _Ring(1000)  # recent processed samples (gap bridging statistics)
-        self.hist_w = _Ring(1000, 3)
-        self.hist_f = _Ring(1000, 3)
+        self.hist_t = Ring(1000)  # recent processed samples (gap bridging statistics)
+        self.hist_w = Ring(1000, 3)
+        self.hist_f = Ring(1000, 3)
         self._batch: tuple[list, int] = ([], 0)  # the batch being processed and the index in it (gap look-ahead)
         self.init_t: float | None = None
         self.anchor: tuple[float, float, float] | None = None
@@ -1917,7 +1917,7 @@ class _ImuBuffer:
             off = 0
 
 
-class _Ring:
+class Ring:
     """The last ``maxlen`` values or rows appended (a deque held in one array of twice that length): rows or blocks
     in, one view out. A row once written is never overwritten (a full array is replaced by a new one), so a view is
     a snapshot that stays valid (``_LazySpread`` keeps one)."""
