@@ -661,11 +661,15 @@ class BatchedEciCore(AlignmentCore):
     def _gnss_model(self, p_gps_i: np.ndarray, R_i: np.ndarray):
         """(z, H, N): left-invariant position innovation, eqs. (10), (11), (42), (43), of the antenna at the lever
         arm l: p_ant = p + C exp(phi) l, so z = C^T (p_gps - p) - l = rho - l_x phi."""
+        Ct = self.C.T
+        return Ct @ (p_gps_i - self.p) - self.lever_b, self._position_H(), Ct @ R_i @ self.C
+
+    def _position_H(self) -> np.ndarray:
+        """H of the position innovation z = rho - l_x phi (:meth:`_gnss_model`): (3, n_states)."""
         H = np.zeros((3, self._n_states))
         H[:, 0:3] = -lie.hat3(self.lever_b)
         H[:, 6:9] = _I3
-        Ct = self.C.T
-        return Ct @ (p_gps_i - self.p) - self.lever_b, H, Ct @ R_i @ self.C
+        return H
 
     def _velocity_model(self, v_gps_i: np.ndarray, R_i: np.ndarray):
         """(z, H, N): left-invariant velocity innovation of the antenna, v_ant = v + C exp(phi) a with

@@ -41,7 +41,6 @@ from collections import deque
 
 import numpy as np
 
-from ..core import lie
 from .base import UpdateResult
 from .config import PiLiekfConfig
 from .liekf import Liekf, nis
@@ -360,9 +359,8 @@ class PiLiekf(Liekf):
         """The prediction of :class:`Liekf` with the NIS of the plain LIEKF's innovation ``z - H Phi d``."""
         res = super().predict_gnss(fix)
         if res.S.size and self._init:
-            if self._H_pos is None:  # the position rows of _gnss_model: z = rho - l_x phi (the lever arm is fixed)
-                self._H_pos = np.zeros((3, 9))
-                self._H_pos[:, 0:3], self._H_pos[:, 6:9] = -lie.hat3(self.lever_b), _I3
+            if self._H_pos is None:  # the lever arm is fixed: built once
+                self._H_pos = self._position_H()
             res.nis = nis(res.S, res.innovation - self._H_pos @ (self._Phi_since_update @ self._d))  # a fresh result
         return res
 

@@ -297,7 +297,6 @@ class AlignmentSession:
         self.newest_imu_t: float | None = None
         self.processed_t: float | None = None  # stamp of the last processed IMU sample (= the core's time)
         self.recent_stamps = _RecentStamps(4096)
-        self._recent_set: set = self.recent_stamps.set
         self.fix_stamps: deque = deque(maxlen=256)
         self.jump_candidates: list = []
         self.dts: deque = deque(maxlen=101)
@@ -1547,14 +1546,14 @@ class AlignmentSession:
         """Drop the core, keep the time line and the buffered inputs, status FAULT: re-initialise from what follows."""
         keep_t = self.processed_t
         resets = dict(self.counters)
-        newest, recent, rset = self.newest_imu_t, self.recent_stamps, self._recent_set
+        newest, recent = self.newest_imu_t, self.recent_stamps
         pending = self.buf
         last_reject, offset = self.last_reject, self.stamp_offset_s
         self._reset_state(f"after {why}")
         self.counters.update(resets)
         self.last_reject, self.stamp_offset_s = last_reject, offset
         # keep the time line and the buffered inputs: re-initialise from the data that follow
-        self.buf, self.newest_imu_t, self.recent_stamps, self._recent_set = pending, newest, recent, rset
+        self.buf, self.newest_imu_t, self.recent_stamps = pending, newest, recent
         self.processed_t = keep_t
         self.status = AlignmentStatus.FAULT
         self.fault_reason = why
