@@ -281,7 +281,7 @@ def test_compiled_update_helpers_match_numpy():
             F5 = np.eye(5) + s * rng.normal(size=(5, 5))
             K_ref = pkf.pkf_gain(F5, sm.H_ZUPT, p_h, np.eye(2 * p_h) * re, np.diag(np.tile(qm, p_h)))[:5]
             K5 = np.empty((5, 5))
-            pkf._pkf_gain_rows_nb(F5, p_h, re, qm, K5)
+            sm._pkf_gain_rows_nb(F5, p_h, re, qm, K5)
             assert np.abs(K5 - K_ref).max() <= 1e-13 * np.abs(K_ref).max()
     buf = liekf.ImuBuffer()  # rows (per-sample propagate) and blocks (propagate_arrays) in one buffer, in order
     buf.add(1.0, np.ones(3), 2 * np.ones(3))

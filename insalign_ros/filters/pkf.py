@@ -20,8 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core import mechanization_numba as nb
-from .static_model import H_ZUPT, _pkf_gain_rows_nb, expm_taylor, StaticConfig, StaticZuptCore  # noqa: F401
+from .static_model import H_ZUPT, expm_taylor, StaticConfig, StaticZuptCore
 
 
 @dataclass
@@ -84,11 +83,8 @@ class Pkf(StaticZuptCore):
 
     def _after_update(self, x_start: np.ndarray, dt: float) -> None:
         dx = self.x - x_start
-        if nb.ENABLED:  # exp(F5 dt) is the transition the compiled update formed (no OC correction in the PKF)
-            K5 = np.empty((5, 5))
-            _pkf_gain_rows_nb(self._Phi_raw, self.cfg.horizon_p, self.cfg.re_weight_per_m2_s2, self._qm, K5)
-        else:
-            K5 = pkf_gain(expm_taylor(self._F_last * dt), H_ZUPT, self.cfg.horizon_p, self._R_e, self._Q_m)[:5]
+        # the reference path (the compiled one is the PKF branch of static_model._zupt_step_nb)
+        K5 = pkf_gain(expm_taylor(self._F_last * dt), H_ZUPT, self.cfg.horizon_p, self._R_e, self._Q_m)[:5]
         dm = K5 @ dx
         self.m_rate = self.m_rate + dm / dt
         # apply: velocity rows gain +m  -> f_corr = f + C^b m_v ; attitude rows gain +m -> w_corr = w - C^b m_att

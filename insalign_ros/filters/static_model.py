@@ -674,8 +674,10 @@ class StaticZuptCore(AlignmentCore):
         # ---- predict the error state over the interval with eq. (34) (RK2) and its Jacobian eq. (35)
         m_prime = self._model_error_prime()
         x_start = self.x.copy()
-        if nb.ENABLED:  # the same steps in compiled kernels (docs/speed.md); the numpy code below is the reference
-            return self._zupt_compiled(u, m_prime, x_start, dt, float(stamp_s), sigma_v_m_s)
+        if nb.ENABLED and type(self).__dict__.get("_fused_zupt", False):
+            # the same steps in one compiled kernel (docs/speed.md); the numpy code below is the reference, and the
+            # path of a subclass whose hooks the kernel does not implement (it does not declare ``_fused_zupt``)
+            return self._zupt_compiled(u, m_prime, dt, float(stamp_s), sigma_v_m_s)
         x5 = self.x[:5].copy()
         k1 = f_model(x5, u, m_prime)
         k2 = f_model(x5 + dt * k1, u, m_prime)
@@ -710,12 +712,10 @@ class StaticZuptCore(AlignmentCore):
         self.t_last_update_s = float(stamp_s)
         return UpdateResult(True, innovation=innov, S=S, nis=nis)
 
-    def _zupt_compiled(self, u, m_prime, x_start, dt, stamp_s, sigma_v_m_s) -> UpdateResult:
+    def _zupt_compiled(self, u, m_prime, dt, stamp_s, sigma_v_m_s) -> UpdateResult:
         """The prediction, update, model-error step and feedback of :meth:`update_zero_velocity` in one compiled
         call (:func:`_zupt_step_nb`, the same formulas) for the classes that declare ``_fused_zupt`` (their hooks are
-        the ones the kernel implements); any other subclass takes the compiled steps with its Python hooks."""
-        if not type(self).__dict__.get("_fused_zupt", False):
-            return self._zupt_compiled_steps(u, m_prime, x_start, dt, stamp_s, sigma_v_m_s)
+        the ones the kernel implements)."""
         m = self.mech
         n = self.x.shape[0]
         P = np.array(self.P, dtype=float)  # new arrays, as the reference path assigns them
@@ -755,36 +755,6 @@ class StaticZuptCore(AlignmentCore):
         q[0:2] = vrw
         q[2:5] = (self.cfg.gyro_arw_deg_sqrt_h * D2R / 60.0) ** 2
         return q
-
-    def _zupt_compiled_steps(self, u, m_prime, x_start, dt, stamp_s, sigma_v_m_s) -> UpdateResult:
-        """The prediction and update of :meth:`update_zero_velocity` through the compiled kernels (same formulas)."""
-        x5_new = np.empty(5)
-        F5 = np.empty((5, 5))
-        f_np = np.asarray(u.f_np_ned, float)
-        _zupt_predict_nb(self.x[:5].copy(), f_np, float(u.lat_rad), float(u.r_m),
-                         _M0 if m_prime is None else np.asarray(m_prime, float), dt, x5_new, F5)
-        F = self._full_jacobian(F5)
-        x5_phiD = self.x[4]
-        self.x[:5] = x5_new
-        N_next = self._nullspace(self.x[4])
-        n = self.x.shape[0]
-        use_oc = N_next is not None
-        if use_oc:
-            N_k = self._N_prev if self._N_prev is not None else self._nullspace(x5_phiD)
-            self._N_prev = N_next
-        else:
-            N_k = N_next = np.zeros(n)
-        self._Phi_raw = np.empty((n, n))
-        innov, S = np.empty(2), np.empty((2, 2))
-        z = ned_from_enu(self.mech.v_n)[0:2]
-        P = np.array(self.P, dtype=float)  # a new array, as the reference path assigns one
-        nis = _zupt_cov_update_nb(self.x, P, np.ascontiguousarray(F, dtype=float), dt, self._process_noise(dt),
-                                  N_k, N_next, use_oc, z, sigma_v_m_s**2, self._Phi_raw, innov, S)
-        self.P = P
-        self._after_update(x_start, dt)
-        self._feedback()
-        self.t_last_update_s = stamp_s
-        return UpdateResult(True, innovation=innov, S=S, nis=nis)
 
     def _bootstrap_step(self, stamp_s: float, sigma_v_m_s: float) -> UpdateResult:
         """Open-loop azimuth bootstrap (docs/static_alignment.md, "Large initial azimuth").
