@@ -25,7 +25,20 @@ sys.path.insert(0, str(ROOT))
 import insalign_ros as ia  # noqa: E402
 
 SCENARIOS = {"ship": 60.0, "car": 60.0, "static": 40.0, "park_drive": 60.0, "two_position": 60.0}
-KITTI = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti_raw_oxts_sync"
+
+def _data_root() -> Path:
+    """../shared/data beside the checkout (or beside any folder above it: worktrees), or $INSALIGN_DATA."""
+    import os
+
+    if os.environ.get("INSALIGN_DATA"):
+        return Path(os.environ["INSALIGN_DATA"])
+    for up in Path(__file__).resolve().parents:
+        if (up / "shared" / "data").is_dir():
+            return up / "shared" / "data"
+    return Path("/nonexistent")
+
+
+KITTI = _data_root() / "kitti_raw_oxts_sync"
 DRIVES = ("2011_10_03_drive_0042_oxts", "2011_09_30_drive_0018_oxts")
 STATIC = ("pkf", "ekf10", "coarse")
 
@@ -57,9 +70,11 @@ def run_case(src, dur, core, core_params):
     return {"t": r.t_s, "C": C, "s3": r.sigma3_deg, "aligned": r.aligned.astype(int), "error": ""}
 
 
-def record(out: str) -> None:
+def record(out: str, only: str = "") -> None:
     store = {}
     for name, src, dur, core, cp in cases():
+        if only and not name.startswith(only):
+            continue
         t0 = time.perf_counter()
         res = run_case(src, dur, core, cp)
         if res is None:
@@ -109,13 +124,14 @@ def main(argv=None) -> int:
     sub = ap.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("record")
     r.add_argument("out")
+    r.add_argument("--only", default="", help="record only the cases whose name starts with this")
     c = sub.add_parser("compare")
     c.add_argument("old")
     c.add_argument("new")
     c.add_argument("--tol-rad", type=float, default=1e-9)
     args = ap.parse_args(argv)
     if args.cmd == "record":
-        record(args.out)
+        record(args.out, args.only)
         return 0
     return compare(args.old, args.new, args.tol_rad)
 
