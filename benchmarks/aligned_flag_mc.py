@@ -1,4 +1,4 @@
-"""Monte-Carlo check of the aligned flag (eval/aligned.py) on the ship scenario, no ROS.
+"""Monte-Carlo check of the aligned flag (session/flag.py) on the ship scenario, no ROS.
 
 Each run: ship scenario (seed k), core initialised from the truth plus a random Euler error (roll, pitch
 U(-5, 5) deg, yaw U(-60, 60) deg), the session the node runs (``ia.align``), the session's flag at the node's
@@ -25,7 +25,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from insalign_ros.eval.aligned import AlignedCriteria  # noqa: E402
+from insalign_ros.session.flag import AlignedCriteria  # noqa: E402
 
 
 def one_run(data, seed: int, core_name: str, duration_s: float, criteria: AlignedCriteria, rate_s: float = 0.1,

@@ -5,7 +5,7 @@ For each seed, one run of the window's maximum length; the estimate at time T is
 window [0, T] (the core averages from its start). Per method x window: coverage (|error| <= 3-sigma on yaw and on both
 level axes), median |error|, median 3-sigma, the datasheet-only 3-sigma (the covariance before issue 15), how many
 runs said "no heading", and the physical floors b_acc/g and eps_east/(omega_ie cos lat) (medians over the seeds' drawn
-biases). Aligned flag (eval/aligned.py criteria: 3-sigma thresholds held hold_s; the coarse core has no innovations,
+biases). Aligned flag (session/flag.py criteria: 3-sigma thresholds held hold_s; the coarse core has no innovations,
 so NIS is off and every second counts as a fresh update): epochs with the flag up and the error outside its 3-sigma,
 and outside the flag's own bounds. Not a unit test (test/test_coarse_rocking.py runs a short case).
 
@@ -24,7 +24,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from insalign_ros.core import earth  # noqa: E402
 from insalign_ros.core.types import ImuSample  # noqa: E402
-from insalign_ros.eval.aligned import AlignedCriteria, AlignedFlag  # noqa: E402
+from insalign_ros.session.flag import AlignedCriteria, AlignedFlag  # noqa: E402
 from insalign_ros.filters.base import AlignmentStatus  # noqa: E402
 from insalign_ros.filters.coarse import CoarseAlignment, CoarseConfig, coarse_align  # noqa: E402
 from insalign_ros.filters.static_model import DEG_H, MG, config_for_imu, physical_floor  # noqa: E402

@@ -46,7 +46,7 @@ from insalign_ros.session.offline import events_in_arrival_order  # noqa: E402
 from insalign_ros.session.session import AlignmentSession  # noqa: E402
 from insalign_ros.sim.scenarios import make_scenario  # noqa: E402
 
-YAW_BOUND_DEG = 2.5  # the aligned flag's yaw 3-sigma bound (eval/aligned.py default)
+YAW_BOUND_DEG = 2.5  # the aligned flag's yaw 3-sigma bound (session/flag.py default)
 TRUTH = {"init_mode": "truth", "init_rpy_error_deg": [2.0, -2.0, 10.0]}
 SHIP = {"imu_grade": SCENARIO_IMU_GRADE["ship"], **TRUTH}  # the scenario's own IMU noise (docs/imu_grades.md)
 

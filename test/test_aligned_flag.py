@@ -1,4 +1,4 @@
-"""The aligned-flag criteria (insalign_ros/eval/aligned.py): pure, no ROS."""
+"""The aligned-flag criteria (insalign_ros/session/flag.py): pure, no ROS."""
 
 import math
 
@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from insalign_ros.core import earth
-from insalign_ros.eval.aligned import AlignedCriteria, AlignedFlag, attitude_3sigma_deg, euler_3sigma_deg, nis_band
+from insalign_ros.session.flag import AlignedCriteria, AlignedFlag, attitude_3sigma_deg, euler_3sigma_deg, nis_band
 
 D2R = math.pi / 180.0
 

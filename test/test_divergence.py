@@ -180,12 +180,12 @@ def test_diagnostics_show_the_cusum_that_drops_the_flag(ship):
 
     def kick_and_watch(s):
         yaw_kick(8.0)(s)
-        lower = s._lower_flag
+        lower = s.monitor.lower_flag
 
         def spy(reason, *a, **k):
             seen.append((reason, s.diagnostics()))
             return lower(reason, *a, **k)
-        s._lower_flag = spy
+        s.monitor.lower_flag = spy
 
     run(ship, {"core": "iekf", **SHIP}, at_s=60.0, action=kick_and_watch)
     hits = [d for reason, d in seen if "inconsistent innovations" in reason]

@@ -77,7 +77,7 @@ def test_session_resolves_the_grade_under_explicit_core_parameters():
     assert p["consider_gyro_bias_deg_h"] == 360.0 and p["gyro_arw_deg_sqrt_h"] == u.gyro_arw_deg_sqrt_h
     # reconfigure with another grade: new priors, the alignment restarts
     cfg = SessionConfig(core="iekf", imu_grade="navigation")
-    from insalign_ros.eval.aligned import AlignedCriteria
+    from insalign_ros.session.flag import AlignedCriteria
 
     assert s.reconfigure(cfg, {}, AlignedCriteria())
     assert s.core_params["init_sigma_gyro_bias_deg_h"] == GRADES["navigation"].gyro_bias_deg_h

@@ -47,9 +47,9 @@ def test_truth_slerp_between_two_poses_is_scipys_slerp():
     s.push_truth(TruthSample(10.1, Cb))
     ref = Slerp([10.0, 10.1], Rotation.from_matrix([Ca, Cb]))
     for t in (10.0, 10.013, 10.05, 10.0999, 10.1):
-        got = s._truth_at(t)
+        got = s.outputs.truth_at(t)
         assert np.max(np.abs(got - ref([t]).as_matrix()[0])) < 1e-15, t
-    assert s._truth_at(10.2) is None  # nothing after: no extrapolation
+    assert s.outputs.truth_at(10.2) is None  # nothing after: no extrapolation
 
 
 def test_diagnostics_window_and_quantiles_equal_a_deque_and_numpy_percentile():

@@ -230,7 +230,7 @@ def test_no_capability_probing_in_nodes_and_session():
 def test_euler_3sigma_closed_form_matches_central_differences():
     from scipy.spatial.transform import Rotation
 
-    from insalign_ros.eval.aligned import euler_3sigma_deg
+    from insalign_ros.session.flag import euler_3sigma_deg
 
     rng = np.random.default_rng(0)
     for _ in range(20):

@@ -299,11 +299,11 @@ def test_session_buffers_and_float_helpers():
     nothing (finite, symmetric correlation, smallest eigenvalue >= -1e-9, level within the bound)."""
     from collections import deque
 
-    from insalign_ros.session import session as S
+    from insalign_ros.session import buffers, guard, loop, outputs
 
     rng = np.random.default_rng(3)
     X = rng.normal(size=(4000, 2, 3)) * rng.lognormal(0.0, 3.0, size=(4000, 2, 1))
-    assert all(S._dist3(a.tolist(), b.tolist()) == float(np.linalg.norm(a - b)) for a, b in X)
+    assert all(loop.dist3(a.tolist(), b.tolist()) == float(np.linalg.norm(a - b)) for a, b in X)
     fine = 0
     for k in range(3000):
         A = rng.normal(size=(3, 3)) * rng.lognormal(0.0, 2.0, size=3)
@@ -311,15 +311,15 @@ def test_session_buffers_and_float_helpers():
         if k % 7 == 0:
             P = np.outer(A[0], A[0]) + 10 ** rng.uniform(-12, -5) * np.eye(3) * (A[0] @ A[0])
         lvl = 10 ** rng.uniform(0.0, 4.0)
-        if S._covariance_plainly_fine(P, lvl):
+        if guard.covariance_plainly_fine(P, lvl):
             fine += 1
             C = P / np.sqrt(np.outer(np.diag(P), np.diag(P)))
             assert np.abs(C - C.T).max() <= 1e-6 and np.linalg.eigvalsh(0.5 * (C + C.T))[0] >= -1e-9
             assert 3.0 * np.degrees(np.sqrt(max(P[0, 0], P[1, 1]))) <= lvl
-        assert S._all_finite(P) and not S._all_finite(np.where(np.arange(9).reshape(3, 3) == k % 9, np.nan, P))
+        assert outputs.all_finite(P) and not outputs.all_finite(np.where(np.arange(9).reshape(3, 3) == k % 9, np.nan, P))
     assert 300 < fine < 2900  # both answers occur
     # _ImuBuffer: blocks, single pushes, an out-of-order insert, takes across blocks = one sorted list
-    buf, ref = S._ImuBuffer(), []
+    buf, ref = buffers.ImuBuffer(), []
     t = 0.0
     for k in range(40):
         m = int(rng.integers(1, 30))
@@ -348,8 +348,8 @@ def test_session_buffers_and_float_helpers():
             del ref[:n]
         assert len(buf) == len(ref) and (buf.first() is None if not ref else buf.first()[0] == ref[0][0])
     # Ring = deque(maxlen) of rows; _RecentStamps = the deque + set of the last maxlen stamps
-    ring, dq = S.Ring(50, 3), deque(maxlen=50)
-    rec, rdq = S._RecentStamps(64), deque(maxlen=64)
+    ring, dq = buffers.Ring(50, 3), deque(maxlen=50)
+    rec, rdq = buffers.RecentStamps(64), deque(maxlen=64)
     s0 = 0.0
     for k in range(300):
         m = int(rng.integers(1, 80)) if k % 2 else 1

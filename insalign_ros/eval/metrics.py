@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from ..core import earth
 from ..filters.base import AlignmentEstimate
-from .aligned import chi2_ppf
+from ..core.stats import chi2_ppf
 
 
 @dataclass

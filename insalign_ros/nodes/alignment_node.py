@@ -50,7 +50,7 @@ from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
 from ..core.types import GnssVelocity, ImuSample
-from ..eval.aligned import AlignedCriteria
+from ..session.flag import AlignedCriteria
 from ..filters import registry
 from ..filters.imu_grade import GRADES, grade_params
 from ..filters.liekf import Liekf

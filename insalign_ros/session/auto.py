@@ -34,7 +34,7 @@ import numpy as np
 
 from ..core import earth
 from ..core.types import GnssFix, ImuSample
-from ..eval.aligned import chi2_ppf
+from ..core.stats import chi2_ppf
 from ..filters import imu_grade, registry
 from ..filters.base import AlignmentCore, AlignmentEstimate, AlignmentStatus, UpdateResult
 from ..filters.config import ConfigDict

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..eval.aligned import chi2_ppf
+from ..core.stats import chi2_ppf
 from ..filters import imu_grade
 from ..filters.config import ConfigDict
 from ..sim import error_model

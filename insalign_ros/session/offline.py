@@ -14,11 +14,13 @@ import numpy as np
 
 from ..core import earth
 from ..core.types import GnssFix, GnssVelocity, ImuSample
-from ..eval.aligned import AlignedCriteria
+from .flag import AlignedCriteria
 from ..sim.types import ScenarioData
 from .config import SessionConfig
-from .session import AlignmentSession, Output, TruthSample, TruthTable  # noqa: F401  (TruthSample re-exported)
-from .session import truth_table_valid
+from .outputs import Output
+from .session import AlignmentSession
+from .truth import TruthSample, TruthTable  # noqa: F401  (TruthSample re-exported)
+from .truth import truth_table_valid
 
 
 @dataclass
@@ -127,7 +129,7 @@ def run_session(session: AlignmentSession, data: ScenarioData, fix_delay_s: floa
         try:
             return _run_session_arrays(session, data, fix_delay_s, chunk, progress)
         finally:
-            session._fill_deferred_errors()
+            session.outputs.fill_deferred_errors()
     out: list[Output] = []
     n_imu = 0
     for kind, item in events_in_arrival_order(data, fix_delay_s):
@@ -174,7 +176,7 @@ def _run_session_arrays(session: AlignmentSession, data: ScenarioData, fix_delay
     tv = np.ascontiguousarray(t[vi], float)
     wv = np.ascontiguousarray(data.omega_ib_b[vi], float)
     fv = np.ascontiguousarray(data.f_ib_b[vi], float)
-    ok, cont = session._imu_array_checks(tv, wv, fv)
+    ok, cont = session.inputs.imu_array_checks(tv, wv, fv)
     truth_ok = truth is not None and truth_table_valid(truth)
     j = 0
     a = 0
@@ -183,7 +185,7 @@ def _run_session_arrays(session: AlignmentSession, data: ScenarioData, fix_delay
             session.push_truth_table(truth, a, b + 1, checked=truth_ok)
         p, q = int(n_valid[a] - imu_ok[a]), int(n_valid[b])  # the valid rows a..b
         if q > p:
-            session._push_imu_checked(tv[p:q], wv[p:q], fv[p:q], ok[p:q], cont[p:q - 1])
+            session.inputs.push_imu_checked(tv[p:q], wv[p:q], fv[p:q], ok[p:q], cont[p:q - 1])
         if imu_ok[b] and n_valid[b] % chunk == 0:
             out += session.process()
             if progress is not None:
@@ -214,7 +216,7 @@ def align(source, core: str | None = None, duration_s: float | None = None, seed
 
     ``session_params``: fields of :class:`SessionConfig` (e.g. ``init_mode="truth"``, ``init_rpy_error_deg``,
     ``initial_rpy_deg``, ``output_period_s``); ``core_params``: the core's config fields; ``criteria``: the
-    aligned-flag criteria (eval/aligned.py); ``core`` None: SessionConfig's default (``auto``). A source without truth cannot use ``init_mode="truth"``."""
+    aligned-flag criteria (session/flag.py); ``core`` None: SessionConfig's default (``auto``). A source without truth cannot use ``init_mode="truth"``."""
     data = load_source(source, duration_s, seed, **(reader_kwargs or {}))
     cfg = SessionConfig.from_dict({**({} if core is None else {"core": core}), **session_params})
     if cfg.init_mode == "truth" and not data.has_truth:

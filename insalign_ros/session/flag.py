@@ -28,13 +28,10 @@ from collections import deque
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy.special import chdtri
+
+from ..core.stats import chi2_ppf
 
 
-def chi2_ppf(q: float, dof: float) -> float:
-    """Chi-square quantile (scipy.stats.chi2.ppf(q, dof)) from scipy.special: importing scipy.stats costs a node
-    ~0.4 s on an idle core (several seconds on a loaded one) for this one function."""
-    return float(chdtri(dof, 1.0 - q))
 
 
 @dataclass
@@ -61,9 +58,10 @@ class AlignedCriteria:
     max_update_age_s: float = 5.0
 
     def validate(self) -> None:
+        values = asdict(self)
         for name in ("roll_pitch_3sigma_deg", "yaw_3sigma_deg", "nis_alpha", "nis_alpha_drop", "hold_s",
                      "max_update_age_s"):
-            v = getattr(self, name)
+            v = values[name]
             if not (isinstance(v, (int, float)) and math.isfinite(v)):
                 raise ValueError(f"{name}: expected a finite number, got {v!r}")
         if not self.roll_pitch_3sigma_deg > 0 or not self.yaw_3sigma_deg > 0:

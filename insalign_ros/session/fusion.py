@@ -1,0 +1,183 @@
+"""The schedule: what is fused when. Fixes and GNSS velocities at their own stamps (through the outlier gate of the
+divergence guard), zero-velocity updates for static cores, backtracking passes in the background.
+
+docs/session.md, "Schedule"."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..core.types import GnssFix, GnssVelocity, ImuSample
+from .guard import fix_point
+from .outputs import Output
+
+
+class Fusion:
+    """Feeds the core: IMU samples, fixes, velocities and zero-velocity updates, in stamp order."""
+
+    def __init__(self, session) -> None:
+        self.s = session
+
+    def reset(self) -> None:
+        pass
+
+    def feed(self, event) -> None:
+        sess = self.s
+        sess._est_memo = None
+        if sess.bt is not None:
+            sess.bt.feed(event)
+        elif isinstance(event, ImuSample):
+            sess.core.propagate(event)
+        else:
+            return
+
+    def apply_due_fixes(self, out: list[Output]) -> None:
+        sess = self.s
+        if sess.core is not None and sess.processed_t is not None:
+            self.apply_fixes_until(sess.processed_t, out)
+
+    def apply_fixes_until(self, t: float, out: list[Output]) -> None:
+        sess = self.s
+        b = sess.buf
+        while b.fix_t and b.fix_t[0] <= t and sess.core is not None:
+            b.fix_t.pop(0)
+            fix = b.fix.pop(0)
+            if fix.stamp_s == sess._used_fix_stamp:
+                sess.guard._fix_seq.append(fix_point(fix))  # divergence guard: the jump test goes on from the init's fixes
+                continue  # gave the initial position: not fused twice
+            if fix.stamp_s < sess.init_t:
+                sess.counters["gnss_before_init"] += 1
+                sess.guard._fix_seq.append(fix_point(fix))  # divergence guard (as above)
+                continue
+            sess._est_memo = None
+            self._fuse_fix(fix)
+        self._apply_velocities_until(t)
+
+    def _fuse_fix(self, fix: GnssFix) -> None:
+        sess = self.s
+        core = sess.core
+        if not core.supports_gnss:
+            sess.counters["gnss_unused"] += 1
+            core.observe_gnss(fix)  # (core: auto's motion detector takes the GNSS speed)
+            return
+        gate = sess.cfg.gnss_gate_nis
+        jump = sess.guard.fix_jump(fix)
+        if jump and sess.guard.restart_young_reinit():  # divergence guard
+            return
+        # a jump in the fix sequence is suspect by itself: gated even while the core does not claim its attitude
+        if gate > 0 and (sess.monitor.attitude_claimed() or jump or sess.guard._hold_since is not None):
+            pr = core.predict_gnss(fix)
+            if pr.S.size and pr.nis > gate:
+                sess.counters["gnss_gated"] += 1
+                sess.counters["gnss_rejected"] += 1
+                sess.guard.gated_run += 1
+                sess.last_reject = f"gnss: NIS {pr.nis:.3g} above the gate {gate:g} (|innovation| {np.linalg.norm(pr.innovation):.3g} m)"
+                sess.log("warn", "gnss_gated", f"fix gated: {sess.last_reject[6:]} ({sess.guard.gated_run} in a row, "
+                                               f"gnss_gated={sess.counters['gnss_gated']})")
+                # an implausible fix while the core claims its attitude: the claim cannot be trusted now
+                sess.monitor.lower_flag(f"a fix failed the NIS gate ({sess.guard.gated_run} in a row)")
+                if sess.guard.hold(fix, jump, pr.nis, float(np.linalg.norm(pr.innovation))):
+                    return
+                if sess.guard.gated_run_evidence(pr.nis, len(pr.innovation) or 3):  # divergence guard
+                    return
+                if sess.guard.gated_run >= sess.cfg.gnss_gate_max_consecutive:
+                    sess._diverged(f"{sess.guard.gated_run} consecutive fixes beyond the NIS gate (last NIS {pr.nis:.3g}), "
+                                   "continuous with the fixes before them: the filter is lost")
+                return
+        sess.guard.gated_run = 0
+        if sess.guard._hold_since is not None:
+            sess.log("info", "gnss_hold", f"GNSS agrees with the held filter again after "
+                                          f"{fix.stamp_s - sess.guard._hold_since:.1f} s: fusing fixes")
+            sess.guard._hold_since = None
+        res = sess.bt.feed(fix) if sess.bt is not None else core.update_gnss(fix)
+        if res is None:
+            return
+        sess.last_nis = res.nis
+        if res.accepted and sess.guard.nis_diverged(res.nis, len(res.innovation) or 3):
+            return
+        if res.accepted:
+            sess.counters["gnss_accepted"] += 1
+            sess.last_accepted_fix_t = fix.stamp_s
+        else:
+            sess.counters["gnss_filter_rejected"] += 1
+            sess.counters["gnss_rejected"] += 1
+            sess.last_reject = f"gnss: core: {res.reason}"
+            sess.log("warn", "gnss_filter_rejected", f"fix rejected by the core: {res.reason}")
+        sess.flag.on_update(sess.processed_t, res.accepted, res.nis, len(res.innovation) or 3)
+
+    def _apply_velocities_until(self, t: float) -> None:
+        sess = self.s
+        b = sess.buf
+        while b.vel_t and b.vel_t[0] <= t and sess.core is not None:
+            b.vel_t.pop(0)
+            vel = b.vel.pop(0)
+            if vel.stamp_s < sess.init_t:
+                sess.counters["gnss_vel_before_init"] += 1
+                continue
+            sess._est_memo = None
+            self._fuse_velocity(vel)
+
+    def _fuse_velocity(self, vel: GnssVelocity) -> None:
+        """One GNSS velocity into the core: the NIS gate of the fixes (while the attitude is claimed), then the
+        core's update; the flag's NIS window sees its NIS like a fix's."""
+        sess = self.s
+        core, c = sess.core, sess.counters
+        if not core.supports_gnss_velocity or sess.bt is not None:
+            c["gnss_vel_unused"] += 1
+            return
+        gate = sess.cfg.gnss_gate_nis
+        if gate > 0 and sess.monitor.attitude_claimed():
+            pr = core.predict_gnss_velocity(vel)
+            if pr.S.size and pr.nis > gate:
+                sess.inputs.reject("gnss_vel", "velocity", "gnss_vel_gated", f"NIS {pr.nis:.3g} above the gate {gate:g} "
+                             f"(|innovation| {np.linalg.norm(pr.innovation):.3g} m/s)")
+                sess.monitor.lower_flag("a GNSS velocity failed the NIS gate")
+                return
+        res = core.update_gnss_velocity(vel)
+        if res.accepted:
+            c["gnss_vel_accepted"] += 1
+        else:
+            c["gnss_vel_filter_rejected"] += 1
+            c["gnss_vel_rejected"] += 1
+            sess.last_reject = f"gnss_vel: core: {res.reason}"
+            sess.log("warn", "gnss_vel_filter_rejected", f"GNSS velocity rejected by the core: {res.reason}")
+        sess.flag.on_update(sess.processed_t, res.accepted, res.nis, len(res.innovation) or 3)
+
+    def zupt_due(self, t: float) -> bool:
+        sess = self.s
+        c = sess.core
+        return (c.supports_zero_velocity and not c.supports_gnss and not c.schedules_own_zero_velocity
+                and sess.cfg.zupt_rate_hz > 0 and t >= sess.next_zupt_t)
+
+    def _zupt(self, t: float) -> None:
+        sess = self.s
+        sess._est_memo = None
+        res = sess.core.update_zero_velocity(t, sess.cfg.zupt_sigma_m_s)
+        sess.next_zupt_t = t + 1.0 / sess.cfg.zupt_rate_hz - 1e-9
+        if res.accepted:
+            sess.counters["zupt_accepted"] += 1
+        sess.flag.on_update(t, res.accepted, res.nis, len(res.innovation) or 3)
+
+    def background(self, budget_s: float) -> None:
+        sess = self.s
+        if sess.bt is None or not sess.bt.busy:
+            return
+        try:
+            if budget_s == math.inf:
+                sess.bt.run_until_done()
+            else:
+                sess.bt.step_background(budget_s)
+            self.after_handover()
+        except Exception as exc:  # noqa: BLE001
+            sess._fault(exc)
+
+    def after_handover(self) -> None:
+        sess = self.s
+        if sess.bt is not None and sess.bt.live is not sess.core:
+            old = sess.core
+            sess.core = sess.bt.live
+            if old is not None:
+                old.close()
+            sess.log("info", "backtrack", "backtracking: handed over to the re-aligned core")

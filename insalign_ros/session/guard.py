@@ -1,0 +1,239 @@
+"""Integrity of the GNSS-aided filter (the divergence guard): jumps in the fix sequence, the hold through bad fixes,
+the windowed NIS test, the CUSUM of the NIS and the attitude-covariance sanity checks. A filter found lost is
+re-initialised by the session (FAULT with the reason).
+
+docs/session.md, "Outliers and divergence"."""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import numpy as np
+
+from ..core.types import GnssFix
+
+
+class DivergenceGuard:
+    """State of the guard for one filter (the fix sequence survives a re-initialisation: the session carries it)."""
+
+    def __init__(self, session) -> None:
+        self.s = session
+        self.reset()
+
+    def reset(self) -> None:
+        self.gated_run = 0
+        self._hold_since: float | None = None  # holding the filter through a GNSS jump since [s]
+        self._hold_innovation_m = 0.0  # |innovation| when the hold began (or the fixes last jumped)
+        self._fix_seq: deque = deque(maxlen=3)  # the last fixes seen (stamp, p_e, sigma_m)
+        self._nis_win: deque = deque(maxlen=max(self.s.cfg.divergence_nis_window, 1))
+        self._level_bound_deg: float | None = None  # level 3-sigma bound of this filter
+        self._cusum_llr = 0.0  # CUSUM of the NIS log-likelihood ratio while the attitude is claimed
+
+    def fix_jump(self, fix: GnssFix) -> bool:
+        """Whether ``fix`` breaks the fix sequence: off the straight-line extrapolation of the two fixes before it
+        (within 3 s each) by more than ``gnss_jump_accel_m_s2`` allows, plus 5 sigma of the fixes' noise (the
+        extrapolation error of three independent fixes: sqrt(1 + (1 + r)^2 + r^2) sigma, r = dt2/dt1). Filter-free:
+        a fix block hundreds of metres off starts (and ends) with a jump; a lost filter leaves the fixes smooth."""
+        sess = self.s
+        seq = self._fix_seq
+        point = fix_point(fix)
+        err = extrapolation_excess((seq[-2], seq[-1]), point, sess.cfg.gnss_jump_accel_m_s2) \
+            if len(seq) >= 2 else -math.inf
+        seq.append(point)
+        if err <= 0:
+            return False
+        sess.counters["gnss_jumps"] += 1
+        sess.log("warn", "gnss_jumps", f"GNSS jump at t={fix.stamp_s + sess.stamp_offset_s:.3f} s: the fix is {err:.1f} m "
+                                       f"beyond the extrapolation of the two before it (gnss_jumps={sess.counters['gnss_jumps']})")
+        return True
+
+    def hold(self, fix: GnssFix, jump: bool, nis: float, innovation_m: float) -> bool:
+        """A gated fix: True when the session holds the filter through bad fixes (a gated run that began with a
+        GNSS jump: the fixes are bad, not the filter). The filter runs on the IMU, the flag stays down; after
+        ``gnss_hold_max_s`` of fixes that still disagree, the fixes are believed (divergence, re-initialisation).
+        Sooner when the held filter drifts away from fixes that are consistent with each other: |innovation|
+        changed by more than ``gnss_hold_drift_m`` since the hold began, with no jump in between (a constant offset
+        keeps it; a filter that absorbed a walking bias before the jump back drifts at the walk's rate)."""
+        sess = self.s
+        if self.gated_run == 1 and jump and self._hold_since is None:
+            self._hold_since = float(fix.stamp_s)
+            self._hold_innovation_m = innovation_m
+            sess.counters["gnss_holds"] += 1
+            sess.log("warn", "gnss_holds", f"GNSS jumped and the filter gates the new fixes (NIS {nis:.3g}): bad fixes, not a "
+                                           f"lost filter; holding the filter on the IMU for up to {sess.cfg.gnss_hold_max_s:g} s")
+        if self._hold_since is None:
+            return False
+        held = float(fix.stamp_s) - self._hold_since
+        sess.last_reject = f"gnss: holding the filter through bad fixes ({held:.0f} s); {sess.last_reject[6:]}"
+        if jump:  # the fixes jumped again while held: a new reference for the drift
+            self._hold_innovation_m = innovation_m
+        drift = abs(innovation_m - self._hold_innovation_m)
+        if held <= sess.cfg.gnss_hold_max_s and drift <= sess.cfg.gnss_hold_drift_m:
+            return True
+        self._hold_since = None
+        why = (f"fixes disagree with the held filter for {held:.0f} s after a GNSS jump" if drift <= sess.cfg.gnss_hold_drift_m
+               else f"the held filter drifts away from consistent fixes (|innovation| changed by {drift:.0f} m in "
+                    f"{held:.0f} s without a jump)")
+        sess._diverged(f"{why} (last NIS {nis:.3g}): believing the fixes")
+        return True
+
+    def nis_diverged(self, nis: float, dof: int = 3) -> bool:
+        """Windowed NIS test of every filter, also before it claims its attitude: the mean NIS of the last
+        ``divergence_nis_window`` fused fixes above ``divergence_nis_mean`` -> divergence. Then the CUSUM of a
+        claimed filter (:meth:`_cusum`) and the attitude covariance sanity (:func:`covariance_problem`). True when
+        the session restarted."""
+        sess = self.s
+        cfg = sess.cfg
+        reason, key = self._cusum(nis, dof), "divergences_cusum"
+        if cfg.divergence_nis_window > 0 and math.isfinite(nis):
+            self._nis_win.append(float(nis))
+            mean = sum(self._nis_win) / len(self._nis_win)
+            if len(self._nis_win) >= cfg.divergence_nis_window and mean > cfg.divergence_nis_mean:
+                reason, key = reason or (f"mean NIS {mean:.3g} of the last {len(self._nis_win)} fixes above "
+                               f"{cfg.divergence_nis_mean:g} (chi-square(3) mean 3)"), "divergences_nis"
+        if not reason:
+            P = sess.outputs.estimate().P_att_n
+            if self._level_bound_deg is None:  # an initialisation from sensors may start near the bound (a_est / g)
+                d = np.clip(np.diag(P)[:2], 0.0, None)
+                self._level_bound_deg = max(cfg.divergence_level_3sigma_deg, 2.0 * 3.0 * math.degrees(math.sqrt(max(d))))
+            reason = covariance_problem(P, self._level_bound_deg)
+            key = "divergences_covariance"
+        if not reason:
+            return False
+        sess.counters[key] += 1
+        sess.monitor.lower_flag(reason)
+        sess._diverged(reason)
+        return True
+
+    def _cusum(self, nis: float, dof: int) -> str:
+        """Page's CUSUM of the log-likelihood ratio of one fix's NIS while the core claims its attitude: H0 NIS ~
+        chi-square(dof), H1 NIS ~ r chi-square(dof) (r = ``divergence_cusum_ratio``: a covariance r times too
+        small), per fix ``-dof/2 ln r + NIS/2 (1 - 1/r)``, floored at 0; armed while the 3-sigma is within
+        ``divergence_cusum_arm_factor`` times the flag's bounds (small angles: where the filter's linearisation and
+        so its NIS hold; a converging filter's NIS is large by design: the windowed test watches it), reset
+        otherwise. Above ``divergence_cusum_flag_llr`` the flag drops; above ``divergence_cusum_llr`` the reason of a
+        divergence. docs/session.md "The quiet inconsistency"."""
+        sess = self.s
+        cfg = sess.cfg
+        armed = sess.monitor.attitude_claimed(cfg.divergence_cusum_arm_factor)
+        if cfg.divergence_cusum_llr <= 0 or not math.isfinite(nis) or not armed:
+            self._cusum_llr = 0.0
+            return ""
+        r = cfg.divergence_cusum_ratio
+        self._cusum_llr = max(0.0, self._cusum_llr - 0.5 * dof * math.log(r) + 0.5 * nis * (1.0 - 1.0 / r))
+        if self._cusum_llr > cfg.divergence_cusum_llr:
+            return (f"CUSUM of the NIS log-likelihood ratio {self._cusum_llr:.3g} above {cfg.divergence_cusum_llr:g} "
+                    f"(last NIS {nis:.3g}; the filter claims its attitude with a covariance {r:g}x too small)")
+        if cfg.divergence_cusum_flag_llr > 0 and self._cusum_llr > cfg.divergence_cusum_flag_llr:
+            sess.monitor.lower_flag(f"inconsistent innovations (NIS {nis:.3g}, CUSUM {self._cusum_llr:.3g})")
+        return ""
+
+    def gated_run_evidence(self, nis: float, dof: int) -> bool:
+        """A gated fix in a run without a jump (smooth fixes the claimed filter disagrees with: the lost-filter
+        signature) is evidence for the CUSUM too, from the second fix of the run on and capped at the gate (the
+        first may be a lone outlier, and a single gated fix must not decide): a filter whose CUSUM had already risen
+        faults at its second gated fix, any other at its third, instead of the fifth (``gnss_gate_max_consecutive``).
+        From the first fix of the run when the CUSUM is already above ``divergence_cusum_flag_llr`` (the fixes
+        before it were inconsistent already: the gated fix corroborates them, it is not a lone outlier).
+        True when the session restarted."""
+        sess = self.s
+        flag_llr = sess.cfg.divergence_cusum_flag_llr
+        if self.gated_run < 2 and not (self.gated_run == 1 and 0 < flag_llr < self._cusum_llr):
+            return False
+        reason = self._cusum(min(nis, sess.cfg.gnss_gate_nis), dof)
+        if not reason:
+            return False
+        sess.counters["divergences_cusum"] += 1
+        sess._diverged(f"{reason}; {self.gated_run} gated fixes in a row")
+        return True
+
+    def restart_young_reinit(self) -> bool:
+        """A GNSS jump within ``gnss_hold_max_s`` of a re-initialisation after a divergence, before the new filter
+        claims its attitude: the fixes it started from may be the anomalous ones (a walking GNSS that made the old
+        filter's CUSUM fire, then jumped back), and a young filter (a yaw bank: no gate yet) would fuse the jump.
+        Re-initialise again from the fixes after the jump (three consistent ones). True when the session restarted."""
+        sess = self.s
+        if not (sess.initialiser._sensors_reinit and sess.init_t is not None and sess.processed_t is not None
+                and sess.processed_t - sess.init_t <= sess.cfg.gnss_hold_max_s and not sess.monitor.attitude_claimed()):
+            return False
+        sess.counters["reinit_restarts"] += 1
+        reason = (f"GNSS jump {sess.processed_t - sess.init_t:.0f} s after the re-initialisation, before the new "
+                  "filter claims its attitude: the fixes it started from are suspect")
+        sess.log("warn", "reinit_restarts", f"{reason}; re-initialising from the fixes after the jump")
+        sess._reinitialise(reason)
+        return True
+
+
+def fix_point(fix: GnssFix) -> tuple[float, np.ndarray, float]:
+    """(stamp [s], p_e [m], 1-sigma [m] per axis: the RMS of R_e's diagonal) of a fix: the jump detection's input."""
+    return float(fix.stamp_s), np.asarray(fix.p_e, float), math.sqrt(max(float(np.trace(fix.R_e)) / 3.0, 0.0))
+
+
+def extrapolation_excess(prev, point, accel_m_s2: float) -> float:
+    """How far [m] a fix ``point`` lies beyond what the straight-line extrapolation of ``prev`` (two earlier
+    points, each within 3 s of the next; points from :func:`fix_point`) allows: acceleration up to ``accel_m_s2``
+    plus 5 sigma of the three fixes' noise. -inf when the fixes are too far apart in time to tell."""
+    (t0, p0, s0), (t1, p1, s1) = prev
+    t, p, sigma_m = point
+    d1, d2 = t1 - t0, t - t1
+    if not (0 < d1 <= 3.0 and 0 < d2 <= 3.0):
+        return -math.inf
+    r = d2 / d1
+    pred = p1 + (p1 - p0) * r
+    noise = math.sqrt(s0 * s0 * r * r + s1 * s1 * (1 + r) ** 2 + sigma_m * sigma_m)
+    return float(np.linalg.norm(p - pred)) - (0.5 * accel_m_s2 * d2 * (d1 + d2) + 5.0 * noise)
+
+
+def covariance_problem(P_att: np.ndarray, level_3sigma_deg: float) -> str:
+    """Why an attitude covariance [rad^2, ENU] cannot be a filter's honest belief ("" when it can): not finite,
+    not symmetric, not positive definite, or a roll/pitch (East/North) 3-sigma beyond ``level_3sigma_deg``."""
+    if covariance_plainly_fine(P_att, level_3sigma_deg):
+        return ""
+    P = np.asarray(P_att, float)
+    if not np.all(np.isfinite(P)):
+        return "attitude covariance is not finite"
+    d = np.diag(P)
+    if np.any(d <= 0):
+        return f"attitude covariance is not positive definite (diagonal {np.array2string(d, precision=3)} rad^2)"
+    # in correlation form: a yaw variance of 1e8 rad^2 (unknown heading) next to 1e-8 rad^2 of level is no problem
+    C = P / np.sqrt(np.outer(d, d))
+    if float(np.max(np.abs(C - C.T))) > 1e-6:
+        return f"attitude covariance is not symmetric (correlation asymmetry {float(np.max(np.abs(C - C.T))):.3g})"
+    ev = np.linalg.eigvalsh(0.5 * (C + C.T))
+    if ev[0] < -1e-9:
+        return f"attitude covariance is not positive definite (correlation eigenvalue {ev[0]:.3g})"
+    s_level = 3.0 * math.degrees(math.sqrt(max(P[0, 0], P[1, 1])))
+    if s_level > level_3sigma_deg:
+        return f"level 3-sigma {s_level:.0f} deg beyond the physical bound {level_3sigma_deg:g} deg"
+    return ""
+
+
+def covariance_plainly_fine(P_att: np.ndarray, level_3sigma_deg: float) -> bool:
+    """A sufficient condition for :func:`covariance_problem` to find nothing, in Python floats (it runs after every
+    fix; numpy's eigvalsh on 3x3 costs ~15 us): finite, positive diagonal, the correlation form symmetric within the
+    same 1e-6, the symmetrised correlation minus 1e-6 I has a Cholesky factor (so its smallest eigenvalue is above
+    1e-6 minus rounding, far from the -1e-9 limit), and the same level 3-sigma test. False: the full test decides."""
+    (p00, p01, p02), (p10, p11, p12), (p20, p21, p22) = np.asarray(P_att, float).tolist()
+    if not (math.isfinite(p00 + p01 + p02 + p10 + p11 + p12 + p20 + p21 + p22) and p00 > 0 and p11 > 0 and p22 > 0):
+        return False
+    c01, c10 = p01 / math.sqrt(p00 * p11), p10 / math.sqrt(p11 * p00)
+    c02, c20 = p02 / math.sqrt(p00 * p22), p20 / math.sqrt(p22 * p00)
+    c12, c21 = p12 / math.sqrt(p11 * p22), p21 / math.sqrt(p22 * p11)
+    if max(abs(c01 - c10), abs(c02 - c20), abs(c12 - c21)) > 1e-6:
+        return False
+    s01, s02, s12 = 0.5 * (c01 + c10), 0.5 * (c02 + c20), 0.5 * (c12 + c21)
+    delta = 1e-6
+    a = p00 / math.sqrt(p00 * p00) - delta
+    if not a > 0:
+        return False
+    l00 = math.sqrt(a)
+    l10, l20 = s01 / l00, s02 / l00
+    a = p11 / math.sqrt(p11 * p11) - delta - l10 * l10
+    if not a > 0:
+        return False
+    l11 = math.sqrt(a)
+    l21 = (s12 - l20 * l10) / l11
+    if not p22 / math.sqrt(p22 * p22) - delta - l20 * l20 - l21 * l21 > 0:
+        return False
+    return not 3.0 * math.degrees(math.sqrt(max(p00, p11))) > level_3sigma_deg

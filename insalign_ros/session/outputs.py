@@ -1,0 +1,125 @@
+"""Outputs: one record per ``output_period_s`` of data time (estimate, flag, status, 3-sigma, and the Euler error
+where a truth pose is at hand)."""
+
+from __future__ import annotations
+
+import bisect
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core import earth, lie
+from ..filters.base import AlignmentEstimate, AlignmentStatus
+from .flag import euler_3sigma_deg
+from .truth import TruthDict
+
+
+@dataclass
+class Output:
+    """One estimate output (every ``output_period_s`` of data time)."""
+
+    stamp_s: float
+    estimate: AlignmentEstimate
+    aligned: bool
+    status: AlignmentStatus
+    reason: str
+    euler_3sigma_deg: np.ndarray  # roll, pitch, yaw 3-sigma [deg]
+    euler_error_deg: np.ndarray | None = None  # estimate minus truth [deg] (when a truth pose is at this stamp)
+    truth_C_b_n: np.ndarray | None = None
+
+
+class Outputs:
+    """Builds the output records (and the estimate they share with the divergence guard)."""
+
+    def __init__(self, session) -> None:
+        self.s = session
+
+    def reset(self) -> None:
+        pass
+
+    def estimate(self) -> AlignmentEstimate:
+        """``core.estimate()`` once per core state: the divergence guard's covariance test after a fix and the output
+        at the same sample read the same one (the memo is dropped whenever the session hands the core a sample or an
+        update)."""
+        sess = self.s
+        m, core = sess._est_memo, sess.core
+        if m is not None and m[0] is core:
+            return m[1]
+        est = core.estimate()
+        sess._est_memo = (core, est)
+        return est
+
+    def output(self, t: float) -> Output:
+        sess = self.s
+        est = self.estimate()
+        P = est.P_att_n
+        if not (math.isfinite(est.lat_rad) and all_finite(P) and all_finite(est.C_b_n)):
+            raise FloatingPointError("non-finite estimate")
+        was = sess.flag.aligned
+        now = sess.flag.on_estimate(t, P) and not sess.watchdog_reason
+        if not now:
+            sess.flag.aligned = False
+        if now != was:
+            sess.flag_changes.append((t, now, sess.flag.reason))
+            sess.log("info", "flag", f"aligned flag {'raised' if now else 'lowered'} at t={t + sess.stamp_offset_s:.3f} s: {sess.flag.reason}")
+        sess.status = AlignmentStatus.ALIGNED if now else AlignmentStatus.CONVERGING
+        if not now and est.status == AlignmentStatus.WAITING_FOR_MOTION:  # issue 14: core auto, heading needs motion
+            sess.status = est.status
+        sess.reason = sess.flag.reason if not est.reason else f"{sess.flag.reason}; {est.reason}"
+        tr = self.truth_at(t)
+        o = Output(t, est, now, sess.status, sess.reason, euler_3sigma_deg(est.C_b_n, P), None, tr)
+        if tr is not None:
+            if sess._deferred_errors is not None:
+                sess._deferred_errors.append(o)
+            else:
+                o.euler_error_deg = np.degrees(earth.euler_error_rad(est.C_b_n, tr))
+        sess.last_output = o
+        return o
+
+    def fill_deferred_errors(self) -> None:
+        """The Euler errors of the outputs deferred by ``run_session``, in one vectorised call (numpy's elementwise
+        functions: the numbers of one call per output, test_speed_paths); deferring ends."""
+        sess = self.s
+        outs, sess._deferred_errors = sess._deferred_errors, None
+        if outs:
+            E = np.degrees(earth.euler_error_rad(np.array([o.estimate.C_b_n for o in outs], float),
+                                                 np.array([o.truth_C_b_n for o in outs], float)))
+            for o, e in zip(outs, E):
+                o.euler_error_deg = e
+
+    def truth_at(self, t: float) -> np.ndarray | None:
+        """Truth attitude at ``t``: the pose stamped there (within 1 us), else the slerp between the two poses that
+        bracket ``t`` within 0.25 s (a truth topic at its own rate), else None."""
+        sess = self.s
+        b = sess.buf
+        tt = b.truth_t
+        # truth is only needed near the filter time: forget what is more than 2 s behind
+        n_old = bisect.bisect_left(tt, t - 2.0)
+        if n_old:
+            for k in tt[:n_old]:
+                del b.truth[k]
+            del tt[:n_old]
+        if isinstance(b.truth, TruthDict):
+            if not tt:  # the pending rows come after every stamp in the dict
+                b.truth.drop_pending_before(t - 2.0)
+            before, after = b.truth.around(t - 1e-6)
+        else:
+            i = bisect.bisect_left(tt, t - 1e-6)
+            before = (tt[i - 1], b.truth[tt[i - 1]].C_b_n) if 0 < i <= len(tt) else None
+            after = (tt[i], b.truth[tt[i]].C_b_n) if i < len(tt) else None
+        if after is not None and abs(after[0] - t) <= 1e-6:
+            return np.asarray(after[1], float)
+        if before is not None and after is not None and after[0] - before[0] <= 0.25:
+            # slerp C_a exp(s log(C_a^T C_b)), s = (t - t_a) / (t_b - t_a): what scipy's Slerp computes, without
+            # building its objects (~40 vs ~155 us; once per output with a truth topic; docs/nodes.md, "CPU share")
+            C_a = np.asarray(before[1], float)
+            s = (t - before[0]) / (after[0] - before[0])
+            return C_a @ lie.so3_exp(s * lie.so3_log(C_a.T @ np.asarray(after[1], float)))
+        return None
+
+
+def all_finite(X: np.ndarray) -> bool:
+    """``np.all(np.isfinite(X))`` for a small array, without numpy's per-call overhead (the sum of finite numbers
+    overflows only beyond 1e308: then numpy decides)."""
+    return math.isfinite(sum(X.ravel().tolist())) or bool(np.all(np.isfinite(X)))

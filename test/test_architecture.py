@@ -1,0 +1,40 @@
+"""The shape of the package as a contract (docs/architecture.md): the import layers (import-linter, .importlinter at
+the repository root), no import cycles, no probing of cores, files a reader can hold."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PKG = ROOT / "insalign_ros"
+
+
+def test_the_import_layers_and_the_acyclic_contract_hold():
+    """`lint-imports` (import-linter, pinned in requirements.txt) with the repository's .importlinter: the layers, the
+    ROS-free lower layers, the node importing nothing from filters/, no cycles between sibling modules."""
+    exe = Path(sys.executable).parent / "lint-imports"
+    assert exe.exists(), f"import-linter is not installed beside {sys.executable} (requirements.txt pins it)"
+    r = subprocess.run([str(exe), "--config", str(ROOT / ".importlinter"), "--no-cache"], cwd=ROOT,
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout[-4000:] + r.stderr[-2000:]
+
+
+def test_no_file_of_the_package_is_longer_than_600_lines():
+    long = {str(p.relative_to(ROOT)): n for p in PKG.rglob("*.py")
+            if (n := len(p.read_text().splitlines())) > 600}
+    assert not long, long
+
+
+def test_the_session_orchestrator_is_short():
+    n = len((PKG / "session" / "session.py").read_text().splitlines())
+    assert n < 400, n
+
+
+def test_no_twin_paths_and_no_probing_of_cores():
+    pattern = re.compile(r"nb\.ENABLED|__class__ =|type\(core\) is|__mro__")
+    hits = [f"{p.relative_to(ROOT)}:{i}" for p in PKG.rglob("*.py")
+            for i, line in enumerate(p.read_text().splitlines(), 1) if pattern.search(line)]
+    assert not hits, hits
