@@ -56,7 +56,7 @@ SECTIONS = [
                           "--duration", "120", "--no-throughput", "--serial"]),
     Section("kitti", "Real data: KITTI 2011_10_03_drive_0042",
             "OXTS IMU and GNSS of a real drive, initial error 10/10/60 deg from the OXTS reference "
-            "(benchmarks/kitti_0042.py; docs/real_data.md).",
+            "(benchmarks/kitti_0042.py; docs/bag_contract.md for the importer).",
             "kitti_0042", ["--cores", "liekf", "iekf"], needs=DATA),
     Section("flag", "Aligned flag, Monte Carlo",
             "The session's aligned flag at 10 Hz with the default criteria (eval/aligned.py): runs in which the flag was "
@@ -78,7 +78,7 @@ SECTIONS = [
                              "--timing-duration", "60"]),
     Section("auto", "core auto: parked, then driving",
             "The default core: static alignment while parked, the in-motion core once the vehicle moves "
-            "(docs/auto_mode.md).",
+            "(docs/session.md, docs/motion_detector.md).",
             "auto_mode_mc", ["--runs", "2", "--grades", "park_drive", "--serial"]),
     Section("speed", "Speed",
             "Samples per second of the paths users take (default configuration: initialisation from the sensors, "
