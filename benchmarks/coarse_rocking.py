@@ -7,7 +7,7 @@ level axes), median |error|, median 3-sigma, the datasheet-only 3-sigma (the cov
 runs said "no heading", and the physical floors b_acc/g and eps_east/(omega_ie cos lat) (medians over the seeds' drawn
 biases). Aligned flag (session/flag.py criteria: 3-sigma thresholds held hold_s; the coarse core has no innovations,
 so NIS is off and every second counts as a fresh update): epochs with the flag up and the error outside its 3-sigma,
-and outside the flag's own bounds. Not a unit test (test/test_coarse_rocking.py runs a short case).
+and outside the flag's own bounds. Every run goes through ``ia.align``. Not a unit test (test/test_coarse_rocking.py runs a short case).
 
     nice .venv/bin/python benchmarks/coarse_rocking.py --seeds 25                      # rocking 0.2 deg, navgrade
     nice .venv/bin/python benchmarks/coarse_rocking.py --seeds 25 --rock-deg 0         # quiet navgrade
@@ -23,10 +23,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from insalign_ros.core import earth  # noqa: E402
-from insalign_ros.core.types import ImuSample  # noqa: E402
 from insalign_ros.session.flag import AlignedCriteria, AlignedFlag  # noqa: E402
 from insalign_ros.filters.base import AlignmentStatus  # noqa: E402
-from insalign_ros.filters.coarse import CoarseAlignment, CoarseConfig, coarse_align  # noqa: E402
+from insalign_ros.filters.coarse import CoarseConfig, coarse_align  # noqa: E402
 from insalign_ros.filters.static_model import DEG_H, MG, config_for_imu, physical_floor  # noqa: E402
 from insalign_ros.sim.scenarios import make_scenario  # noqa: E402
 
@@ -34,23 +33,25 @@ WINDOWS_S = (10.0, 20.0, 30.0, 60.0, 120.0, 300.0)
 R2D = 180.0 / math.pi
 
 
-def record(core, sc, az0_rad=math.radians(90.0), init_sigma_yaw_deg=100.0, offset_s=0.4):
-    """Run a coarse core over a scenario; every second at offset_s past the second (the scenario's 1.3 Hz sway makes
-    whole multiples of 10 s whole periods, whose net rotation is zero): t [s], error psi (3,) [rad], 3-sigma (3,)
-    [rad], status."""
-    C0 = earth.C_b_n_from_rpy(0.0, 0.0, az0_rad) @ sc.C_b_n[0]
-    P0 = np.diag(np.radians([2.0, 2.0, init_sigma_yaw_deg]) ** 2)
-    core.initialize(float(sc.t_s[0]), float(sc.lat_rad[0]), float(sc.lon_rad[0]), float(sc.h_m[0]), C0,
-                    np.zeros(3), P0, 0.01, 1.0)
-    every = int(round(1.0 / float(sc.t_s[1] - sc.t_s[0])))
-    off = int(round(offset_s * every)) % every
+def record(params: dict, sc, az0_rad=math.radians(90.0), init_sigma_yaw_deg=100.0, offset_s=0.4):
+    """Run the coarse core (config ``params``) over a scenario through ``ia.align`` (the truth turned by az0 about Up as
+    the initial guess, which the coarse alignment does not use; outputs every 0.2 s of data time); keep every second
+    at offset_s past the second (the scenario's 1.3 Hz sway makes whole multiples of 10 s whole periods, whose net
+    rotation is zero): t [s], error psi (3,) [rad], 3-sigma (3,) [rad], the core's status."""
+    import insalign_ros as ia
+
+    r = ia.align(sc, core="coarse", core_params=params, init_mode="truth",
+                 init_rpy_error_deg=[0.0, 0.0, math.degrees(az0_rad)],
+                 init_sigma_rpy_deg=[2.0, 2.0, init_sigma_yaw_deg], output_period_s=0.2)
     out = []
-    for k in range(1, sc.n):
-        core.propagate(ImuSample(float(sc.t_s[k]), sc.omega_ib_b[k], sc.f_ib_b[k]))
-        if k % every == off:
-            e = core.estimate()
-            out.append((float(sc.t_s[k]), earth.heading_error_enu_rad(e.C_b_n, sc.C_b_n[k]),
-                        3.0 * np.sqrt(np.diag(e.P_att_n)), e.status))
+    for o in r.outputs[1:]:  # the initial estimate is not a result
+        t = o.stamp_s - float(sc.t_s[0])
+        if abs(t - math.floor(t) - offset_s) > 1e-6:
+            continue
+        k = min(int(np.searchsorted(sc.t_s, o.stamp_s - 1e-9)), sc.n - 1)
+        e = o.estimate
+        out.append((float(o.stamp_s), earth.heading_error_enu_rad(e.C_b_n, sc.C_b_n[k]),
+                    3.0 * np.sqrt(np.diag(e.P_att_n)), e.status))
     return out
 
 
@@ -94,7 +95,7 @@ def main(argv=None) -> int:
         floors.append((fl["level_rad"], fl["azimuth_rad"]))
         for method in ("average", "inertial"):
             cfg = config_for_imu(CoarseConfig, sc.imu_spec, method=method)
-            rec = record(CoarseAlignment(cfg), sc)
+            rec = record(cfg.to_dict(), sc)
             f = flags.setdefault(method, np.zeros(3, int))
             f += flag_violations(rec, criteria)
             t = np.array([r[0] for r in rec])

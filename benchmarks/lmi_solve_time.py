@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
 """PI-LIEKF LMI solve time over yaw sweeps (issue 16, item 3). Not a unit test.
 
-For each scenario, seed and initial yaw error, one offline PI-LIEKF run (synchronous LMI, the default config with
-the noise matched to the scenario IMU, as benchmarks/yaw_sweep.py runs it). Per scenario: solves, certified,
+For each scenario, seed and initial yaw error, one PI-LIEKF run through ``ia.align`` (the session users run; initial
+error from the truth, synchronous LMI, the default config with the noise matched to the scenario IMU, as
+benchmarks/yaw_sweep.py runs it). Per scenario: solves, certified,
 fallbacks, budget misses, and the distribution of the single-solve times (LmiResult.solve_time_s; a miss counts
 the time the update waited) against the target (0.5 s) and the budget (``lmi_time_budget_s``). ``--slow`` adds the
 reproduction of a slow solve (a ship at 4 m/s in low waves: no candidate certifies; CLARABEL fails fast, SCS iterates
@@ -26,9 +27,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "benchmarks")]
 
-from insalign_ros.filters.registry import make_core  # noqa: E402
-from insalign_ros.filters.runner import run_offline  # noqa: E402
+import insalign_ros as ia  # noqa: E402
+from insalign_ros.filters.imu_grade import SCENARIO_IMU_GRADE  # noqa: E402
+from insalign_ros.filters.registry import make_config  # noqa: E402
 from insalign_ros.sim.scenarios import SCENARIOS, make_scenario  # noqa: E402
+from recorded_core import register_recorded, with_history  # noqa: E402
 from yaw_sweep import imu_matched_params  # noqa: E402
 
 TARGET_S = 0.5
@@ -36,14 +39,20 @@ SLOW_SHIP = {"speed_m_s": 4.0, "amp_e_m": 0.5, "amp_n_m": 0.5, "amp_u_m": 0.3}
 
 
 def run(data, yaw_deg: float, params: dict) -> tuple[list, dict, float]:
-    """One offline run: (lmi_history, diagnostics, wall time [s])."""
-    core = make_core("pi_liekf", params)
+    """One run through ``ia.align``: (lmi_history, the core's diagnostics, wall time [s])."""
+    record: list = []
+    name = register_recorded("pi_liekf_recorded", "pi_liekf", record)
     t0 = time.perf_counter()
-    run_offline(core, data, [10.0, 10.0, yaw_deg], output_period_s=1.0)
+    ia.align(data, core=name, core_params={"lmi_async": "false", **params}, init_mode="truth",
+             init_rpy_error_deg=[10.0, 10.0, yaw_deg], output_period_s=1.0,
+             imu_grade=SCENARIO_IMU_GRADE.get(data.name, "paper_ship"))
     wall = time.perf_counter() - t0
-    out = list(core.lmi_history), core.diagnostics(), wall
-    core.close()
-    return out
+    ran = with_history(record)
+    hist = [h for c in ran for h in c.lmi_history]
+    diag = {"lmi_solves": len(hist), "lmi_budget_misses": sum(r.budget_miss for _, r in hist),
+            "lmi_fallbacks": sum(r.used_fallback for _, r in hist),
+            "lmi_solve_time_max_s": max((r.solve_time_s for _, r in hist), default=0.0)}
+    return hist, diag, wall
 
 
 def sweep(scenario: str, seeds: int, yaws: list[float], duration_s: float, budget_s: float | None) -> dict:
@@ -89,7 +98,7 @@ def main(argv=None):
                     help="budget of the 'before' run of --slow (600 s = in effect none; 0 skips that run)")
     args = ap.parse_args(argv)
     yaws = [float(y) for y in args.yaws.split(",")]
-    budget = args.budget_s if args.budget_s is not None else make_core("pi_liekf").cfg.lmi_time_budget_s
+    budget = args.budget_s if args.budget_s is not None else make_config("pi_liekf").lmi_time_budget_s
     print(f"command: nice .venv/bin/python benchmarks/lmi_solve_time.py {' '.join(argv or sys.argv[1:])}")
     print(f"{args.seeds} seeds x {len(yaws)} yaw errors ({args.yaws}) per scenario, {args.duration:g} s runs, "
           f"synchronous LMI, budget {budget:g} s, target for the longest solve {TARGET_S} s\n")
@@ -124,7 +133,7 @@ def main(argv=None):
             hist, diag, wall = run(data, 60.0, {"lmi_solver": solver, "lmi_time_budget_s": b})
             print(f"| {solver} | {b:g} | {wall:.1f} | {diag['lmi_solves']} | {diag['lmi_budget_misses']} | "
                   f"{diag['lmi_fallbacks']} | {diag['lmi_solve_time_max_s']:.2f} | "
-                  f"{hist[0][1].status}: {hist[0][1].reason[:110]} |", flush=True)
+                  f"{hist[0][1].status + ': ' + hist[0][1].reason[:110] if hist else 'none'} |", flush=True)
 
 
 if __name__ == "__main__":

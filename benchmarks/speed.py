@@ -1,60 +1,53 @@
 #!/usr/bin/env python3
-"""Offline throughput of the alignment cores (issue 16, items 1 and 4). Not a unit test.
+"""Throughput of the paths users take, next to a plain numpy loop measured in the same run (issue 28, item 2).
+Not a unit test.
 
-In one run, interleaved (the machine is shared: every figure is also given as a ratio to the plain numpy loop
-measured in the same minute):
+Interleaved in one run (the machine is shared: every rate is also given as a ratio to the plain numpy per-sample
+loop measured in the same minute, before and after each repetition):
 
-* ``numpy loop``: the plain per-sample loop a filter written in numpy runs: Rodrigues, attitude update, the 15x15
+* ``numpy loop``: the loop a filter written in numpy runs per sample: Rodrigues, attitude update, the 15x15
   transition of the imperfect IEKF built per sample, ``P = A P A^T + Q`` (:func:`numpy_loop`);
-* ``ia.align``: the session path users take (``insalign_ros.align``, truth init, 1 s outputs): the default (the
-  session's fast path, compiled propagation), the session one sample at a time (``AlignmentSession.fast_path =
-  False``, the path before it), and that with the numpy reference propagation (``mechanization_numba.ENABLED =
-  False``);
-* ``core``: the core alone with the session's call pattern (propagate per sample, the GNSS fixes or 10 Hz zero-velocity
-  updates, one estimate per second), and with ``propagate_arrays`` between the updates where the core has it;
-* the per-stage split of one ``ia.align`` run (benchmarks/sweep.py StageTimer).
+* ``ia.align(bag)``: the default configuration (initialisation from the sensors, the default output period) on a
+  contract bag: reading the bag plus the session;
+* ``ia.align(data)``: the same on the data in memory (the session alone);
+* ``insalign-align BAG``: the command line end to end (``insalign_ros.cli.align.main``: read the bag, align from the
+  sensors at its default 2-Hz outputs, write CSV, JSON and PNG);
+* lab configuration (extra column, how the research benchmarks run): ``ia.align(data, init_mode="truth",
+  output_period_s=1.0)``.
 
-Data: 300 s of the ``ship`` scenario (100 Hz) for the in-motion cores, of the ``static`` scenario (125 Hz, engine
-vibration) for the static ones (the session runs their zero-velocity updates; on a moving ship they make no sense).
+Data: ``ship`` (100 Hz, GNSS at 1 Hz) for the in-motion cores and ``auto``, ``static`` (125 Hz, engine vibration,
+GNSS fixes give the site) for the static ones and ``auto``; both written once to bags in a temporary directory.
+The machine's load average is printed with the table.
 
-    nice .venv/bin/python benchmarks/speed.py [--cores iekf,liekf,pkf,ekf10] [--duration 300] [--reps 3]
-        [--clock wall|cpu]
+    nice .venv/bin/python benchmarks/speed.py [--rows iekf:ship,liekf:ship,pkf:static,ekf10:static,auto:ship,auto:static]
+        [--duration 300] [--reps 3]
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import io
 import json
-import math
 import os
 import sys
+import tempfile
 import time
-import types
 from pathlib import Path
 
-for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):  # one core (and CPU time = one thread's)
+for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):  # one core, as the session runs
     os.environ.setdefault(_v, "1")
 import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import insalign_ros as ia  # noqa: E402
-from insalign_ros.core import mechanization_numba as nb  # noqa: E402
-from insalign_ros.core.types import GnssFix, ImuSample  # noqa: E402
-from insalign_ros.filters import registry  # noqa: E402
-from insalign_ros.session.session import AlignmentSession  # noqa: E402
-import sweep  # noqa: E402
-from sweep import StageTimer, format_stages  # noqa: E402
 
-STATIC_CORES = ("pkf", "ekf10", "coarse")
-KW = dict(init_mode="truth", init_rpy_error_deg=[1.0, 1.0, 10.0], output_period_s=1.0)
-#: the clock of every rate: wall time (``time.perf_counter``, default) or, with ``--clock cpu``, this process's CPU
-#: time (``time.process_time``: on a machine shared with other jobs the time the process waited for a core is not
-#: counted; every run here is single-threaded, so it is the time the run would take alone on a quiet core)
-CLOCK = [time.perf_counter]
+DEFAULT_ROWS = "iekf:ship,liekf:ship,pkf:static,ekf10:static,auto:ship,auto:static"
+#: the lab configuration of the research benchmarks (truth initialisation, 1-s outputs)
+LAB = dict(init_mode="truth", init_rpy_error_deg=[1.0, 1.0, 10.0], output_period_s=1.0)
+COLUMNS = ("bag", "data", "cli", "lab")
 
 
 def numpy_loop(omega_ib_b: np.ndarray, dt_s: float = 0.01) -> float:
@@ -65,7 +58,7 @@ def numpy_loop(omega_ib_b: np.ndarray, dt_s: float = 0.01) -> float:
     P = np.eye(15) * 1e-4
     Q = np.diag(np.r_[np.full(3, 1e-11), np.full(3, 1e-8), np.zeros(3), np.full(6, 1e-14)]) * dt_s
     C = np.eye(3)
-    t0 = CLOCK[0]()
+    t0 = time.perf_counter()
     for w in omega_ib_b:
         phi = w * dt_s
         th = np.linalg.norm(phi)
@@ -81,150 +74,99 @@ def numpy_loop(omega_ib_b: np.ndarray, dt_s: float = 0.01) -> float:
         A[0:3, 9:12] = -dt_s * np.eye(3)
         A[3:6, 12:15] = -dt_s * np.eye(3)
         P = A @ P @ A.T + Q
-    return len(omega_ib_b) / (CLOCK[0]() - t0)
+    return len(omega_ib_b) / (time.perf_counter() - t0)
 
 
-def align_rate(d, core: str, compiled: bool, fast_session: bool = True) -> float:
-    """``ia.align`` samples/s: compiled propagation or the numpy reference; the session's fast path (IMU pushed as
-    arrays, runs between events as arrays) or one push and one ``_step`` per sample."""
-    nb.ENABLED = compiled and nb.HAVE_NUMBA
-    AlignmentSession.fast_path = fast_session
-    try:
-        t0 = CLOCK[0]()
-        ia.align(d, core=core, **KW)
-        return d.n / (CLOCK[0]() - t0)
-    finally:
-        nb.ENABLED = nb.HAVE_NUMBA
-        AlignmentSession.fast_path = True
+def cli_args(bag: Path, core: str, out_dir: Path) -> list[str]:
+    """``insalign-align BAG`` as a user runs it on a bag (initialisation from the sensors: a recorded bag has no
+    reference; the simulated one has, so the session parameter says it), progress bar off."""
+    return [str(bag), "--core", core, "--session-param", "init_mode=sensors", "--out-dir", str(out_dir),
+            "--no-progress"]
 
 
-def core_rate(d, core_name: str, arrays: bool) -> float:
-    """The core alone, driven like the session drives it (no session): samples/s."""
-    core = registry.make_core(core_name)
-    v0 = d.v_n[0] if d.v_n is not None else np.zeros(3)
-    core.initialize(float(d.t_s[0]), float(d.lat_rad[0]), float(d.lon_rad[0]), float(d.h_m[0]), d.C_b_n[0], v0,
-                    np.diag(np.radians([1.0, 1.0, 10.0]) ** 2), 0.1, 1.0)
-    t, w, f = d.t_s, d.omega_ib_b, d.f_ib_b
-    if core.supports_gnss:  # the IMU index at which each fix is applied (first sample at or after its stamp)
-        ev = [(int(k), GnssFix(float(d.gnss_t_s[j]), d.gnss_p_e[j], d.gnss_R_e[j]))
-              for j, k in enumerate(np.searchsorted(t, d.gnss_t_s)) if 0 < k < d.n]
-    else:
-        every = max(1, int(round(0.1 / float(t[1] - t[0]))))
-        ev = [(k, None) for k in range(every, d.n, every)]
-    out_every = max(1, int(round(1.0 / float(t[1] - t[0]))))
-    t0 = CLOCK[0]()
-    k0 = 1
-    for k, fix in ev + [(d.n, None)]:
-        if arrays:
-            core.propagate_arrays(t[k0:k + 1], w[k0:k + 1], f[k0:k + 1])
-        else:
-            for i in range(k0, min(k + 1, d.n)):
-                core.propagate(ImuSample(float(t[i]), w[i], f[i]))
-        k0 = k + 1
-        if k >= d.n:
-            break
-        if fix is not None:
-            core.update_gnss(fix)
-        elif not core.supports_gnss:
-            core.update_zero_velocity(float(t[k]), 0.01)
-        if (k // out_every) != ((k - 1) // out_every):
-            core.estimate()
-    core.estimate()
-    rate = (d.n - 1) / (CLOCK[0]() - t0)
-    core.close()
-    return rate
+def timed(fn) -> float:
+    """Wall time of ``fn()`` [s] (its standard output swallowed)."""
+    with contextlib.redirect_stdout(io.StringIO()):
+        t0 = time.perf_counter()
+        fn()
+        return time.perf_counter() - t0
 
 
-@contextlib.contextmanager
-def _stage_clock(clock):
-    """Run benchmarks/sweep.py's StageTimer on ``clock`` (it reads ``time.perf_counter`` from its module)."""
-    saved = sweep.time
-    sweep.time = types.SimpleNamespace(perf_counter=clock)
-    try:
-        yield
-    finally:
-        sweep.time = saved
+def run_row(core: str, data, bag: Path, out_dir: Path) -> dict:
+    """Seconds of each column for one (core, data) row."""
+    from insalign_ros.cli.align import main as cli_main
+
+    def cli():
+        if cli_main(cli_args(bag, core, out_dir)) != 0:
+            raise RuntimeError(f"insalign-align {bag.name} --core {core} failed")
+
+    return {"bag": timed(lambda: ia.align(str(bag), core=core)),
+            "data": timed(lambda: ia.align(data, core=core)),
+            "cli": timed(cli),
+            "lab": timed(lambda: ia.align(data, core=core, **LAB))}
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--cores", default="iekf,liekf,pkf,ekf10")
-    ap.add_argument("--duration", type=float, default=300.0)
+    ap.add_argument("--rows", default=DEFAULT_ROWS, help="core:scenario pairs")
+    ap.add_argument("--duration", type=float, default=300.0, help="seconds of each scenario")
     ap.add_argument("--reps", type=int, default=3, help="repetitions (interleaved); the best of them is reported")
     ap.add_argument("--json-out", default="")
-    ap.add_argument("--clock", choices=("wall", "cpu"), default="wall",
-                    help="rates and the per-stage split from wall time or from this process's CPU time (a shared, "
-                         "loaded machine)")
     args = ap.parse_args(argv)
-    CLOCK[0] = time.process_time if args.clock == "cpu" else time.perf_counter
-    cores = args.cores.split(",")
+    rows = [tuple(r.split(":")) for r in args.rows.split(",")]
     cmd = "nice .venv/bin/python benchmarks/speed.py " + " ".join(argv if argv is not None else sys.argv[1:])
-    t_read = time.perf_counter()
-    data = {"ship": ia.simulate("ship", seed=0, duration_s=args.duration),
-            "static": ia.simulate("static", seed=0, duration_s=args.duration)}
-    t_read = time.perf_counter() - t_read
-    omega = data["ship"].omega_ib_b[1:20001]
-    for c in cores:  # warm-up: numba compilation / cache load, imports, LMI set-up
-        d = data["static" if c in STATIC_CORES else "ship"]
-        ia.align(ia.simulate("static" if c in STATIC_CORES else "ship", seed=1, duration_s=5.0), core=c, **KW)
-        core_rate(d, c, False)
-    load0 = os.getloadavg()
-    res = {c: {"align_compiled": [], "align_per_sample": [], "align_reference": [], "core_samples": [],
-               "core_arrays": []} for c in cores}
-    loop = []
-    for _ in range(args.reps):
-        loop.append(numpy_loop(omega))
-        for c in cores:
-            d = data["static" if c in STATIC_CORES else "ship"]
-            r = res[c]
-            r["align_compiled"].append(align_rate(d, c, True))
-            r["align_per_sample"].append(align_rate(d, c, True, fast_session=False))
-            r["align_reference"].append(align_rate(d, c, False, fast_session=False))
-            r["core_samples"].append(core_rate(d, c, False))
-            r["core_arrays"].append(core_rate(d, c, True))
-        loop.append(numpy_loop(omega))
-    stage_lines = []
-    for c in cores:
-        d = data["static" if c in STATIC_CORES else "ship"]
-        with StageTimer() as st, _stage_clock(CLOCK[0]):
-            # the offline path checks the IMU once and pushes checked slices; the Euler errors come at the end
-            st._wrap(AlignmentSession, "_imu_array_checks", "input")
-            st._wrap(AlignmentSession, "_push_imu_checked", "input")
-            st._wrap(AlignmentSession, "_fill_deferred_errors", "outputs")
-            st.align(d, core=c, **KW)
-        stage_lines.append(f"| {c} | " + " | ".join(
-            f"{1e6 * st.stages()[k] / d.n:.1f}" for k in ("read", "input", "propagate", "update", "outputs",
-                                                          "session", "total")) + " |")
-        print(f"stages {c}: {format_stages(st.stages(), d.n)}", file=sys.stderr)
-    load1 = os.getloadavg()
-    base = max(loop)
-    L = [f"Command: `{cmd}`  ",
-         f"Load average (1 min) {load0[0]:.2f} before, {load1[0]:.2f} after, on {os.cpu_count()} cores (shared "
-         f"machine: the absolute rates move by 2-3x between minutes; the ratios are measured in the same minute).  ",
-         f"Clock: {'CPU time of the process' if args.clock == 'cpu' else 'wall time'}.  ",
-         f"Plain numpy per-sample loop (Rodrigues + 15x15 P = A P A' + Q): best {base:,.0f} samples/s, all "
-         f"{', '.join(f'{x:,.0f}' for x in loop)}.  ",
-         f"Data: {args.duration:.0f} s ship ({data['ship'].n} samples, 100 Hz) for the in-motion cores, static "
-         f"({data['static'].n} samples, 125 Hz) for the static ones; simulating both took {t_read:.1f} s.\n",
-         "Samples/s (best of the repetitions) and the ratio to the numpy loop:\n",
-         "| core | ia.align (fast session, compiled) | ratio | ia.align, session per sample, compiled | ratio "
-         "| ia.align, session per sample, numpy reference | ratio | core alone, per sample | ratio "
-         "| core alone, arrays | ratio |", "|---|---|---|---|---|---|---|---|---|---|---|"]
-    for c in cores:
-        r = {k: max(v) for k, v in res[c].items()}
-        L.append(f"| {c} | {r['align_compiled']:,.0f} | {r['align_compiled'] / base:.2f} | "
-                 f"{r['align_per_sample']:,.0f} | {r['align_per_sample'] / base:.2f} | "
-                 f"{r['align_reference']:,.0f} | {r['align_reference'] / base:.2f} | {r['core_samples']:,.0f} | "
-                 f"{r['core_samples'] / base:.2f} | {r['core_arrays']:,.0f} | {r['core_arrays'] / base:.2f} |")
-    L += ["", f"Per-stage {args.clock} time of one `ia.align` run (compiled path, instrumented: each wrapped call "
-              "adds ~0.5 us) [us per IMU sample]:\n",
-          "| core | read/convert | input (validate, buffer) | propagate | update | outputs | session (rest) | total |",
-          "|---|---|---|---|---|---|---|---|"] + stage_lines
-    md = "\n".join(L)
+    from insalign_ros.io.bag import write_bag
+
+    with tempfile.TemporaryDirectory(prefix="insalign_speed_") as tmp:
+        tmp = Path(tmp)
+        data, bags = {}, {}
+        for sc in sorted({s for _, s in rows}):
+            data[sc] = ia.simulate(sc, seed=0, duration_s=args.duration)
+            bags[sc] = write_bag(data[sc], tmp / f"{sc}_bag")
+        omega = data[rows[0][1]].omega_ib_b[1:10001]
+        for core, sc in rows:  # warm-up: numba compilation or cache load, imports, matplotlib
+            short = ia.simulate(sc, seed=1, duration_s=20.0)
+            ia.align(short, core=core)
+            ia.align(short, core=core, **LAB)
+        run_row(rows[0][0], data[rows[0][1]], bags[rows[0][1]], tmp / "out")
+        load0 = os.getloadavg()
+        res = {r: {c: [] for c in COLUMNS} for r in rows}
+        loop = []
+        for _ in range(args.reps):
+            loop.append(numpy_loop(omega))
+            for core, sc in rows:
+                for c, s in run_row(core, data[sc], bags[sc], tmp / "out").items():
+                    res[(core, sc)][c].append(data[sc].n / s)
+            loop.append(numpy_loop(omega))
+        load1 = os.getloadavg()
+    md = table(rows, res, loop, data, load0, load1, cmd, args)
     print(md)
     if args.json_out:
-        Path(args.json_out).write_text(json.dumps({"loop": loop, "results": res, "load": [load0, load1]}))
+        Path(args.json_out).write_text(json.dumps({"loop": loop, "load": [load0, load1], "results": {
+            f"{c}:{s}": v for (c, s), v in res.items()}}))
     return 0
+
+
+def table(rows, res, loop, data, load0, load1, cmd, args) -> str:
+    base = max(loop)
+    L = [f"Command: `{cmd}`  ",
+         f"Load average (1 / 5 / 15 min) {load0[0]:.2f} / {load0[1]:.2f} / {load0[2]:.2f} before, {load1[0]:.2f} / "
+         f"{load1[1]:.2f} / {load1[2]:.2f} after, on {os.cpu_count()} cores (a shared machine: absolute rates move "
+         f"with the load; the ratios are measured in the same minute).  ",
+         f"Plain numpy per-sample loop (Rodrigues + 15x15 P = A P A' + Q): best {base:,.0f} samples/s "
+         f"(all: {', '.join(f'{x:,.0f}' for x in loop)}).  ",
+         "Data: " + ", ".join(f"{sc} {args.duration:.0f} s ({d.n:,} IMU samples)" for sc, d in sorted(data.items()))
+         + f"; best of {args.reps} interleaved repetitions.", "",
+         "Samples/s and the ratio to the numpy loop (x):", "",
+         "| core | data | `ia.align(bag)` default | x | `ia.align(data)` default | x | `insalign-align BAG` | x "
+         "| CLI time / `ia.align(bag)` | lab: truth init, 1-s outputs | x |",
+         "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for core, sc in rows:
+        r = {k: max(v) for k, v in res[(core, sc)].items()}
+        L.append(f"| {core} | {sc} | {r['bag']:,.0f} | {r['bag'] / base:.2f} | {r['data']:,.0f} | "
+                 f"{r['data'] / base:.2f} | {r['cli']:,.0f} | {r['cli'] / base:.2f} | {r['bag'] / r['cli']:.2f} | "
+                 f"{r['lab']:,.0f} | {r['lab'] / base:.2f} |")
+    return "\n".join(L)
 
 
 if __name__ == "__main__":
