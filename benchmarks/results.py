@@ -63,7 +63,7 @@ SECTIONS = [
             "(benchmarks/kitti_0042.py; docs/bag_contract.md for the importer).",
             "kitti_0042", ["--cores", "liekf", "iekf"], needs=DATA, data_arg=True),
     Section("flag", "Aligned flag, Monte Carlo",
-            "The session's aligned flag at 10 Hz with the default criteria (eval/aligned.py): runs in which the flag was "
+            "The session's aligned flag at 10 Hz with the default criteria (session/flag.py): runs in which the flag was "
             "up while the true yaw error exceeded its bound, and the delay of the first rise.",
             "aligned_flag_mc", ["--runs", "4", "--core", "iekf", "--duration-s", "120", "--serial"]),
     Section("static", "Stationary alignment",
