@@ -36,7 +36,7 @@ import pymap3d
 from scipy.spatial.transform import Rotation
 
 from ..core import earth
-from ..sim.types import ScenarioData
+from ..core.recording import ScenarioData
 from . import validation
 
 IMU_COLUMNS = {"rates": ("wx_rad_s", "wy_rad_s", "wz_rad_s", "fx_m_s2", "fy_m_s2", "fz_m_s2"),
@@ -88,7 +88,7 @@ def C_b_n_from_euler(roll_rad, pitch_rad, yaw_rad, convention: str) -> np.ndarra
 
 def increments_to_rates(t_s: np.ndarray, dtheta: np.ndarray, dv: np.ndarray):
     """Angle [rad] and velocity [m/s] increments over (t_{k-1}, t_k] -> average rate [rad/s] and specific force
-    [m/s^2] (the ScenarioData convention, sim/types.py). Row 0's interval is unknown: the median step is used.
+    [m/s^2] (the ScenarioData convention, core/recording.py). Row 0's interval is unknown: the median step is used.
     Rows whose step is not positive get NaN (rejected later as a bad stamp)."""
     t = np.asarray(t_s, float)
     dt = np.diff(t)

@@ -38,7 +38,7 @@ import numpy as np
 import pymap3d
 
 from ..core import earth
-from ..sim.types import ScenarioData
+from ..core.recording import ScenarioData
 from . import validation
 
 N_FIELDS = 30

@@ -15,7 +15,7 @@ import numpy as np
 from ..core import earth
 from ..core.types import GnssFix, GnssVelocity, ImuSample
 from .flag import AlignedCriteria
-from ..sim.types import ScenarioData
+from ..core.recording import ScenarioData
 from .config import SessionConfig
 from .outputs import Output
 from .session import AlignmentSession
