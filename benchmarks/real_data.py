@@ -51,6 +51,7 @@ CORES = ("auto", "iekf", "liekf", "ekf", "pi_liekf")
 KITTI_SIGMA_FLOOR_M = 0.5
 MOTION_SPEED_M_S = 0.3  #: first motion: the fixes move faster than this over MOTION_BASELINE_S
 MOTION_BASELINE_S = 2.0
+MOTION_RADIUS_M = 0.5
 RESTART_KEYS = ("divergence", "fault", "reinit_restarts")  #: session log keys of a re-initialisation
 YAW_WRONG_DEG = 3.0
 
@@ -90,15 +91,26 @@ def floor_fix_sigma(data, floor_m: float):
 
 
 def first_motion_s(data) -> float | None:
-    """First fix from which the fixes move faster than MOTION_SPEED_M_S over MOTION_BASELINE_S (clamped to the first
-    IMU sample); None when they never do."""
+    """When the vehicle starts moving, from the fixes alone: the first IMU stamp when the fixes move faster than
+    MOTION_SPEED_M_S over the first MOTION_BASELINE_S (moving from the start); else the first fix farther than
+    MOTION_RADIUS_M from the mean of the first MOTION_BASELINE_S of fixes with a window of MOTION_BASELINE_S from
+    it or before it faster than MOTION_SPEED_M_S (never before the true start: the radius must be left first);
+    None when the fixes never move."""
     t, p = data.gnss_t_s, data.gnss_p_e
+    if t.shape[0] < 2:
+        return None
     j2 = np.searchsorted(t, t + MOTION_BASELINE_S)
-    ok = j2 < t.shape[0]
-    j = np.flatnonzero(ok)
-    sp = np.linalg.norm(p[j2[ok]] - p[j], axis=1) / (t[j2[ok]] - t[j])
-    fast = np.flatnonzero(sp > MOTION_SPEED_M_S)
-    return None if fast.size == 0 else max(float(t[j[fast[0]]]), float(data.t_s[0]))
+    j = np.flatnonzero(j2 < t.shape[0])
+    fast = np.zeros(t.shape[0], bool)
+    fast[j] = np.linalg.norm(p[j2[j]] - p[j], axis=1) / (t[j2[j]] - t[j]) > MOTION_SPEED_M_S
+    if fast[0]:
+        return float(data.t_s[0])
+    p0 = p[t <= t[0] + MOTION_BASELINE_S].mean(axis=0)
+    far = np.linalg.norm(p - p0, axis=1) > MOTION_RADIUS_M
+    for k in np.flatnonzero(far):
+        if fast[(t >= t[k] - MOTION_BASELINE_S) & (t <= t[k])].any():
+            return max(float(t[k]), float(data.t_s[0]))
+    return None
 
 
 def kitti_reference(data) -> DS.AttitudeReference:
@@ -245,6 +257,9 @@ def table(rec: Recording, runs: list[Run], ref: DS.AttitudeReference) -> str:
         lines.append(f"| {r.core} | {_f(e['t_flag_s'], '{:.1f}') if e['n_up'] else 'never'} | {fe} | {s3} | {cov} "
                      f"| {rs} | {e['up_wrong']} of {e['up_with_ref']} | {_f(e['up_fraction'], '{:.2f}')} "
                      f"| {r.cpu_s:.1f} |")
+    for r in runs:
+        if r.core == "auto" and r.result.outputs:
+            lines += ["", f"auto's last status: {r.result.outputs[-1].reason}"]
     return "\n".join(lines)
 
 
