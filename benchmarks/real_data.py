@@ -25,7 +25,6 @@ outputs equal ``ia.align``'s).
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 from dataclasses import dataclass, field, replace
@@ -36,12 +35,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from insalign_ros.core import earth  # noqa: E402
-from insalign_ros.eval.aligned import AlignedCriteria  # noqa: E402
-from insalign_ros.io import datasets as DS  # noqa: E402
-from insalign_ros.session.config import SessionConfig  # noqa: E402
-from insalign_ros.session.offline import result_from_outputs, run_session  # noqa: E402
-from insalign_ros.session.session import AlignmentSession  # noqa: E402
+from insalign_ros.core import earth
+from insalign_ros.eval.aligned import AlignedCriteria
+from insalign_ros.io import datasets as DS
+from insalign_ros.session.config import SessionConfig
+from insalign_ros.session.offline import result_from_outputs, run_session
+from insalign_ros.session.session import AlignmentSession
 
 KITTI_DRIVES = {"kitti_0042": "2011_10_03_drive_0042_oxts", "kitti_0016": "2011_09_28_drive_0016_oxts",
                 "kitti_0057": "2011_09_26_drive_0057_oxts", "kitti_0018": "2011_09_30_drive_0018_oxts",
@@ -241,12 +240,12 @@ def table(rec: Recording, runs: list[Run], ref: DS.AttitudeReference) -> str:
             "moving from the start: times from the first IMU sample" if fm <= t0 + 0.5 else
             f"first motion at {fm - t0:.1f} s after the first IMU sample: times from it")
     fl = ref.floor_deg
-    lines = [f"### {rec.label} vs {ref.name}", "",
-             f"{rec.data.t_s[-1] - t0:.0f} s, {rec.data.n} IMU samples, {rec.data.gnss_t_s.shape[0]} fixes; {rec.note}; "
-             f"{when}. Reference: {ref.note}. Physical floor (reference 1-sigma) roll/pitch/yaw: "
-             f"{' / '.join('unknown' if not np.isfinite(x) else f'{x:.2f}' for x in fl)} deg.", "",
-             "| core | first flag [s] | final err r/p/y [deg] | its 3-sigma [deg] | 3-sigma coverage r/p/y (flag up) "
-             "| restarts (needed) | flag up, abs(yaw err) > 3 deg | flag up after first rise | CPU [s] |",
+    head = (f"{rec.data.t_s[-1] - t0:.0f} s, {rec.data.n} IMU samples, {rec.data.gnss_t_s.shape[0]} fixes; "
+            f"{rec.note}; {when}. Reference: {ref.note}. Physical floor (reference 1-sigma) roll/pitch/yaw: "
+            f"{' / '.join('unknown' if not np.isfinite(x) else f'{x:.2f}' for x in fl)} deg.")
+    lines = [f"### {rec.label} vs {ref.name}", "", head, "",
+             ("| core | first flag [s] | final err r/p/y [deg] | its 3-sigma [deg] | 3-sigma coverage r/p/y (flag up) "
+              "| restarts (needed) | flag up, abs(yaw err) > 3 deg | flag up after first rise | CPU [s] |"),
              "|---|---|---|---|---|---|---|---|---|"]
     for r in runs:
         e = evaluate(r, ref, fm, t0)

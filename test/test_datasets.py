@@ -86,7 +86,7 @@ def test_utm_convergence_sign_and_size_against_a_transverse_mercator_projection(
 
 
 def test_course_over_ground_is_the_tangent_at_the_chord_midpoint_on_a_circle():
-    R, w, v = 11.0, 0.31, 3.4  # the car's circles: radius [m], rate [rad/s]
+    R, w = 11.0, 0.31  # the car's circles: radius [m], rate [rad/s]
     t = np.arange(0.0, 20.0, 1.0)
     th = w * t
     e, n = R * np.cos(th), R * np.sin(th)

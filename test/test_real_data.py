@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import math
 import sys
-from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -22,11 +21,11 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
-import real_data as RD  # noqa: E402
+import real_data as RD
 
-import insalign_ros as ia  # noqa: E402
-from insalign_ros.core import earth  # noqa: E402
-from insalign_ros.io import datasets as DS  # noqa: E402
+import insalign_ros as ia
+from insalign_ros.core import earth
+from insalign_ros.io import datasets as DS
 
 SHARED = RD.shared_data_dir()
 
@@ -107,7 +106,7 @@ def _one(name: str, core: str, which: int = 0, **load_kw):
 def test_kitti_0042_defaults_no_truth(core, which):
     """Default pipeline, no truth, 1-Hz fixes: the fix sigma as the RT3003 reports it (auto) and floored at 0.5 m
     (iekf). Issue 24's KITTI acceptance lines."""
-    rec, r, (e,) = _one("kitti_0042", core, which)
+    rec, _, (e,) = _one("kitti_0042", core, which)
     assert e["n_up"] > 0 and e["t_flag_s"] < 110.0  # today: 101 s (auto), 103 s (iekf, floored)
     assert "n" not in e["restarts"]  # no re-initialisation while the yaw is inside its 3-sigma
     assert e["up_fraction"] >= 0.9
@@ -122,7 +121,7 @@ def test_car_circles_flag_never_up_while_wrong():
     its estimate and the reference's floor (the AHRS: 5 deg)."""
     name = "car_circles_vn100"
     for core in ("auto", "iekf"):
-        rec, r, (e_cog, e_ahrs) = _one(name, core)
+        rec, _, (e_cog, e_ahrs) = _one(name, core)
         assert e_cog["up_wrong"] == 0 and e_ahrs["up_wrong"] == 0
     fl = rec.refs[1].floor_deg[2]
     assert abs(e_ahrs["final_err"][2]) <= math.hypot(e_ahrs["final_s3"][2], 3 * fl)
@@ -133,9 +132,22 @@ def test_rover_first_90_s_iekf():
     against the reference pose; roll and pitch inside their 3-sigma plus the reference's floor at the end."""
     rec = RD.load("rover_canada", _need("rover_canada"))[0]
     data = rec.data.until(float(rec.data.t_s[0]) + 90.0)
-    r = RD.run(replace(data), "iekf")
+    r = RD.run(data, "iekf")
     e = RD.evaluate(r, rec.refs[0], rec.first_motion_s, float(data.t_s[0]))
     assert e["up_wrong"] == 0
     fl = rec.refs[0].floor_deg
     for i in (0, 1):
         assert abs(e["final_err"][i]) <= e["final_s3"][i] + 3 * fl[i]
+
+
+def test_table_prints_the_floor_and_one_row_per_core():
+    data = RD.strip_truth(ia.simulate("car", seed=2, duration_s=5.0))
+    t = data.t_s[::10]
+    res = SimpleNamespace(t_s=t, rpy_deg=np.zeros((t.size, 3)), sigma3_deg=np.full((t.size, 3), 2.0),
+                          aligned=np.zeros(t.size, bool), outputs=[])
+    ref = DS.AttitudeReference("zero", t, np.zeros((t.size, 3)), np.array([0.03, 0.03, 0.1]), "a test reference")
+    rec = RD.Recording("sim", data, [ref], None, "simulated")
+    text = RD.table(rec, [RD.Run("iekf", res), RD.Run("ekf", res)], ref)
+    assert "Physical floor (reference 1-sigma) roll/pitch/yaw: 0.03 / 0.03 / 0.10 deg" in text
+    rows = [line for line in text.splitlines() if line.startswith(("| iekf", "| ekf"))]
+    assert len(rows) == 2 and all(r.count("|") == 10 and "| never |" in r for r in rows)

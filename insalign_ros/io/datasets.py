@@ -39,7 +39,8 @@ from scipy.spatial.transform import Rotation
 from ..core import earth
 from ..sim.types import ScenarioData
 
-ROVER_IMU_CLOCK_OFFSET_S = 0.38  #: IMU relative time + this = seconds since the first GNSS stamp (estimate_clock_offset_s)
+#: IMU relative time + this = seconds since the first GNSS stamp (estimate_clock_offset_s)
+ROVER_IMU_CLOCK_OFFSET_S = 0.38
 ROVER_FIX_SIGMA_H_M = 0.6  #: horizontal 1-sigma of the rover's fixes [m] (GNSS vs reference pose, rms per axis)
 ROVER_UTM_ZONE = 18
 CAR_UERE_M = 2.5  #: BU-353 horizontal accuracy at HDOP 1 [m] (datasheet class: 2.5 m with SBAS); sigma = UERE * HDOP
@@ -144,13 +145,15 @@ def course_over_ground(t_s: np.ndarray, e_m: np.ndarray, n_m: np.ndarray, min_sp
     return 0.5 * (t_s[1:] + t_s[:-1])[ok], np.arctan2(dn, de)[ok], sp[ok]
 
 
-def estimate_clock_offset_s(t_imu_s, omega_up_rad_s, t_ref_s, yaw_ref_rad, lags_s=np.arange(-2.0, 2.0, 0.01),
+def estimate_clock_offset_s(t_imu_s, omega_up_rad_s, t_ref_s, yaw_ref_rad, lags_s=None,
                             step_s: float = 0.1) -> tuple[float, float]:
     """The lag L [s] with IMU time + L = reference time that maximises the correlation of the gyro's rate about
-    Up (smoothed to ``step_s``) with the reference's yaw rate: (L, the correlation)."""
+    Up (smoothed to ``step_s``) with the reference's yaw rate: (L, the correlation). ``lags_s``: the lags tried
+    (default -2..2 s in 0.01-s steps)."""
+    lags_s = np.arange(-2.0, 2.0, 0.01) if lags_s is None else lags_s
     tt = np.arange(t_ref_s[0], t_ref_s[-1], step_s)
     yr = np.gradient(np.interp(tt, t_ref_s, np.unwrap(yaw_ref_rad)), tt)
-    k = max(int(round(step_s / np.median(np.diff(t_imu_s)))), 1)
+    k = max(round(float(step_s / np.median(np.diff(t_imu_s)))), 1)
     w = np.convolve(omega_up_rad_s, np.ones(k) / k, mode="same")
     best = (-2.0, float("nan"))
     for lag in lags_s:
@@ -190,7 +193,8 @@ def rover_reference(raw: dict, t_gnss0_unix: float) -> AttitudeReference:
     # floor: undocumented reference; the grid->ENU rotation the GNSS track implies varies by +-1.2 deg between
     # 2-minute windows (docs/real_data.md), the IMU-to-pose level mounting is ~1 deg
     return AttitudeReference("rover reference pose", pose[:, 0] - t_gnss0_unix, np.degrees(rpy),
-                             np.array([1.0, 1.0, 1.2]), "dataset's global pose (UTM 18T), ~2.2 Hz; accuracy undocumented",
+                             np.array([1.0, 1.0, 1.2]),
+                             "dataset's global pose (UTM 18T), ~2.2 Hz; accuracy undocumented",
                              max_gap_s=1.5)
 
 
@@ -224,7 +228,7 @@ def read_car_raw(directory) -> dict:
         grows = list(csv.DictReader(fh))
     if not rows or not grows:
         raise DatasetError(f"{d}: an empty CSV")
-    col = lambda rs, names: np.array([[float(r[k]) for k in names] for r in rs])  # noqa: E731
+    col = lambda rs, names: np.array([[float(r[k]) for k in names] for r in rs])
     ymr = np.array([[float(x) for x in r["raw_vnymr"].strip().split("*")[0].split(",")[1:4]] for r in rows])
     return {"t": col(rows, ["t"])[:, 0], "gyro": col(rows, ["gyro_x", "gyro_y", "gyro_z"]),
             "acc": col(rows, ["acc_x", "acc_y", "acc_z"]), "ymr_deg": ymr,
