@@ -1,0 +1,153 @@
+"""Short pieces of benchmarks/real_data.py (docs/real_data.md) as tests.
+
+Data-free: the evaluation's counts on a hand-made run, the first-motion rule, and that the benchmark's run equals
+``ia.align``. On the real recordings (skipped with the reason when ../shared/data is absent), the acceptance lines of
+issue 24 that the default pipeline meets today, with DEFAULT parameters and no truth:
+  * KITTI 0042: no re-initialisation while the yaw is inside its 3-sigma; flag up >= 90 % after its first rise; yaw
+    3-sigma coverage >= 0.95 while up; no flag-up output with |yaw err| > 3 deg (RT3003 floor 0.1 deg).
+  * car_circles_vn100 and rover_canada: never flag up with |yaw err| > 3 deg against the references; an in-motion
+    core's final yaw within the combined 3-sigma of its estimate and the reference's floor.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+import real_data as RD
+
+import insalign_ros as ia
+from insalign_ros.core import earth
+from insalign_ros.io import datasets as DS
+
+SHARED = RD.shared_data_dir()
+
+
+def _need(name: str) -> Path:
+    if SHARED is None or not (SHARED / name).exists():
+        pytest.skip(f"real data not available: ../shared/data/{name} is absent (read-only shared data, never copied "
+                    "into the repo)")
+    return SHARED
+
+
+# ------------------------------------------------------------------------------------ data-free
+def test_evaluate_counts_on_a_hand_made_run():
+    """10 outputs 1 s apart; flag up from t=3 except t=6; yaw error 1 deg except 5 deg at t=8 (3-sigma 2 deg);
+    a re-initialisation at t=4.5 with the yaw inside its 3-sigma (not needed) and one at t=8.5 after the 5-deg
+    output (needed)."""
+    t = np.arange(10.0)
+    up = np.array([0, 0, 0, 1, 1, 1, 0, 1, 1, 1], bool)
+    rpy = np.zeros((10, 3))
+    rpy[:, 2] = 1.0
+    rpy[8, 2] = 5.0
+    res = SimpleNamespace(t_s=t, rpy_deg=rpy, sigma3_deg=np.tile([0.5, 0.5, 2.0], (10, 1)), aligned=up)
+    run = RD.Run("x", res, [(4.5, "divergence", ""), (8.5, "divergence", "")])
+    ref = DS.AttitudeReference("zero", t, np.zeros((10, 3)), np.zeros(3))
+    e = RD.evaluate(run, ref, t_motion_s=1.0, t_start_s=0.0)
+    assert e["t_flag_s"] == pytest.approx(2.0)  # first up at 3 s, motion at 1 s
+    assert e["up_wrong"] == 1 and e["up_with_ref"] == 6 and e["n_up"] == 6
+    assert e["coverage"][2] == pytest.approx(5 / 6) and e["coverage"][0] == pytest.approx(1.0)
+    assert e["up_fraction"] == pytest.approx(5 / 6)  # down over [6, 7) of the 6 s after 3 s
+    assert e["restarts"] == ["n", "N"]
+    assert e["final_err"][2] == pytest.approx(1.0) and e["final_s3"][2] == pytest.approx(2.0)
+
+
+def _fixes(t, e_m):
+    lat0, lon0 = math.radians(45.0), math.radians(8.0)
+    p = np.array([earth.enu_to_ecef(np.array([x, 0.0, 0.0]), lat0, lon0, 100.0) for x in e_m])
+    return SimpleNamespace(gnss_t_s=t, gnss_p_e=p, t_s=np.arange(0.0, t[-1], 0.01))
+
+
+def test_first_motion_from_the_fixes():
+    t = np.arange(0.0, 30.0, 1.0)
+    parked_then_1m_s = np.where(t < 10.0, 0.0, t - 10.0)
+    assert 10.0 < RD.first_motion_s(_fixes(t, parked_then_1m_s)) <= 11.0  # never before the true start
+    assert RD.first_motion_s(_fixes(t, 3.0 * t)) == 0.0  # moving from the start
+    noise = np.random.default_rng(1).normal(0.0, 0.05, t.size)
+    assert RD.first_motion_s(_fixes(t, noise)) is None  # parked, 5-cm fixes
+
+
+def test_benchmark_run_equals_align():
+    """The benchmark's run (offline.align plus a log callback) gives ia.align's outputs, on a simulated car."""
+    data = ia.simulate("car", seed=3, duration_s=40.0)
+    bare = RD.strip_truth(data)
+    r = RD.run(bare, "iekf")
+    a = ia.align(bare, core="iekf")
+    assert np.array_equal(r.result.t_s, a.t_s) and np.array_equal(r.result.rpy_deg, a.rpy_deg)
+    assert np.array_equal(r.result.aligned, a.aligned) and np.array_equal(r.result.sigma3_deg, a.sigma3_deg)
+    assert len(r.restarts) == a.counters["divergences"] + a.counters["core_faults"] + a.counters["reinit_restarts"]
+
+
+def test_fix_sigma_floor_keeps_larger_sigmas():
+    data = ia.simulate("car", seed=1, duration_s=5.0)
+    floored = RD.floor_fix_sigma(data, 3.0)
+    for p_e, R0, R1 in zip(data.gnss_p_e, data.gnss_R_e, floored.gnss_R_e):
+        lat, lon, _ = earth.ecef_to_geodetic(p_e)
+        s0 = np.sqrt(np.diag(earth.C_e_n(lat, lon) @ R0 @ earth.C_n_e(lat, lon)))
+        s1 = np.sqrt(np.diag(earth.C_e_n(lat, lon) @ R1 @ earth.C_n_e(lat, lon)))
+        assert np.allclose(s1, np.maximum(s0, 3.0))
+
+
+# ------------------------------------------------------------------------------------ the real recordings
+def _one(name: str, core: str, which: int = 0, **load_kw):
+    rec = RD.load(name, _need(name if not name.startswith("kitti") else "kitti_raw_oxts_sync"), **load_kw)[which]
+    r = RD.run(rec.data, core)
+    return rec, r, [RD.evaluate(r, ref, rec.first_motion_s, float(rec.data.t_s[0])) for ref in rec.refs]
+
+
+@pytest.mark.parametrize("core,which", [("auto", 0), ("iekf", 1)])
+def test_kitti_0042_defaults_no_truth(core, which):
+    """Default pipeline, no truth, 1-Hz fixes: the fix sigma as the RT3003 reports it (auto) and floored at 0.5 m
+    (iekf). Issue 24's KITTI acceptance lines."""
+    rec, _, (e,) = _one("kitti_0042", core, which)
+    assert e["n_up"] > 0 and e["t_flag_s"] < 110.0  # today: 101 s (auto), 103 s (iekf, floored)
+    assert "n" not in e["restarts"]  # no re-initialisation while the yaw is inside its 3-sigma
+    assert e["up_fraction"] >= 0.9
+    assert e["coverage"][2] >= 0.95
+    assert e["up_wrong"] == 0
+    assert abs(e["final_err"][2]) <= e["final_s3"][2] + 3 * rec.refs[0].floor_deg[2]
+
+
+def test_car_circles_flag_never_up_while_wrong():
+    """car_circles_vn100 (VN-100, 1-Hz consumer GPS, no velocity): neither auto nor iekf raises the flag with
+    |yaw err| > 3 deg against the course over ground or the AHRS; iekf's final yaw is inside the combined 3-sigma of
+    its estimate and the reference's floor (the AHRS: 5 deg)."""
+    name = "car_circles_vn100"
+    for core in ("auto", "iekf"):
+        rec, _, (e_cog, e_ahrs) = _one(name, core)
+        assert e_cog["up_wrong"] == 0 and e_ahrs["up_wrong"] == 0
+    fl = rec.refs[1].floor_deg[2]
+    assert abs(e_ahrs["final_err"][2]) <= math.hypot(e_ahrs["final_s3"][2], 3 * fl)
+
+
+def test_rover_first_90_s_iekf():
+    """rover_canada, first 90 s (100-Hz IMU, 5-Hz fixes as the benchmark): the flag never up with |yaw err| > 3 deg
+    against the reference pose; roll and pitch inside their 3-sigma plus the reference's floor at the end."""
+    rec = RD.load("rover_canada", _need("rover_canada"))[0]
+    data = rec.data.until(float(rec.data.t_s[0]) + 90.0)
+    r = RD.run(data, "iekf")
+    e = RD.evaluate(r, rec.refs[0], rec.first_motion_s, float(data.t_s[0]))
+    assert e["up_wrong"] == 0
+    fl = rec.refs[0].floor_deg
+    for i in (0, 1):
+        assert abs(e["final_err"][i]) <= e["final_s3"][i] + 3 * fl[i]
+
+
+def test_table_prints_the_floor_and_one_row_per_core():
+    data = RD.strip_truth(ia.simulate("car", seed=2, duration_s=5.0))
+    t = data.t_s[::10]
+    res = SimpleNamespace(t_s=t, rpy_deg=np.zeros((t.size, 3)), sigma3_deg=np.full((t.size, 3), 2.0),
+                          aligned=np.zeros(t.size, bool), outputs=[])
+    ref = DS.AttitudeReference("zero", t, np.zeros((t.size, 3)), np.array([0.03, 0.03, 0.1]), "a test reference")
+    rec = RD.Recording("sim", data, [ref], None, "simulated")
+    text = RD.table(rec, [RD.Run("iekf", res), RD.Run("ekf", res)], ref)
+    assert "Physical floor (reference 1-sigma) roll/pitch/yaw: 0.03 / 0.03 / 0.10 deg" in text
+    rows = [line for line in text.splitlines() if line.startswith(("| iekf", "| ekf"))]
+    assert len(rows) == 2 and all(r.count("|") == 10 and "| never |" in r for r in rows)
