@@ -64,12 +64,12 @@ def test_shipped_example_is_current_and_round_trips_exactly(tmp_path, capsys):
     ex = runpy.run_path(str(ROOT / "examples" / "make_import_example.py"))
     write_csv(tmp_path / "regen.csv", ex["example_table"]())
     body = lambda p: [ln for ln in Path(p).read_text().splitlines() if not ln.startswith("#")]  # noqa: E731
-    # the same header and the same numbers to 1e-12 relative (the last digit of a float's text differs between
+    # the same header and the same numbers to 1e-10 relative (the last digit of a float's text differs between
     # machines: numpy's SIMD trigonometry depends on the CPU)
     new, old = body(tmp_path / "regen.csv"), body(EXAMPLE)
     assert new[0] == old[0] and len(new) == len(old), "rerun examples/make_import_example.py"
     num = lambda rows: np.array([[float(x) if x else np.nan for x in r.split(",")] for r in rows[1:]])  # noqa: E731
-    np.testing.assert_allclose(num(new), num(old), rtol=1e-12, atol=1e-15, equal_nan=True,
+    np.testing.assert_allclose(num(new), num(old), rtol=1e-10, atol=1e-15, equal_nan=True,
                                err_msg="rerun examples/make_import_example.py")
     assert import_main([str(EXAMPLE), str(tmp_path / "bag"), *EX_ARGS]) == 0
     out = capsys.readouterr().out
