@@ -91,6 +91,7 @@ def test_shipped_example_is_current_and_round_trips_exactly(tmp_path, capsys):
     cols = ex["example_table"]()
     np.savez(tmp_path / "x.npz", **cols)
     dz, _ = import_table(tmp_path / "x.npz", imu="increments", axes="RFU", euler="ned")
+    d, _ = import_table(tmp_path / "regen.csv", imu="increments", axes="RFU", euler="ned")  # the same table as CSV
     np.testing.assert_array_equal(dz.omega_ib_b, d.omega_ib_b)
 
 
