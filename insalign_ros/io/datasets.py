@@ -37,7 +37,7 @@ import pymap3d
 from scipy.spatial.transform import Rotation
 
 from ..core import earth
-from ..sim.types import ScenarioData
+from ..core.recording import ScenarioData
 
 #: IMU relative time + this = seconds since the first GNSS stamp (estimate_clock_offset_s)
 ROVER_IMU_CLOCK_OFFSET_S = 0.38
