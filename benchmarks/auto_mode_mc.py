@@ -37,7 +37,8 @@ FLAG_YAW_DEG = 2.5  # AlignedCriteria().yaw_3sigma_deg (the flag's bound)
 def one_run(name: str, seed: int, heading_deg: float, park_s: float, drive_s: float) -> dict:
     import insalign_ros as ia
     from insalign_ros.core import earth
-    from insalign_ros.filters.imu_grade import SCENARIO_IMU_GRADE, resolve_core_params
+    from insalign_ros.filters.imu_grade import SCENARIO_IMU_GRADE
+    from insalign_ros.filters.registry import resolve_core_params
     from insalign_ros.session.auto import AutoConfig
     from insalign_ros.sim.scenarios import make_scenario
 

@@ -36,7 +36,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from insalign_ros.core import earth
-from insalign_ros.eval.aligned import AlignedCriteria
+from insalign_ros.session.flag import AlignedCriteria
 from insalign_ros.io import datasets as DS
 from insalign_ros.session.config import SessionConfig
 from insalign_ros.session.offline import result_from_outputs, run_session

@@ -7,7 +7,7 @@ import tempfile
 
 import pytest
 
-import insalign_ros.session  # noqa: F401  registers the session-level core 'auto' (filters/registry.LAZY_CORES), so
+import insalign_ros.session  # noqa: F401  registers the session-level core 'auto' (session/auto.py, imported by session/__init__.py), so
 #                              tests parametrised over the registry see the same cores whatever is imported first
 
 

@@ -30,10 +30,22 @@ def test_liekf_backward_returns_to_start_noise_free_ship():
 
 
 def test_make_backtrackable():
-    c = make_core("liekf")
-    assert isinstance(make_backtrackable(c), BacktrackLiekf)
-    with pytest.raises(ValueError):
-        make_backtrackable(make_core("ekf"))
+    c = make_core("liekf_backtrack")
+    assert isinstance(c, BacktrackLiekf) and make_backtrackable(c) is c
+    for name in ("liekf", "ekf"):  # no class swapping: the session builds liekf_backtrack (session/catalog.py)
+        with pytest.raises(ValueError, match="does not support backtracking"):
+            make_backtrackable(make_core(name))
+
+
+def test_the_offline_session_refuses_backtracking_where_the_node_does():
+    """ia.align and the node share one check (session/catalog.py): backtracking asked of a core without backward
+    propagation is a ValueError naming the cores that have it, not a run of core faults."""
+    import insalign_ros as ia
+
+    with pytest.raises(ValueError, match="backward propagation"):
+        ia.align("ship", core="iekf", duration_s=5, init_mode="truth", backtrack_passes=2)
+    r = ia.align("ship", core="liekf", duration_s=5, init_mode="truth", backtrack_passes=1)
+    assert len(r.t_s) > 0 and r.counters["core_faults"] == 0
 
 
 @pytest.mark.wallclock  # max_step_s is wall time: runs alone under pytest-xdist

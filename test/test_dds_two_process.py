@@ -149,13 +149,21 @@ def test_domain_ids_of_xdist_workers_are_disjoint_slices_of_1_to_100(monkeypatch
 
 
 @pytest.mark.timeout(60)
-def test_a_domain_held_by_another_process_is_never_drawn(monkeypatch):
+def test_a_domain_held_by_another_process_is_never_drawn(monkeypatch, tmp_path):
     """Two runs at the same time on one machine (a suite and a benchmark, two suites) never share a ROS_DOMAIN_ID:
-    a domain another process holds is skipped, and free again once that process has exited."""
+    a domain another process holds is skipped, and free again once that process has exited. The locks live in a
+    private temporary directory (TMPDIR) here, so that this suite's other workers, which hold domains of their own,
+    cannot take 97 or 98 first."""
+    import tempfile
+
     import insalign_ros.cli.bringup as bringup
 
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    monkeypatch.setattr(tempfile, "tempdir", None)  # gettempdir() reads TMPDIR again
+    monkeypatch.setattr(bringup, "_HELD_DOMAIN", [])  # this worker's own lock stays where it is
     code = "import sys, time; from insalign_ros.cli import bringup; print(bringup.hold_domain(97), flush=True); time.sleep(30)"
-    child = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    child = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True,
+                             env={**os.environ, "TMPDIR": str(tmp_path)})
     try:
         assert child.stdout.readline().strip() == "True"
         monkeypatch.setattr(bringup, "domain_id_range", lambda env=None: (97, 98))

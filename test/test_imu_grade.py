@@ -14,8 +14,8 @@ import yaml
 from insalign_ros.filters import registry
 from insalign_ros.filters.imu_grade import (
     CORE_DEFAULT_GRADE, DEFAULT_IMU_GRADE, GRADE_FIELDS, GRADES, SCENARIO_IMU_GRADE, ImuGrade, get_grade, grade_params,
-    resolve_core_params,
 )
+from insalign_ros.filters.registry import resolve_core_params
 from insalign_ros.session.config import SessionConfig
 from insalign_ros.session.session import AlignmentSession
 from test_node_params import node_factory  # noqa: F401  (fixture)

@@ -116,7 +116,7 @@ def _run_fleet(args, argv: list[str]) -> int:
             continue
         else:
             rest.append(a)
-    rows = run_fleet(args.bag, rest, args.out_dir, args.workers, args.scheduler, args.serial,
+    rows = run_fleet(main, args.bag, rest, args.out_dir, args.workers, args.scheduler, args.serial,
                      progress=not args.no_progress)
     bad = [r for r in rows if r["rc"] != 0]
     for r in bad:

@@ -27,10 +27,9 @@ def find_bags(root: Path) -> list[Path]:
     return sorted(p.parent for p in Path(root).rglob("metadata.yaml"))
 
 
-def align_bag(bag: str, argv: list[str], out_dir: str) -> dict:
-    """One bag through ``insalign-align`` with ``argv`` (the user's options); its summary row."""
-    from .align import main
-
+def align_bag(main, bag: str, argv: list[str], out_dir: str) -> dict:
+    """One bag through ``main`` (``insalign-align``'s entry point, passed in by cli/align.py so that this module
+    does not import it back) with ``argv`` (the user's options); its summary row."""
     t0 = time.perf_counter()
     err = io.StringIO()
     with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
@@ -58,9 +57,10 @@ COLUMNS = ["bag", "rc", "core", "init_mode", "duration_s", "aligned_first_raised
            "gnss_gated", "divergences", "wall_s", "error"]
 
 
-def run_fleet(root: str, argv: list[str], out_dir: str, workers: int, scheduler: str, serial: bool,
+def run_fleet(main, root: str, argv: list[str], out_dir: str, workers: int, scheduler: str, serial: bool,
               progress: bool = True) -> list[dict]:
-    """Align every bag under ``root``; write and return the summary rows (bag order)."""
+    """Align every bag under ``root`` with ``main`` (``insalign-align``'s entry point); write and return the summary
+    rows (bag order)."""
     from ..eval.parallel import run_tasks
 
     bags = find_bags(Path(root))
@@ -68,7 +68,7 @@ def run_fleet(root: str, argv: list[str], out_dir: str, workers: int, scheduler:
         raise ValueError(f"{root}: no bag (a directory with metadata.yaml) under it")
     out = Path(out_dir)
     names = [str(b.relative_to(root)).replace("/", "__") or b.name for b in bags]
-    tasks = [(str(b), argv, str(out / n)) for b, n in zip(bags, names)]
+    tasks = [(main, str(b), argv, str(out / n)) for b, n in zip(bags, names)]
     rows = run_tasks(align_bag, tasks, workers=workers, scheduler=scheduler, serial=serial, desc="bags",
                      progress=progress, preload=PRELOAD)
     out.mkdir(parents=True, exist_ok=True)

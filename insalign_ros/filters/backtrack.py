@@ -8,7 +8,7 @@ running and producing output during the passes, so a node never stops publishing
 
 Works with any core that implements ``propagate_backward(imu, t_prev_s)`` (and, for speed, the optional
 ``propagate_arrays(t_s, omega, f, backward)``): the Earth-frame IEKF (filters/earth_iekf.py) and the ECI LIEKF
-through :class:`BacktrackLiekf` (:func:`make_backtrackable` converts a plain Liekf in place).
+through :class:`BacktrackLiekf` (core name ``liekf_backtrack``).
 
 API (no threads needed): ``feed(event)`` per IMU sample / GNSS fix (the node's callback, offline loop);
 ``step_background(budget_s)`` does at most about ``budget_s`` of pass work and returns (a node timer calls it);
@@ -67,14 +67,12 @@ class BacktrackLiekf(Liekf):
 
 
 def make_backtrackable(core: AlignmentCore) -> AlignmentCore:
-    """Return ``core`` itself when it supports backtracking; a plain Liekf is converted in place."""
+    """Return ``core`` itself when it supports backtracking (ValueError otherwise: build ``liekf_backtrack`` for a
+    LIEKF, as the session does through session/catalog.py)."""
     if core.supports_backtracking:
         return core
-    if type(core) is Liekf:
-        core.__class__ = BacktrackLiekf
-        return core
     raise ValueError(f"core {core.name!r} does not support backtracking "
-                     "(needs propagate_backward); use earth_iekf or liekf")
+                     "(needs propagate_backward); use earth_iekf or liekf_backtrack")
 
 
 def _propagate(core, t, w, f, backward: bool) -> None:

@@ -36,7 +36,7 @@ from scipy.spatial.transform import Rotation
 
 from ..core import earth, lie
 from ..core.mechanization_e import OMEGA_IE_E, v_e_from_vbar, vbar_from_v_e
-from ..sim.error_model import (
+from ..core.units import (
     deg_h_to_rad_s, deg_sqrt_h_to_rad_sqrt_s, m_s_sqrt_h_to_m_s_sqrt_s, ug_sqrt_hz_to_m_s_sqrt_h, ug_to_m_s2,
 )
 from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, ImuSample, UpdateResult

@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core import earth, lie
-from ..sim.error_model import deg_h_to_rad_s, mg_to_m_s2
+from ..core.units import deg_h_to_rad_s, mg_to_m_s2
 from .config import EkfConfig
 from .iekf import bias_noise_psd
 from .liekf import BatchedEciCore

@@ -21,7 +21,7 @@ import numpy as np
 
 from ..core import earth
 from ..core.lie import hat3
-from ..sim.error_model import deg_h_to_rad_s, mg_to_m_s2
+from ..core.units import deg_h_to_rad_s, mg_to_m_s2
 from .base import UpdateResult
 from .config import IekfConfig
 from .liekf import BatchedEciCore, joseph_update, liekf_transition_batch

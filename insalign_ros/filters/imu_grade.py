@@ -11,7 +11,7 @@ An :class:`ImuGrade` holds what a datasheet gives (units in the names):
 * ``acc_bias_mg``, ``acc_bias_instability_mg`` [mg] likewise for the accelerometers.
 
 :func:`grade_params` maps a grade onto the fields of any core's config dataclass (the fields the class has; the
-others are left alone), :func:`resolve_core_params` puts the explicit per-core parameters on top of it. The
+others are left alone), :func:`filters.registry.resolve_core_params` puts the explicit per-core parameters on top of it. The
 presets, their numbers and their sources are in docs/imu_grades.md. The core dataclasses keep the papers'
 defaults, which are presets too (``CORE_DEFAULT_GRADE``): ``paper_ship`` for the in-motion cores, ``paper_static``
 for the static ones, ``paper_two_position`` for earth_iekf; the user-facing default (session, node,
@@ -23,7 +23,8 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, fields
 
-G0_M_S2 = 9.80665  #: the "g" of mg and ug
+from ..core.units import G0_M_S2
+
 #: the bias random walk is the one that wanders by the bias instability in this time [h]
 BIAS_RW_HORIZON_H = 1.0
 
@@ -156,12 +157,3 @@ def grade_params(grade, config_class) -> dict:
     names = {f.name for f in fields(config_class)}
     return {k: float(fn(g)) for k, fn in _FIELD_FROM_GRADE.items() if k in names}
 
-
-def resolve_core_params(grade, core: str, core_params: dict | None = None) -> dict:
-    """Core parameters of ``core`` (filters/registry.py) for an IMU grade: the grade's fields, overridden by the
-    explicit ``core_params`` (a per-core parameter always wins over the preset)."""
-    from . import registry
-
-    if core not in registry.CORES:
-        raise ValueError(f"core: unknown core {core!r}; choose one of {sorted(registry.core_names())}")
-    return {**grade_params(grade, registry.CORES[core][1]), **dict(core_params or {})}

@@ -40,7 +40,7 @@ from ..core import earth, lie
 from ..core import mechanization_numba as nb
 from ..core.lie import _A_SERIES, _B_SERIES, _C1_SERIES, _C2_SERIES, _coeff_batch
 from ..core.mechanization import NavStateEci, geodetic_from_state_eci, state_eci_from_geodetic
-from ..sim.error_model import deg_sqrt_h_to_rad_sqrt_s, m_s_sqrt_h_to_m_s_sqrt_s
+from ..core.units import deg_sqrt_h_to_rad_sqrt_s, m_s_sqrt_h_to_m_s_sqrt_s
 from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, GnssFix, GnssVelocity, ImuSample, UpdateResult
 from .config import LiekfConfig
 

@@ -11,6 +11,7 @@ from typing import Callable
 
 from .base import AlignmentCore
 from .config import EkfConfig, IekfConfig, LiekfConfig, PiLiekfConfig
+from .imu_grade import grade_params
 
 
 def _liekf(cfg):
@@ -75,16 +76,7 @@ def core_names() -> tuple[str, ...]:
     return tuple(CORES)
 
 
-#: cores that live above the filters and register themselves when their module is imported (name -> module):
-#: ``auto`` composes a static and an in-motion core with the session's motion detector (session/auto.py)
-LAZY_CORES: dict[str, str] = {"auto": "insalign_ros.session.auto"}
-
-
 def make_config(name: str, params: dict | None = None):
-    if name not in CORES and name in LAZY_CORES:
-        import importlib
-
-        importlib.import_module(LAZY_CORES[name])  # registers it
     if name not in CORES:
         raise ValueError(f"unknown core {name!r}; choose one of {sorted(CORES)}")
     return CORES[name][1].from_dict(params)
@@ -119,3 +111,11 @@ def _register_static() -> None:
 
 
 _register_static()
+
+
+def resolve_core_params(grade, core: str, core_params: dict | None = None) -> dict:
+    """Core parameters of ``core`` (filters/registry.py) for an IMU grade: the grade's fields, overridden by the
+    explicit ``core_params`` (a per-core parameter always wins over the preset)."""
+    if core not in CORES:
+        raise ValueError(f"core: unknown core {core!r}; choose one of {sorted(core_names())}")
+    return {**grade_params(grade, CORES[core][1]), **dict(core_params or {})}

@@ -30,8 +30,8 @@ import numpy as np
 import pymap3d
 from scipy.spatial.transform import Rotation
 
-from ..sim import error_model
-from ..sim.types import ImuSpec, ScenarioData
+from ..core import units
+from ..core.recording import ImuSpec, ScenarioData
 from . import validation
 
 log = logging.getLogger(__name__)
@@ -93,8 +93,8 @@ def imu_covariance_diag(spec: ImuSpec | None):
     """REP 145 per-sample variances (gyro [rad^2/s^2], acc [m^2/s^4]) = density^2 * rate; zeros if unknown."""
     if spec is None:
         return 0.0, 0.0
-    arw = error_model.deg_sqrt_h_to_rad_sqrt_s(spec.arw_deg_sqrt_h)
-    vrw = error_model.m_s_sqrt_h_to_m_s_sqrt_s(spec.vrw_m_s_sqrt_h)
+    arw = units.deg_sqrt_h_to_rad_sqrt_s(spec.arw_deg_sqrt_h)
+    vrw = units.m_s_sqrt_h_to_m_s_sqrt_s(spec.vrw_m_s_sqrt_h)
     return arw**2 * spec.rate_hz, vrw**2 * spec.rate_hz
 
 

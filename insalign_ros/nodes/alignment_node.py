@@ -51,9 +51,7 @@ from std_srvs.srv import Trigger
 
 from ..core.types import GnssVelocity, ImuSample
 from ..session.flag import AlignedCriteria
-from ..filters import registry
-from ..filters.imu_grade import GRADES, grade_params
-from ..filters.liekf import Liekf
+from ..session import catalog
 from ..session.config import SessionConfig
 from ..session.session import AlignmentSession, Ring, TruthSample
 from . import conversions as cv
@@ -115,7 +113,7 @@ _CORE_DOC = {"gnss_lever_arm_b_m": "GNSS antenna position in the body frame FLU 
 NODE_PARAMS = {
     "core": ("auto", "alignment core (filters/registry.py): auto (default: static while parked, in-motion iekf once "
                      "it moves; session/auto.py) or one core; read-only after start", True),
-    "imu_grade": (SessionConfig().imu_grade, "IMU noise model, one of " + ", ".join(GRADES) + " (docs/imu_grades.md): "
+    "imu_grade": (SessionConfig().imu_grade, "IMU noise model, one of " + ", ".join(catalog.GRADES) + " (docs/imu_grades.md): "
                   "the defaults of the core's noise and bias parameters; an explicit core parameter overrides it. "
                   "Read-only after start", True),
     "init_from_ground_truth": (False, "initialise from ground_truth/pose plus init_rpy_error_deg (tests, demos; "
@@ -194,15 +192,14 @@ class AlignmentNode(Node):
             if name in _SESSION_DOC:
                 self._declare(name, default, _SESSION_DOC[name], False)
         for name, default in AlignedCriteria().to_dict().items():
-            self._declare(f"aligned.{name}", default, f"aligned flag criterion {name} (eval/aligned.py)", False)
+            self._declare(f"aligned.{name}", default, f"aligned flag criterion {name} (session/flag.py)", False)
         core = self.get_parameter("core").value
-        if core not in registry.CORES:
-            raise ValueError(f"core: unknown core {core!r}; choose one of {sorted(registry.core_names())}")
+        core_defaults = catalog.core_defaults(core)  # ValueError: unknown core, exit 2
         self.core_name = core
-        self.core_param_names = list(registry.CORES[core][1]().to_dict())
+        self.core_param_names = list(core_defaults)
         grade = self.get_parameter("imu_grade").value
-        from_grade = grade_params(grade, registry.CORES[core][1])  # ValueError: unknown grade, exit 2
-        for name, default in registry.CORES[core][1]().to_dict().items():
+        from_grade = catalog.grade_defaults(grade, core)  # ValueError: unknown grade, exit 2
+        for name, default in core_defaults.items():
             if name in from_grade:
                 self._declare(name, from_grade[name], f"{core} core parameter, default from imu_grade {grade} "
                                                       "(docs/imu_grades.md)", False)
@@ -274,15 +271,7 @@ class AlignmentNode(Node):
         crit = AlignedCriteria(**{k.split(".", 1)[1]: p[k] for k in p if k.startswith("aligned.")})
         crit.validate()
         cfg = SessionConfig.from_dict(sp)
-        registry.make_config(cfg.core, core_params)
-        if cfg.backtrack_passes > 0:
-            core = registry.make_core(cfg.core, core_params)
-            ok = core.supports_backtracking or type(core) is Liekf  # a plain LIEKF is made backtrackable
-            core.close()
-            if not ok:
-                raise ValueError(f"backtrack_passes > 0 needs one filter of a core with backward propagation "
-                                 f"(earth_iekf, liekf, liekf_backtrack; yaw_hypotheses 1); got core {cfg.core!r}, "
-                                 f"yaw_hypotheses {core_params.get('yaw_hypotheses', 1)}")
+        catalog.check_core_config(cfg, core_params)  # the session checks again; this gives the reason at start-up
         return cfg, core_params, crit
 
     def _apply_node_params(self, p: dict) -> None:

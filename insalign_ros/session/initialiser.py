@@ -15,6 +15,7 @@ import numpy as np
 from ..core import earth, lie
 from ..filters import registry
 from ..filters.base import AlignmentCore, AlignmentStatus
+from . import catalog
 from .guard import extrapolation_excess, fix_point
 from .truth import TruthSample
 
@@ -43,6 +44,13 @@ class Initialiser:
             self._probe = (probe.supports_gnss, probe.default_initial_sigmas())
             probe.close()
         return self._probe
+
+    def _core_name(self, params: dict) -> str:
+        """The configured core, or its backtrackable form when backtracking passes are asked for (session/catalog.py)."""
+        cfg = self.s.cfg
+        if cfg.backtrack_passes > 0 and int(params.get("yaw_hypotheses", 1)) == 1:
+            return catalog.BACKTRACKING_CORES.get(cfg.core, cfg.core)
+        return cfg.core
 
     def try_initialize(self, t: float) -> None:
         sess = self.s
@@ -81,7 +89,7 @@ class Initialiser:
             v0 = np.asarray(cfg.initial_velocity_enu_m_s, float)
         sig_rpy = [u if math.isfinite(u) else d for u, d in zip(cfg.init_sigma_rpy_deg, sig_rpy)]
         P_att = np.diag((np.asarray(sig_rpy, float) * D2R) ** 2)
-        core = registry.make_core(cfg.core, sess.core_params)
+        core = registry.make_core(self._core_name(sess.core_params), sess.core_params)
         try:
             core.initialize(t, pos[0], pos[1], pos[2], earth.C_b_n_from_rpy(*rpy), v0, P_att, sig_v, sig_p)
         except Exception:
@@ -187,7 +195,7 @@ class Initialiser:
         params = dict(sess.core_params)
         if gnss_core and params.get("yaw_hypotheses", 1) == 1 and cfg.unknown_heading_hypotheses > 1:
             params["yaw_hypotheses"] = cfg.unknown_heading_hypotheses
-        core = registry.make_core(cfg.core, params)
+        core = registry.make_core(self._core_name(params), params)
         sig_yaw = 1e4 if gnss_core else sig_rpy0[2]  # unknown: uniform over the bank's hypotheses
         user = cfg.init_sigma_rpy_deg
         sig = [u * D2R if math.isfinite(u) else d for u, d in zip(user, (sig_level, sig_level, sig_yaw * D2R))]

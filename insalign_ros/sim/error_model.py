@@ -5,18 +5,7 @@
 * b_g ~ N(0, sigma_bg^2 I), b_a ~ N(0, sigma_ba^2 I), drawn once per run from the seed.
 * w_g, w_a: white noise of the *average* over one sample interval dt, so sigma = (random-walk coefficient)/sqrt(dt).
 
-Conversions (SI inside the package):
-
-| datasheet unit | SI | factor |
-|---|---|---|
-| deg/h (bias) | rad/s | pi/180 / 3600 |
-| deg/sqrt(h) (ARW) | rad/sqrt(s) | pi/180 / 60 |
-| deg/s/sqrt(Hz) (rate noise density) | rad/sqrt(s) | pi/180 |
-| mg, ug (bias) | m/s^2 | 1e-3 g0, 1e-6 g0 with g0 = 9.80665 |
-| m/s/sqrt(h) (VRW) | m/s/sqrt(s) | 1/60 |
-| ug/sqrt(Hz) (acceleration noise density) | m/s/sqrt(s) | 1e-6 g0 |
-
-REP 145 covariances of a sensor_msgs/Imu sample are the variances of one sample: (ARW or VRW in SI)^2 / dt.
+Conversions: core/units.py (re-exported here).
 """
 
 from __future__ import annotations
@@ -25,41 +14,12 @@ import math
 
 import numpy as np
 
+from ..core.units import (  # noqa: F401  (re-exported: the simulator's users import them from here)
+    G0_M_S2, deg_h_to_rad_s, deg_s_sqrt_hz_to_rad_sqrt_s, deg_sqrt_h_to_rad_sqrt_s, m_s_sqrt_h_to_m_s_sqrt_s, mg_to_m_s2,
+    ug_sqrt_hz_to_m_s_sqrt_h, ug_sqrt_hz_to_m_s_sqrt_s, ug_to_m_s2,
+)
 from .types import ImuSpec
 
-G0_M_S2 = 9.80665  #: standard gravity, the "g" of mg and ug
-
-
-def deg_h_to_rad_s(x: float) -> float:
-    return math.radians(x) / 3600.0
-
-
-def deg_sqrt_h_to_rad_sqrt_s(x: float) -> float:
-    return math.radians(x) / 60.0
-
-
-def deg_s_sqrt_hz_to_rad_sqrt_s(x: float) -> float:
-    return math.radians(x)
-
-
-def mg_to_m_s2(x: float) -> float:
-    return x * 1e-3 * G0_M_S2
-
-
-def ug_to_m_s2(x: float) -> float:
-    return x * 1e-6 * G0_M_S2
-
-
-def m_s_sqrt_h_to_m_s_sqrt_s(x: float) -> float:
-    return x / 60.0
-
-
-def ug_sqrt_hz_to_m_s_sqrt_s(x: float) -> float:
-    return x * 1e-6 * G0_M_S2
-
-
-def ug_sqrt_hz_to_m_s_sqrt_h(x: float) -> float:
-    return ug_sqrt_hz_to_m_s_sqrt_s(x) * 60.0
 
 
 class ImuErrorSI:
