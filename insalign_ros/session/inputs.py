@@ -12,7 +12,7 @@ from collections import deque
 import numpy as np
 
 from ..core.types import GnssFix, GnssVelocity, ImuSample
-from ..filters.liekf import check_velocity
+from ..filters.checks import check_velocity
 from .buffers import RecentStamps, row_norms
 from .truth import TruthDict, TruthSample, TruthTable, truth_table_valid
 
