@@ -12,7 +12,7 @@ import numpy as np
 
 from ..core import earth
 from .static_kernels import model_error_jacobian_nb
-from .static_model import DEG_H, MG, StaticConfig, StaticModelInputs, StaticZuptCore, f_model  # noqa: F401
+from .static_model import DEG_H, MG, StaticConfig, StaticZuptCore  # noqa: F401
 
 
 @dataclass

@@ -21,7 +21,7 @@ writes with the level angles rotated by phiD (second order at small phiD, see do
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
