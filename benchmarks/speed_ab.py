@@ -40,8 +40,8 @@ print("RESULT " + json.dumps({"file": ia.__file__, "rates": out}))
 
 def run_tree(tree: str, rows, duration: float) -> dict:
     env = {**os.environ, "PYTHONPATH": os.path.abspath(tree), "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
-    r = subprocess.run([sys.executable, "-c", CHILD, json.dumps(rows), str(duration)], env=env, capture_output=True,
-                       text=True, timeout=3600)
+    r = subprocess.run([sys.executable, "-c", CHILD, json.dumps(rows), str(duration)], env=env, cwd=tree,
+                       capture_output=True, text=True, timeout=3600)  # cwd: "-c" puts it first on sys.path
     line = next((x for x in r.stdout.splitlines() if x.startswith("RESULT ")), None)
     if line is None:
         raise SystemExit(f"{tree}: no result\n{r.stdout[-2000:]}\n{r.stderr[-3000:]}")
