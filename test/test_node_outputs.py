@@ -96,7 +96,8 @@ def test_imu_datum_and_reset_over_dds(tmp_path, monkeypatch):
         nodes.append(start_node(ALIGN, env, log_dir=tmp_path, params={
             "core": "iekf", "init_mode": "guess", "initial_rpy_deg": str(rpy0), "initial_velocity_enu_m_s": str(ship.v_n[0].tolist()),
             "imu_axes": "frd", "imu_mount_rpy_deg": str(mount), "imu_timeout_s": 0.0, "imu_qos": "reliable",
-            "imu_qos_depth": 5000, "gnss_qos": "reliable", "imu_grade": "paper_ship"}))
+            "imu_qos_depth": 5000, "gnss_qos": "reliable", "imu_grade": "paper_ship",
+            "publish_imu_before_aligned": True}))  # ~/imu before the flag too: its content is checked here
         assert mon.wait_for(lambda m: m.diag_count > 0 and n.count_publishers("/alignment_node/imu") > 0, 30.0)
         sim = _play(bag_ship, env, tmp_path, "sim_ship")
         t0_ns = _sim_first_stamp_ns(sim)
@@ -178,5 +179,5 @@ def _assert_datum(msg, lat_rad, lon_rad, h_m):
     from sensor_msgs.msg import NavSatFix
 
     assert abs(msg.latitude - np.degrees(lat_rad)) < 1e-9 and abs(msg.longitude - np.degrees(lon_rad)) < 1e-9
-    assert abs(msg.altitude - h_m) < 1e-3 and msg.header.frame_id == "enu"
+    assert abs(msg.altitude - h_m) < 1e-3 and msg.header.frame_id == "map"  # world_frame (REP 105)
     assert msg.position_covariance_type == NavSatFix.COVARIANCE_TYPE_UNKNOWN
