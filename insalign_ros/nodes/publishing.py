@@ -206,7 +206,6 @@ class OutputPublisher:
             st.level = max(st.level, DiagnosticStatus.WARN)
         vals = s.diagnostics()
         vals.pop("message", None)
-        vals["core"] = node.core_name
         if len(node.timing_s):  # over the last _STATS_WINDOW Imu messages
             tt = node.timing_s.view()
             t50, t99, tmax = quantiles(tt, (50.0, 99.0, 100.0))
