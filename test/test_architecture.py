@@ -24,7 +24,7 @@ def test_the_import_layers_and_the_acyclic_contract_hold():
 
 #: files still over the limit, with the most lines each may have: the debt shrinks, never grows; a file that comes
 #: under the limit leaves this table (docs/architecture.md, "Known debt")
-LONG_FILES = {"nodes/alignment_node.py": 737}
+LONG_FILES: dict[str, int] = {}
 MAX_LINES = 600
 
 

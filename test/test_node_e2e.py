@@ -139,7 +139,7 @@ def _run_group(cores, scenario, tmp_path, ros_env):
             for msg in poses:
                 ok, why = _pose_cov_ok(msg)
                 assert ok, (c, why)
-                assert msg.header.frame_id == "enu"
+                assert msg.header.frame_id == "map"  # world_frame (REP 105)
                 q = msg.pose.pose.orientation
                 assert abs(q.x**2 + q.y**2 + q.z**2 + q.w**2 - 1.0) < 1e-9
             assert m.wait_for(lambda mm: mm.diag.get("core") == c and mm.diag.get("core_faults") == "0", 5.0), m.diag
