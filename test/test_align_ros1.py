@@ -30,17 +30,20 @@ def car():
     return make_scenario("car", seed=3, duration_s=DURATION_S)
 
 
-def write_ros1_bag(d, path, imu_frd=True, topics=(("/imu/data_raw", "imu"), ("/ublox/fix", "fix")), extra=()):
+def write_ros1_bag(d, path, imu_frd=True, topics=(("/imu/data_raw", "imu"), ("/ublox/fix", "fix")), extra=(),
+                   C_v_s=None):
     """A ROS 1 bag of ``d`` as a driver records it: Imu (FRD axes: y and z of the simulated FLU data negated, zero
     covariances = unknown), NavSatFix (COVARIANCE_TYPE_APPROXIMATED, the ENU covariance), absolute stamps, frames
-    'imu' and 'gps', no metadata, no truth. ``extra``: more (topic, kind) pairs (a second Imu, ...)."""
+    'imu' and 'gps', no metadata, no truth. ``extra``: more (topic, kind) pairs (a second Imu, ...). ``C_v_s``:
+    instead of ``imu_frd``, any rotation from the vehicle FLU frame to the sensor's axes (v_s = C_v_s v_v)."""
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_typestore
 
     ts = get_typestore(Stores.ROS1_NOETIC)
     T = ts.types
     V3, Q = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Quaternion"]
-    flip = np.array([1.0, -1.0, -1.0]) if imu_frd else np.ones(3)  # FLU -> FRD: 180 deg about x
+    flip = np.diag([1.0, -1.0, -1.0] if imu_frd else [1.0, 1.0, 1.0])  # FLU -> FRD: 180 deg about x
+    C_v_s = flip if C_v_s is None else np.asarray(C_v_s, float)
     glat, glon, galt = pymap3d.ecef2geodetic(d.gnss_p_e[:, 0], d.gnss_p_e[:, 1], d.gnss_p_e[:, 2])
 
     def hdr(t_s, seq, frame):
@@ -53,7 +56,7 @@ def write_ros1_bag(d, path, imu_frd=True, topics=(("/imu/data_raw", "imu"), ("/u
         if kind == "imu":
             for k in range(d.n):
                 h, ns = hdr(d.t_s[k], k, "imu")
-                w, f = d.omega_ib_b[k] * flip, d.f_ib_b[k] * flip
+                w, f = C_v_s @ d.omega_ib_b[k], C_v_s @ d.f_ib_b[k]
                 events.append((ns, topic, "sensor_msgs/msg/Imu", T["sensor_msgs/msg/Imu"](
                     header=h, orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0),
                     orientation_covariance=np.r_[-1.0, np.zeros(8)], angular_velocity=V3(x=w[0], y=w[1], z=w[2]),
@@ -154,3 +157,52 @@ def test_the_axes_check_itself():
     assert "--imu-axes flu" in check_gravity_axis(level * [1, -1, -1], "frd")
     side = np.tile([0.0, 9.8, 0.5], (10, 1))  # on its side: the mounting
     assert "--imu-mount-rpy-deg" in check_gravity_axis(side)
+
+
+def _csv(path):
+    rows = list(csv.DictReader(open(path)))
+    return np.array([[float(r[k]) for k in ("t_s", "roll_deg", "pitch_deg", "yaw_deg", "sigma3_yaw_deg", "aligned")]
+                     for r in rows])
+
+
+def test_a_mounting_rotation_is_undone_once_at_the_input(car, tmp_path):
+    """An FRD IMU mounted yawed 90 deg (its x axis to the vehicle's left) and rolled 5 deg: with the node's two
+    options the run equals the one of an FLU IMU on the vehicle axes (float rounding only)."""
+    from scipy.spatial.transform import Rotation
+
+    short = car.until(car.t_s[0] + 20.0)
+    C_s_v = Rotation.from_euler("xyz", [5.0, 0.0, 90.0], degrees=True).as_matrix() @ np.diag([1.0, -1.0, -1.0])
+    plain = write_ros1_bag(short, tmp_path / "plain.bag", imu_frd=False)
+    mounted = write_ros1_bag(short, tmp_path / "mounted.bag", C_v_s=C_s_v.T)
+    assert main([str(plain), "--no-plot", "--out-dir", str(tmp_path / "a"), "--no-progress"]) == 0
+    assert main([str(mounted), "--imu-axes", "frd", "--imu-mount-rpy-deg", "5", "0", "90", "--no-plot",
+                 "--out-dir", str(tmp_path / "b"), "--no-progress"]) == 0
+    a, b = _csv(tmp_path / "a" / "plain_auto.csv"), _csv(tmp_path / "b" / "mounted_auto.csv")
+    assert a.shape == b.shape and a.shape[0] >= 30
+    np.testing.assert_allclose(b, a, atol=1e-6)
+    assert main([str(mounted), "--imu-axes", "frd", "--imu-mount-rpy-deg", "0", "0", "nan", "--out-dir",
+                 str(tmp_path), "--no-progress"]) == 2
+    assert main(["--scenario", "car", "--imu-axes", "frd", "--out-dir", str(tmp_path), "--no-progress"]) == 2
+
+
+def test_fleet_of_ros1_and_mcap_bags_without_truth_has_the_final_attitude(car, tmp_path):
+    from insalign_ros.io.bag import write_bag
+
+    short = car.until(car.t_s[0] + 20.0)
+    fleet = tmp_path / "fleet"
+    fleet.mkdir()
+    write_ros1_bag(short, fleet / "frd.bag")  # FRD, aligned without --imu-axes: warned in the summary
+    write_bag(short, tmp_path / "rosbag2", storage="mcap", write_truth=False)
+    (fleet / "lone.mcap").write_bytes(next((tmp_path / "rosbag2").glob("*.mcap")).read_bytes())
+    assert main([str(fleet), "--serial", "--no-plot", "--out-dir", str(tmp_path / "o"), "--no-progress"]) == 0
+    rows = {r["bag"].rsplit("/", 1)[-1]: r for r in csv.DictReader(open(tmp_path / "o" / "fleet_summary.csv"))}
+    assert sorted(rows) == ["frd.bag", "lone.mcap"]
+    for name, r in rows.items():
+        m = json.loads(next((tmp_path / "o" / name).glob("*_metrics.json")).read_text())
+        assert r["final_rpy_deg"] == str(m["final_rpy_deg"]) and r["final_3sigma_deg"] == str(m["final_3sigma_deg"])
+        assert r["final_err_rpy_deg"] == ""  # no truth
+    assert "--imu-axes frd" in rows["frd.bag"]["warnings"] and rows["lone.mcap"]["warnings"] == ""
+    roll_frd = float(rows["frd.bag"]["final_rpy_deg"].strip("[]").split(",")[0])
+    roll_flu = float(rows["lone.mcap"]["final_rpy_deg"].strip("[]").split(",")[0])
+    assert abs(abs(roll_frd) - 180.0) < 10.0 and abs(roll_flu) < 10.0  # the upside-down estimate the warning names
+    assert "| final_rpy_deg | final_3sigma_deg |" in (tmp_path / "o" / "fleet_summary.md").read_text()
