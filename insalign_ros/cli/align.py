@@ -247,9 +247,11 @@ def _bag_checks(data, args, rep: dict, sp: dict, warnings: list):
     from ..io.validation import check_gravity_axis
 
     used, bag_topics = rep.get("topics", {}), rep.get("bag_topics", {})
-    for opt, kind, given in (("--gps-topic", "gps", args.gps_topic), ("--vel-topic", "vel", args.vel_topic)):
-        if given is not None and given.lower() not in ("", "none") and used.get(kind) is None:
-            raise ValueError(f"no topic {given!r} ({opt}) in {args.bag}; its topics: {listing(bag_topics)}")
+    if args.gps_topic is not None and used.get("gps") is None:
+        raise ValueError(f"no topic {args.gps_topic!r} (--gps-topic) in {args.bag}; its topics: {listing(bag_topics)}")
+    if args.vel_topic is not None and args.vel_topic.lower() not in ("", "none") and used.get("vel") is None:
+        print(f"insalign-align: warning: no topic {args.vel_topic!r} (--vel-topic) in {args.bag}: fixes only",
+              file=sys.stderr)  # the velocity is optional
     print("insalign-align: topics: " + ", ".join(f"{k} {v or '-'}" for k, v in used.items()), file=sys.stderr)
     if not data.gnss_valid_mask.any() and "static_position_deg_m" not in sp:
         why = (f"no valid fix on {used['gps']}" if used.get("gps") else
