@@ -16,7 +16,8 @@ once, as the bag is read; a mean specific force far from the vehicle's up axis i
 ``--session-param init_mode=sensors``) from the sensors alone (no guess: fixes, accelerometers, a yaw bank).
 Static cores get zero-velocity updates from the session (``--session-param zupt_rate_hz=10``). Writes
 <out>/<name>_<core>.csv (time, Euler estimate, error, 3-sigma, NEES, flag), a metrics JSON and a PNG: the errors
-like the PI-LIEKF paper's Fig. 3 with truth, the estimate with its 3-sigma band and the flag without. Every user error is one line on stderr and exit status 2. Given a directory of bags, every
+like the PI-LIEKF paper's Fig. 3 with truth, the estimate with its 3-sigma band and the flag without. Every user
+error is one line on stderr and exit status 2 (a missing path: "not found: PATH"). Given a directory of bags, every
 bag is aligned with the same options as an independent Dask task (cli/fleet.py): per-bag outputs in
 <out>/<bag>/ and a summary table <out>/fleet_summary.csv (.md).
 """

@@ -112,11 +112,11 @@ def check_gravity_axis(f_ib_v: np.ndarray, imu_axes: str = "flu") -> str | None:
     tilt = math.degrees(math.acos(max(-1.0, min(1.0, m[2] / g))))
     if tilt <= MAX_MEAN_TILT_DEG:
         return None
-    where = f"mean specific force ({m[0]:.2f}, {m[1]:.2f}, {m[2]:.2f}) m/s^2 in the vehicle FLU frame, {tilt:.0f} deg " \
-            f"from +z (a level FLU IMU reads about (0, 0, +9.8))"
+    where = (f"mean specific force ({m[0]:.2f}, {m[1]:.2f}, {m[2]:.2f}) m/s^2 in the vehicle FLU frame, "
+             f"{tilt:.0f} deg from +z (a level FLU IMU reads about (0, 0, +9.8))")
     if m[2] < 0 and tilt > 135.0:
         other = "frd" if imu_axes == "flu" else "flu"
-        why = "z down: an FRD IMU (x forward, y right, z down) read as FLU?" if other == "frd" else \
-            "the data already FLU?"
+        why = ("z down: an FRD IMU (x forward, y right, z down) read as FLU?" if other == "frd" else
+               "the data already FLU?")
         return f"{where}: the IMU looks upside down ({why}); check --imu-axes {other} (node: imu_axes)"
     return f"{where}: check --imu-axes and --imu-mount-rpy-deg (node: imu_axes, imu_mount_rpy_deg)"
