@@ -336,9 +336,11 @@ def _read_messages(path, wanted: dict, invalid: dict, truth_topic: str, meta_top
                     g["t"].append(t_ns), g["w"].append(w), g["f"].append(f), g["ok"].append(ok)
             elif kind == "gps":
                 cov = np.asarray(msg.position_covariance, float).reshape(3, 3)
-                unknown = msg.position_covariance_type == COVARIANCE_TYPE_UNKNOWN
+                typed_unknown = msg.position_covariance_type == COVARIANCE_TYPE_UNKNOWN
+                unknown = typed_unknown or not np.any(cov)  # all zeros under any type (some drivers): unknown
                 if unknown and unknown_fix_sigma_m is None:
-                    reason = reason or "position_covariance_type UNKNOWN"
+                    reason = reason or ("position_covariance_type UNKNOWN" if typed_unknown else
+                                        "position covariance all zeros")
                 elif unknown:
                     cov = np.eye(3) * unknown_fix_sigma_m**2
                 # a flagged fix carries STATUS_NO_FIX by contract: judge the rest of it
@@ -415,8 +417,8 @@ def read_bag(path, imu_topic: str | None = IMU_TOPIC, gps_topic: str | None = GP
         names read land in ``report["topics"]``, the bag's topics and types in ``report["bag_topics"]``.
     truth_topic, meta_topic : topic names, never guessed (truth: PoseStamped, PoseWithCovarianceStamped or
         Odometry, orientation body FLU -> ENU, position in a local ENU frame [m]).
-    unknown_fix_sigma_m : 1-sigma per axis [m] for fixes with position_covariance_type UNKNOWN (the node's
-        ``gnss_sigma_m`` rule, R_n = sigma^2 I); None drops such fixes.
+    unknown_fix_sigma_m : 1-sigma per axis [m] for fixes with position_covariance_type UNKNOWN or an all-zero
+        covariance under any type (the node's ``gnss_sigma_m`` rule, R_n = sigma^2 I); None drops such fixes.
     imu_invalid_topic, gps_invalid_topic : topics of flagged samples (default ``<topic>_invalid``): read into
         ``imu_valid`` / ``gnss_valid`` (False), in stamp order with the valid ones.
     ref_llh_deg : (lat [deg], lon [deg], h [m]) ENU origin of the truth positions when the metadata has none.
