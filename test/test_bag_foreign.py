@@ -167,6 +167,10 @@ def test_topics_found_by_type_and_named_when_missing_or_ambiguous(car, tmp_path)
     assert rep["topics"] == {"imu": "/imu/data_raw", "gps": "/fix", "vel": None, "truth": None}
     assert r.n == car.n and r.gnss_t_s.shape == (21,) and not r.has_truth  # truth only by name
     assert rep["bag_topics"]["/truth"] == "geometry_msgs/msg/PoseStamped"
+    assert not [w for w in rep["warnings"] if "frame_id" in w], rep["warnings"]  # 'imu' and 'gps': a driver's own
+    rep = {}
+    read_bag(tmp_path / "b", imu_topic=None, gps_topic=None, truth_topic="/truth", report=rep)
+    assert [w for w in rep["warnings"] if "frame_id" in w] == ["/truth: frame_id ['map'] != contract 'enu'"]
     with pytest.raises(ValueError, match=r"no IMU topic '/imu/data' \(--imu-topic\) in the bag; its topics: "
                                          r"/fix \(sensor_msgs/msg/NavSatFix\), /imu/data_raw \(sensor_msgs/msg/Imu\)"):
         read_bag(tmp_path / "b")  # the contract's name, which this bag lacks

@@ -372,6 +372,14 @@ def _read_messages(path, wanted: dict, invalid: dict, truth_topic: str, meta_top
     return meta, got, rejected, frames, n_unknown, streams
 
 
+#: words in a driver's own frame ids that pass without a warning (imu, /imu_link, gps, gnss_link, ublox, navsat)
+ORDINARY_FRAME_WORDS = {"imu": ("imu",), "gps": ("gps", "gnss", "navsat", "ublox"), "vel": ("gps", "gnss", "ublox")}
+
+
+def _ordinary_frame(kind: str, frame_id: str) -> bool:
+    return any(w in frame_id.lower() for w in ORDINARY_FRAME_WORDS.get(kind, ()))
+
+
 def _truth_reference(meta: dict, ref_llh_deg, gps: dict, tr_t_ns, tr_p, warnings: list):
     """ENU origin (lat, lon [deg], h [m]) of the truth positions, or None: the metadata's; else ``ref_llh_deg``;
     else placed so that the truth position at the first valid fix inside the truth's span (else the first valid
@@ -455,8 +463,10 @@ def read_bag(path, imu_topic: str | None = IMU_TOPIC, gps_topic: str | None = GP
                                f"{listing(rep['bag_topics'])}")
     expect = {"imu": IMU_FRAME, "gps": GPS_FRAME, "truth": TRUTH_FRAME, "vel": GPS_FRAME}
     for topic, fs in frames.items():
-        if fs and fs != {expect[streams[topic][0]]}:
-            rep["warnings"].append(f"{topic}: frame_id {sorted(fs)} != contract {expect[streams[topic][0]]!r}")
+        kind = streams[topic][0]
+        odd = sorted(f for f in fs if f != expect[kind] and not _ordinary_frame(kind, f))
+        if odd:
+            rep["warnings"].append(f"{topic}: frame_id {odd} != contract {expect[kind]!r}")
     for topic, c in rejected.items():
         if c:
             rep["rejected"][topic] = dict(c)
