@@ -1,5 +1,6 @@
 # Sourced by scripts/test and scripts/demo: create the virtualenv and install what is missing.
-# Quick when everything is there: pip runs only when requirements.txt or setup.py changed.
+# Quick when everything is there: pip (and the numba warm-up after it) runs only when requirements.txt or setup.py
+# changed. python -m insalign_ros.session.warmup compiles the kernels again by hand (e.g. after NUMBA_CACHE_DIR moved).
 set -euo pipefail
 INSALIGN_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 INSALIGN_VENV="${INSALIGN_VENV:-$INSALIGN_ROOT/.venv}"
@@ -29,6 +30,11 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   "$INSALIGN_VENV/bin/python" -m pip install --quiet --disable-pip-version-check --upgrade pip
   "$INSALIGN_VENV/bin/python" -m pip install --quiet --disable-pip-version-check -r "$INSALIGN_ROOT/requirements.txt"
   "$INSALIGN_VENV/bin/python" -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e "$INSALIGN_ROOT"
+  # compile the numba kernels now, once, so that the first node, demo or test finds a warm cache (docs/install.md,
+  # "First run"); a failure here is not fatal: the kernels then compile on first use
+  echo "[insalign] compiling the numba kernels of every core (about a minute on a cold machine, once)" >&2
+  (cd "$INSALIGN_ROOT" && "$INSALIGN_VENV/bin/python" -m insalign_ros.session.warmup) \
+    || echo "[insalign] warm-up failed; the kernels compile on first use instead" >&2
   echo "$want" > "$stamp"
 fi
 export PATH="$INSALIGN_VENV/bin:$PATH"

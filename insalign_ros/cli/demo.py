@@ -181,7 +181,9 @@ def run_alignment(args, log_dir: Path, out=None) -> tuple[int, dict]:
     if args.bag and args.bag_truth_init:
         align_params["init_from_ground_truth"] = True
         align_params["init_rpy_error_deg"] = str([float(x) for x in (args.init_error_deg or "0,0,0").split(",")])
-    sim_params = {"rate_factor": args.rate_factor, "wait_for_subscribers": 1, "wait_timeout_s": 30.0,
+    # the simulator publishes once the node subscribed, which it does only after compiling its kernels (cold: a
+    # minute or more): it waits as long as the demo waits for the node's readiness
+    sim_params = {"rate_factor": args.rate_factor, "wait_for_subscribers": 1, "wait_timeout_s": args.ready_timeout_s,
                   "seed": args.seed, "qos_depth": 1000}
     if args.bag:
         sim_params.update(source="bag", bag_path=str(args.bag))
@@ -198,7 +200,12 @@ def run_alignment(args, log_dir: Path, out=None) -> tuple[int, dict]:
         nodes.append(align)
         sim = start_node("insalign_ros.nodes.imu_sim_node", env, params=sim_params, log_dir=log_dir)
         nodes.append(sim)
-        deadline = t0 + args.timeout_s
+        ready_s = _wait_ready(mon, align, sim, t0, args.ready_timeout_s, out)
+        if ready_s is None:
+            why = "died" if not align.alive() else f"not ready after {args.ready_timeout_s:g} s"
+            return _fail(out, f"alignment_node {why} (it subscribes once its kernels are compiled)", log_dir), res
+        res["ready_s"] = ready_s
+        deadline = time.monotonic() + args.timeout_s
         last_line = 0.0
         while sim.alive() and time.monotonic() < deadline:
             time.sleep(0.1)
@@ -264,6 +271,27 @@ def run_alignment(args, log_dir: Path, out=None) -> tuple[int, dict]:
         mon.close()
 
 
+def _wait_ready(mon, align, sim, t0: float, timeout_s: float, out) -> float | None:
+    """Wait until alignment_node subscribed to imu/data (it does so after compiling its kernels: session/warmup.py);
+    return the seconds it took, None if it died or did not within ``timeout_s``. Prints a status line meanwhile."""
+    deadline = t0 + timeout_s
+    last_line = 0.0
+    while time.monotonic() < deadline and align.alive():
+        if mon.node.count_subscribers("/imu/data") >= 1:
+            ready_s = time.monotonic() - t0
+            out.write(f"\r[insalign-demo] alignment_node ready after {ready_s:.1f} s{' ' * 40}\n")
+            out.flush()
+            return ready_s
+        if time.monotonic() - last_line > 0.5:
+            last_line = time.monotonic()
+            out.write(f"\r[{time.monotonic() - t0:5.1f} s] alignment_node starting (numba kernels load from the "
+                      "cache, or compile on a cold one)   ")
+            out.flush()
+        time.sleep(0.1)
+    out.write("\n")
+    return None
+
+
 def _status_line(mon, t0: float) -> str:
     with mon.lock:
         d = mon.diag
@@ -309,12 +337,16 @@ def main(argv=None) -> int:
                     "(default: from the sensors)")
     ap.add_argument("--bag-truth-init", action="store_true", help="bag with truth: initialise from it + "
                     "--init-error-deg")
-    ap.add_argument("--timeout-s", type=float, default=110.0, help="give up after this long (default 110 s)")
+    ap.add_argument("--timeout-s", type=float, default=110.0, help="give up when the run takes longer than this once "
+                    "the node is ready (default 110 s)")
+    ap.add_argument("--ready-timeout-s", type=float, default=600.0, help="give up when alignment_node is not ready "
+                    "(kernels compiled, imu/data subscribed) after this long (default 600 s: a cold cache on a busy "
+                    "machine)")
     ap.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: a random one in 1..100)")
     ap.add_argument("--log-dir", type=Path, default=None, help="keep node logs here (default: a temp dir)")
     args = ap.parse_args(argv)
-    if not 0 < args.rate_factor <= 1000 or args.timeout_s <= 0 or args.duration_s < 0:
-        ap.error("need 0 < --rate-factor <= 1000, --timeout-s > 0, --duration-s >= 0")
+    if not 0 < args.rate_factor <= 1000 or args.timeout_s <= 0 or args.duration_s < 0 or args.ready_timeout_s <= 0:
+        ap.error("need 0 < --rate-factor <= 1000, --timeout-s > 0, --ready-timeout-s > 0, --duration-s >= 0")
     for opt, val in (("--init-error-deg", args.init_error_deg), ("--initial-rpy-deg", args.initial_rpy_deg)):
         try:
             if val is not None and len([float(x) for x in val.split(",")]) != 3:

@@ -13,7 +13,8 @@ samples (docs/speed.md has the measurements and the decision):
 The kernels are the implementation (one source per equation); test/oracles.py keeps the numpy formulas they replace
 and test/test_speed_paths.py compares every core through the session on both (attitude < 1e-9 rad). Without numba,
 or with ``INSALIGN_NO_NUMBA=1`` in the environment, the same functions run as plain Python (slow, same numbers).
-Kernels are compiled on first use and cached on disk (``cache=True``).
+Kernels are compiled on first use and cached on disk (``cache=True``): next to the source, or in
+:func:`user_cache_dir` when the package directory is read-only (:func:`_jit`).
 """
 
 from __future__ import annotations
@@ -44,8 +45,51 @@ _ZONAL_J = np.array([float(j) for _, j in earth._ZONAL])
 _SERIES = np.array([_A_SERIES, _B_SERIES, _C1_SERIES, _C2_SERIES])
 
 
+def user_cache_dir() -> str:
+    """Where the kernels are cached when their source directory is not writable (docs/install.md, "First run"):
+    ``${XDG_CACHE_HOME:-~/.cache}/insalign_ros/numba`` (``$NUMBA_CACHE_DIR``, when set, wins over both)."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "insalign_ros", "numba")
+
+
+_WRITABLE: dict[str, bool] = {}  # source directory -> its __pycache__ is writable (numba's in-tree cache)
+
+
+def _in_tree_writable(src_dir: str) -> bool:
+    """numba's own test of its in-tree cache: create ``__pycache__`` and a file in it."""
+    if src_dir not in _WRITABLE:
+        import tempfile
+
+        try:
+            path = os.path.join(src_dir, "__pycache__")
+            os.makedirs(path, exist_ok=True)
+            with tempfile.TemporaryFile(dir=path):
+                pass
+            _WRITABLE[src_dir] = True
+        except OSError:
+            _WRITABLE[src_dir] = False
+    return _WRITABLE[src_dir]
+
+
 def _jit(fn):
-    return njit(cache=True, fastmath=False, nogil=True)(fn) if COMPILE else fn
+    """``njit(cache=True)``, the cache next to the source (``__pycache__``) when that is writable, else in
+    :func:`user_cache_dir` (a read-only install: colcon ``install/``, a system site-packages); ``$NUMBA_CACHE_DIR``
+    wins when set. numba picks the location when it decorates, so only these kernels see the setting."""
+    if not COMPILE:
+        return fn
+    from numba.core import config
+
+    src = os.path.dirname(os.path.abspath(fn.__code__.co_filename))
+    user_set = bool(config.CACHE_DIR)
+    if not (user_set or _in_tree_writable(src)):
+        config.CACHE_DIR = user_cache_dir()
+    try:
+        return njit(cache=True, fastmath=False, nogil=True)(fn)
+    except RuntimeError:  # no writable cache location at all ("cannot cache function"): compile at every start
+        return njit(cache=False, fastmath=False, nogil=True)(fn)
+    finally:
+        if not user_set:
+            config.CACHE_DIR = ""
 
 
 @_jit

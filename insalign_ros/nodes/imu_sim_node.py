@@ -409,9 +409,12 @@ def _run_stream(node: ImuSimNode) -> None:
         rclpy.spin_once(node, timeout_sec=0.05)
     if node.done:
         return
-    # give the other topics' subscriptions a moment to match too (they are discovered together)
-    end = time.monotonic() + 0.5
-    while rclpy.ok() and time.monotonic() < end:
+    # the consumer's other subscriptions (fixes, velocities, truth) are discovered with its Imu one: wait until they
+    # match too, at most 2 s (a consumer that takes only Imu)
+    others = [p for p in (node.pub_fix, node.pub_vel, node.pub_truth) if p is not None]
+    end = time.monotonic() + 2.0
+    while rclpy.ok() and time.monotonic() < end and any(
+            p.get_subscription_count() < node.wait_for_subscribers for p in others):
         rclpy.spin_once(node, timeout_sec=0.05)
     t_report = time.monotonic() + 5.0
     while rclpy.ok() and not node.done:

@@ -1,0 +1,123 @@
+"""The first run: numba's kernel cache where an installed, read-only package can write it (docs/install.md).
+
+A copy of the package is made read-only (as a colcon ``install/`` or a system site-packages) and warmed up in a
+subprocess whose ``XDG_CACHE_HOME`` is a temporary directory: the kernels must be cached there, and a second process
+must load every kernel from that cache (numba's dispatcher statistics: hits, no misses) and write no new cache file.
+As root, file permissions do not bind: the subprocess runs without CAP_DAC_OVERRIDE (``setpriv``) so that they do.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import stat
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+#: the subprocess: import (or warm up) the package, print its kernels' cache statistics as JSON
+_PROBE = """
+import json, sys
+import insalign_ros
+from insalign_ros.session import warmup
+if sys.argv[1] == "warm":
+    warmup.warm_up(("auto",))
+else:  # import every module that decorates kernels, compile nothing
+    import insalign_ros.filters.liekf, insalign_ros.filters.static_model, insalign_ros.filters.ekf10
+print(json.dumps({"package": insalign_ros.__file__, "kernels": warmup.kernel_stats()}))
+"""
+
+
+def _read_only_copy(dst: Path) -> Path:
+    """Copy insalign_ros/ (no caches) under ``dst`` and make every directory and file read-only."""
+    pkg = dst / "insalign_ros"
+    shutil.copytree(REPO / "insalign_ros", pkg, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+    for root, dirs, files in os.walk(dst, topdown=False):
+        for f in files:
+            os.chmod(os.path.join(root, f), stat.S_IRUSR | stat.S_IRGRP | stat.S_IROTH)
+        os.chmod(root, stat.S_IRUSR | stat.S_IXUSR | stat.S_IRGRP | stat.S_IXGRP | stat.S_IROTH | stat.S_IXOTH)
+    return pkg
+
+
+def _make_writable(path: Path) -> None:
+    for root, dirs, files in os.walk(path):
+        os.chmod(root, 0o755)
+
+
+def _unprivileged() -> list[str]:
+    """Command prefix under which the permission bits bind (root: drop CAP_DAC_OVERRIDE), or skip."""
+    if os.geteuid() != 0:
+        return []
+    setpriv = shutil.which("setpriv")
+    if setpriv is None:
+        pytest.skip("running as root without setpriv (util-linux): a read-only directory cannot be simulated")
+    return [setpriv, "--bounding-set=-dac_override,-dac_read_search", "--"]
+
+
+def _probe(mode: str, src: Path, cache_home: Path, extra_env: dict | None = None, timeout_s: float = 900.0) -> dict:
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "INSALIGN_NO_NUMBA", "NUMBA_DISABLE_JIT")}
+    env.update(PYTHONPATH=str(src), HOME=str(cache_home / "home"), XDG_CACHE_HOME=str(cache_home / "xdg"),
+               PYTHONDONTWRITEBYTECODE="1", **(extra_env or {}))
+    r = subprocess.run([*_unprivileged(), sys.executable, "-c", _PROBE, mode], env=env, cwd=str(cache_home),
+                       capture_output=True, text=True, timeout=timeout_s)
+    assert r.returncode == 0, r.stderr[-3000:]
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    assert Path(out["package"]).resolve().is_relative_to(src.resolve()), out["package"]
+    return out
+
+
+def _cache_files(root: Path) -> dict[str, int]:
+    return {str(p.relative_to(root)): p.stat().st_mtime_ns for p in root.rglob("*") if p.is_file()}
+
+
+@pytest.fixture
+def read_only_install(tmp_path):
+    src = tmp_path / "site"
+    src.mkdir()
+    _read_only_copy(src)
+    probe = src / "insalign_ros" / "core" / "probe"
+    if os.geteuid() != 0:
+        with pytest.raises(PermissionError):  # the premise: nothing can be written into the package
+            probe.mkdir()
+    yield src
+    _make_writable(src)
+
+
+def test_kernels_of_a_writable_tree_are_cached_next_to_their_source(tmp_path):
+    out = _probe("import", REPO, tmp_path)
+    assert len(out["kernels"]) >= 30  # core/mechanization_numba, filters/liekf, static_model, ekf10
+    for k in out["kernels"]:
+        assert Path(k["cache_path"]).parent.parent == REPO / "insalign_ros", k
+        assert Path(k["cache_path"]).name == "__pycache__", k
+
+
+def test_numba_cache_dir_set_by_the_user_wins(tmp_path):
+    mine = tmp_path / "mine"
+    out = _probe("import", REPO, tmp_path, {"NUMBA_CACHE_DIR": str(mine)})
+    assert out["kernels"] and all(Path(k["cache_path"]).parent == mine for k in out["kernels"])
+
+
+def test_read_only_install_caches_in_the_user_cache_dir_and_a_second_process_hits(read_only_install, tmp_path):
+    cache_home = tmp_path / "user"
+    cache_home.mkdir()
+    user_dir = cache_home / "xdg" / "insalign_ros" / "numba"
+
+    first = _probe("warm", read_only_install, cache_home)
+    paths = {Path(k["cache_path"]) for k in first["kernels"]}
+    assert paths and all(p.parent == user_dir for p in paths), paths
+    compiled = {k["kernel"]: k["cache_misses"] for k in first["kernels"] if k["cache_misses"]}
+    assert len(compiled) >= 5, compiled  # auto's static model and in-motion filter kernels
+    files = _cache_files(user_dir)
+    assert sum(f.endswith(".nbi") for f in files) >= len(compiled)
+    assert not list(read_only_install.rglob("*.nbi")) and not list(read_only_install.rglob("__pycache__"))
+
+    second = _probe("warm", read_only_install, cache_home)
+    rows = {k["kernel"]: k for k in second["kernels"]}
+    assert sum(k["cache_misses"] for k in rows.values()) == 0, {n: k for n, k in rows.items() if k["cache_misses"]}
+    assert sum(k["cache_hits"] for k in rows.values()) >= 3, rows  # (a kernel inlined in a loaded one shows none)
+    assert _cache_files(user_dir) == files  # nothing compiled, nothing rewritten
