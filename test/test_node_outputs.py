@@ -39,7 +39,7 @@ def _wait(pred, timeout_s):
 def _play(bag, env, tmp_path, name):
     sim = start_node(SIM, env, log_dir=tmp_path, name=name, params={
         "source": "bag", "bag_path": str(bag), "rate_factor": 10.0, "wait_for_subscribers": 1,
-        "wait_timeout_s": 30.0, "qos": "reliable", "qos_depth": 5000})
+        "wait_timeout_s": 180.0, "qos": "reliable", "qos_depth": 5000})
     assert wait_for_exit(sim, 60.0) == 0, sim.output()[-2000:]
     return sim
 
@@ -69,7 +69,7 @@ def test_imu_message_without_a_measured_sample_says_no_estimate():
 
 
 @pytest.mark.ros
-@pytest.mark.timeout(180)
+@pytest.mark.timeout(360)
 def test_imu_datum_and_reset_over_dds(tmp_path, monkeypatch):
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Imu, NavSatFix
