@@ -8,8 +8,11 @@ The alignment node starts with its own defaults (core auto, no ground-truth init
 recording without truth); ``init_from_ground_truth:=true`` (a simulated scenario or a bag with truth) initialises from
 the truth plus ``init_rpy_error_deg``. test/test_install_honesty.py checks these defaults against the node's.
 
-Parameters come from config/imu_sim.yaml, config/alignment_node.yaml and config/<core>.yaml (installed under
-share/insalign_ros/config), then the launch arguments. The test suite does not import this file (launch is not on
+Parameters come from config/imu_sim.yaml, config/alignment_node.yaml and the core's file (config/<core>.yaml;
+``liekf_backtrack`` shares config/liekf.yaml, a core without a file runs on its defaults; installed under
+share/insalign_ros/config), then the launch arguments. The simulator starts publishing once the alignment node has
+subscribed, which it does when its kernels are compiled (a minute or more on a cold numba cache).
+For real drivers (no simulator, topic remapping) see alignment.launch.py and robot_localization.launch.py. The test suite does not import this file (launch is not on
 PyPI; a test only parses it); ``insalign-demo`` is the launch-free equivalent. Set ``use_sim_time:=true`` to run
 the alignment node on the simulator's /clock.
 """
@@ -21,6 +24,16 @@ from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
+
+
+#: core -> its parameter file in config/ when not <core>.yaml (test/test_launch_files.py checks every core)
+CORE_CONFIG = {"liekf_backtrack": "liekf.yaml"}
+
+
+def core_config(config_dir: str, core: str) -> list:
+    """[config/<core>.yaml] (or the file the core shares), [] when the core has none: its defaults apply."""
+    path = os.path.join(config_dir, CORE_CONFIG.get(core, f"{core}.yaml"))
+    return [path] if os.path.exists(path) else []
 
 
 def _nodes(context):
@@ -35,11 +48,12 @@ def _nodes(context):
             package="insalign_ros", executable="imu_sim_node", name="imu_sim_node", output="screen",
             parameters=[os.path.join(config, "imu_sim.yaml"),
                         {"source": arg("source"), "scenario": arg("scenario"), "bag_path": arg("bag_path"),
-                         "rate_factor": float(arg("rate_factor")), "seed": int(arg("seed"))}],
+                         "rate_factor": float(arg("rate_factor")), "seed": int(arg("seed")),
+                         "wait_for_subscribers": 1, "wait_timeout_s": 600.0}],
         ),
         Node(
             package="insalign_ros", executable="alignment_node", name="alignment_node", output="screen",
-            parameters=[os.path.join(config, "alignment_node.yaml"), os.path.join(config, f"{core}.yaml"),
+            parameters=[os.path.join(config, "alignment_node.yaml"), *core_config(config, core),
                         {"core": core, "imu_grade": arg("imu_grade"), "use_sim_time": use_sim_time,
                          "init_from_ground_truth": arg("init_from_ground_truth").lower() == "true",
                          "init_rpy_error_deg": err}],

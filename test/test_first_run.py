@@ -121,3 +121,47 @@ def test_read_only_install_caches_in_the_user_cache_dir_and_a_second_process_hit
     assert sum(k["cache_misses"] for k in rows.values()) == 0, {n: k for n, k in rows.items() if k["cache_misses"]}
     assert sum(k["cache_hits"] for k in rows.values()) >= 3, rows  # (a kernel inlined in a loaded one shows none)
     assert _cache_files(user_dir) == files  # nothing compiled, nothing rewritten
+
+
+class _FakeGraph:
+    """count_subscribers answers 0 until ``ready_after`` calls, then 1 (the node subscribed after its warm-up)."""
+
+    def __init__(self, ready_after: int | None):
+        self.calls, self.ready_after = 0, ready_after
+
+    def count_subscribers(self, topic: str) -> int:
+        assert topic == "/imu/data"
+        self.calls += 1
+        return int(self.ready_after is not None and self.calls > self.ready_after)
+
+
+class _FakeProc:
+    def __init__(self, alive_calls: int | None = None):
+        self.n, self.alive_calls = 0, alive_calls
+
+    def alive(self) -> bool:
+        self.n += 1
+        return self.alive_calls is None or self.n <= self.alive_calls
+
+
+def _fake_mon(graph):
+    return type("Mon", (), {"node": graph})()
+
+
+def test_the_demo_waits_for_the_node_subscription_not_for_a_time():
+    """insalign-demo's readiness wait: returns once alignment_node subscribed to imu/data; None when the node dies or
+    never subscribes within the timeout (no fixed sleep decides)."""
+    import io
+    import time
+
+    from insalign_ros.cli.demo import _wait_ready
+
+    out = io.StringIO()
+    graph = _FakeGraph(ready_after=3)
+    t0 = time.monotonic()
+    ready = _wait_ready(_fake_mon(graph), _FakeProc(), None, t0, 30.0, out)
+    assert ready is not None and graph.calls == 4 and "ready after" in out.getvalue()
+    assert _wait_ready(_fake_mon(_FakeGraph(None)), _FakeProc(alive_calls=2), None, time.monotonic(), 30.0, out) is None
+    t0 = time.monotonic()
+    assert _wait_ready(_fake_mon(_FakeGraph(None)), _FakeProc(), None, t0, 0.3, out) is None
+    assert time.monotonic() - t0 < 5.0

@@ -4,8 +4,9 @@ Starts ``imu_sim_node`` and ``alignment_node`` as two processes on a private ROS
 discovery, runs a scenario (``ship`` by default, 300 s of data at rate factor 6: about a minute) or replays a bag with the
 node's defaults (``core: auto``, initialised from the sensors: no ground truth, no guess; ``--init-error-deg`` starts
 from the simulator's truth plus that error instead, ``--initial-rpy-deg`` from a guess for a bag),
-prints a live one-line status and a final table (time to aligned, final Euler errors and 3-sigma per axis, messages
-sent / received / rejected / dropped). Exit 0 on success, 1 with the reason otherwise; every wait has a timeout and
+waits until the node is ready (it subscribes once its numba kernels are compiled: docs/install.md; the simulator
+publishes once it has a subscriber: no fixed sleep), prints a live one-line status and a final table (time to
+aligned, final Euler errors and 3-sigma per axis, messages sent / received / rejected / dropped). Exit 0 on success, 1 with the reason otherwise; every wait has a timeout and
 both processes are stopped on every exit path.
 
 ``insalign-demo --count N`` runs the IMU transport check instead (imu_sim_node ``source:=rest`` ->
