@@ -414,9 +414,11 @@ class AlignmentNode(Node):
             self.get_logger().info(text)
 
     def _epoch(self, msg) -> int:
-        """The whole second of the first stamp seen: the session works in seconds after it (float resolution)."""
+        """A whole second a minute before the first stamp seen (0 for stamps that start within the first minute): the
+        session works in seconds after it (float resolution). The minute keeps messages a little older than the first
+        one (an IMU sample that arrives after the first fix, a reordered batch) at positive times."""
         if self.epoch_s is None:
-            self.epoch_s = int(msg.header.stamp.sec)
+            self.epoch_s = max(int(msg.header.stamp.sec) - 60, 0)
             self.session.stamp_offset_s = float(self.epoch_s)
         return self.epoch_s
 
