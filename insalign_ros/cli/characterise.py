@@ -239,7 +239,7 @@ def main(argv=None) -> int:
         grade = res.grade(name=f"measured_{stem}" if not a.name else a.name, base=base,
                           source=f"{PROG} {a.source} ({res.duration_s:.0f} s at {res.rate_hz:.1f} Hz)")
         paths = write_outputs(Path(a.out), stem, res, grade, base, a.core, a.source, a.no_plot)
-    except (ValueError, FileNotFoundError, KeyError, OSError) as exc:
+    except (ValueError, FileNotFoundError, KeyError, OSError, ImportError) as exc:
         print(f"{PROG}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}", file=sys.stderr)
         return 2
     print(summary(stem, res, grade, base))

@@ -207,7 +207,11 @@ def log_taus(rate_hz: float, duration_s: float, per_decade: int = TAUS_PER_DECAD
 
 def allan_deviation(x, rate_hz: float, taus_s=None):
     """Overlapping Allan deviation of rate samples ``x`` (allantools.oadev, data_type "freq"): (taus, adev, err)."""
-    import allantools
+    try:
+        import allantools  # optional runtime import: only the characterisation needs it
+    except ImportError as exc:
+        raise ImportError("the IMU characterisation needs allantools: pip install allantools==2024.6 "
+                          "(requirements.txt)") from exc
 
     x = np.asarray(x, float)
     if taus_s is None:
