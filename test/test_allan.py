@@ -107,7 +107,7 @@ def test_cli_writes_plot_json_and_a_grade_yaml_that_loads_back(tmp_path, capsys)
     from insalign_ros.cli.characterise import main
     from insalign_ros.session import catalog
 
-    rc = main(["synthetic:industrial_mems:900", "--out", str(tmp_path), "--name", "imu1", "--base-grade",
+    rc = main(["synthetic:industrial_mems:300", "--out", str(tmp_path), "--name", "imu1", "--base-grade",
                "industrial_mems", "--core", "iekf"])
     out = capsys.readouterr().out
     assert rc == 0, out
@@ -123,6 +123,28 @@ def test_cli_writes_plot_json_and_a_grade_yaml_that_loads_back(tmp_path, capsys)
     core_p = {k: v for k, v in p.items() if k not in ("core", "imu_grade")}
     assert core_p == catalog.grade_defaults(g, "iekf")
     assert set(core_p) <= set(catalog.core_defaults("iekf"))  # every key is a parameter the node declares
+
+
+def test_cli_reads_a_csv_in_the_importers_columns_and_a_contract_bag(tmp_path, capsys):
+    """A CSV in insalign-import's columns (an FRD IMU: the axes converted as the importer does) and a bag."""
+    from insalign_ros.cli.characterise import main
+    from insalign_ros.io.bag import write_bag
+    from insalign_ros.io.importer import write_csv
+    from insalign_ros.sim.scenarios import make_scenario
+
+    t, w, f = A.synthetic_static_imu(TRUE, rate_hz=100.0, duration_s=120.0, seed=4)
+    frd = np.array([1.0, -1.0, -1.0])
+    cols = {"t_s": t, **{f"w{c}_rad_s": w[:, i] * frd[i] for i, c in enumerate("xyz")},
+            **{f"f{c}_m_s2": f[:, i] * frd[i] for i, c in enumerate("xyz")}}
+    csv = write_csv(tmp_path / "imu.csv", cols)
+    assert main([str(csv), "--axes", "FRD", "--out", str(tmp_path), "--no-plot"]) == 0
+    d = json.loads((tmp_path / "imu_allan.json").read_text())
+    assert d["n"] == 12_000 and d["axes"][5]["mean_m_s2"] == pytest.approx(9.806, abs=0.05)  # z up after FRD -> FLU (+ 1-mg bias)
+    assert abs(d["imu_grade"]["gyro_arw_deg_sqrt_h"] / 0.3 - 1.0) < 0.2
+    bag = tmp_path / "bag"
+    write_bag(make_scenario("static", seed=1, duration_s=4.0), bag)
+    assert main([str(bag), "--out", str(tmp_path), "--no-plot"]) == 0
+    assert "static: 1-s mean specific force within" in capsys.readouterr().out
 
 
 def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, capsys):

@@ -65,7 +65,7 @@ def load_imu(source: str, args) -> tuple[str, np.ndarray, np.ndarray, np.ndarray
             from ..io.bag import read_bag
 
             data = read_bag(p, **({"imu_topic": args.imu_topic} if args.imu_topic else {}))
-        name = p.resolve().name or "imu"
+        name = (p.resolve().stem if p.is_file() else p.resolve().name) or "imu"
     elif "/" in source or source.endswith((".csv", ".npz", ".db3", ".mcap")):
         raise FileNotFoundError(f"{source}: no such file or directory")
     else:
@@ -202,8 +202,8 @@ def plot(res, path, title: str = "") -> None:
 
 
 def main(argv=None) -> int:
-    ap = _OneLineParser(prog=PROG, description=__doc__.splitlines()[2],
-                        formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 1)[1])
+    _, what, rest = __doc__.split("\n\n", 2)
+    ap = _OneLineParser(prog=PROG, description=what, formatter_class=argparse.RawDescriptionHelpFormatter, epilog=rest)
     ap.add_argument("source", help="bag, CSV/.npz, KITTI drive dir, rover_canada/car_circles dir, scenario name, "
                                    "or synthetic:GRADE[:SECONDS]")
     ap.add_argument("--imu-topic", default=None, help="Imu topic of a bag (default: the contract's /imu/data)")
