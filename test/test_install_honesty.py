@@ -22,7 +22,8 @@ ROSDEP = {
     "cvxpy": "python3-cvxpy-pip", "rosbags": "python3-rosbags-pip",
 }
 #: optional runtime imports (lazy, an ImportError says how to install): no rosdep key; package.xml says so
-OPTIONAL = {"distributed", "dask"}  # eval/parallel.py imports both only when a parallel run is asked for
+OPTIONAL = {"distributed", "dask", "allantools"}  # eval/parallel.py imports the first two only when a parallel run
+# is asked for; eval/allan.py imports allantools only for insalign-characterise
 ROS_PACKAGES = {"rclpy", "rcl_interfaces", "sensor_msgs", "geometry_msgs", "std_msgs", "std_srvs", "diagnostic_msgs",
                 "rosgraph_msgs", "tf2_msgs"}  # tf2_msgs: not on PyPI; without it publish_tf warns (nodes/publishing.py)
 

@@ -156,6 +156,30 @@ def window_statistics(omega_ib_b: np.ndarray, f_ib_b: np.ndarray, cfg: MotionCon
     return out
 
 
+def last_window_statistics(omega_ib_b: np.ndarray, f_ib_b: np.ndarray, cfg: MotionConfig) -> dict:
+    """:func:`window_statistics` of the newest sample only, from exactly the last ``dv + ref`` samples (L, 3): the
+    same sums over the same rows (the per-sample detector's cost: O(L) once, not the whole run's arrays)."""
+    n = cfg.samples()
+    W, Nv, Nr = n["window"], n["dv"], n["ref"]
+    dt = 1.0 / cfg.rate_hz
+    out = {}
+    for key, x in (("spread_f", f_ib_b), ("spread_omega", omega_ib_b)):
+        xc = x[-W:] - x[0]
+        s1, s2 = xc.sum(0), (xc * xc).sum(0)
+        out[key] = math.sqrt(max(float((s2 - s1 * s1 / W).sum()) / W, 0.0))
+    theta = np.cumsum(omega_ib_b, axis=0) * dt
+    fc = f_ib_b - f_ib_b[0]
+    f_ref_c = fc[:Nr].sum(0) / Nr
+    f_ref = f_ref_c + f_ib_b[0]
+    theta_ref = theta[:Nr].sum(0) / Nr
+    sum_f_c, sum_theta = fc[Nr:].sum(0), theta[Nr:].sum(0)
+    dv = dt * (sum_f_c - Nv * f_ref_c + np.cross(sum_theta - Nv * theta_ref, f_ref))
+    u = f_ref / math.sqrt(float(f_ref @ f_ref))
+    dv_h = dv - float(dv @ u) * u
+    out["dv_h"] = math.sqrt(float(dv_h @ dv_h))
+    return out
+
+
 def _evidence(stats: dict, gnss: tuple, thr: dict) -> tuple[bool, bool]:
     """(motion evidence, rest evidence) of one sample from its statistics and its fresh GNSS speed (or None)."""
     speed, sigma = gnss
@@ -279,8 +303,10 @@ class MotionDetector:
         n = cfg.samples()
         self._L = n["dv"] + n["ref"]
         self._t: deque = deque(maxlen=self._L)
-        self._omega: deque = deque(maxlen=self._L)
-        self._f: deque = deque(maxlen=self._L)
+        # the last L samples, each row written twice (at i and i + L) so that rows [i + 1, i + 1 + L) are always
+        # the window in order, without a copy per sample
+        self._ring = np.zeros((2 * self._L, 6))
+        self._i = -1
         self._gnss: deque = deque(maxlen=16)  # (stamp, speed, sigma), pending or current
         self._hyst = _Hysteresis(cfg.enter_hold_s, cfg.leave_hold_s)
         self._stats = {"spread_f": math.nan, "spread_omega": math.nan, "dv_h": math.nan}
@@ -315,11 +341,15 @@ class MotionDetector:
             self._reject("imu", f"IMU stamp {t} not after {self._t[-1]}")
             return self.decision
         if self._t and t - self._t[-1] > GAP_FACTOR / self.cfg.rate_hz:
-            self._t.clear(), self._omega.clear(), self._f.clear()  # a gap restarts the windows
-        self._t.append(t), self._omega.append(omega), self._f.append(f)
-        if len(self._t) == self._L:
-            s = window_statistics(np.array(self._omega), np.array(self._f), self.cfg)
-            self._stats = {k: float(v[-1]) for k, v in s.items()}
+            self._t.clear()  # a gap restarts the windows
+        self._t.append(t)
+        L = self._L
+        i = self._i = (self._i + 1) % L
+        self._ring[i, 0:3] = self._ring[i + L, 0:3] = omega
+        self._ring[i, 3:6] = self._ring[i + L, 3:6] = f
+        if len(self._t) == L:
+            win = self._ring[i + 1:i + 1 + L]
+            self._stats = last_window_statistics(win[:, 0:3], win[:, 3:6], self.cfg)
         else:
             self._stats = {k: math.nan for k in self._stats}
         while len(self._gnss) > 1 and self._gnss[1][0] <= t:
