@@ -2,6 +2,7 @@
 
 import csv
 import json
+from pathlib import Path
 
 import pytest
 
@@ -40,3 +41,15 @@ def test_align_bad_arguments(tmp_path, capsys):
     assert "unknown core" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["--out-dir", str(tmp_path)])
+
+
+def test_a_missing_bag_path_is_not_found_in_the_python_api_too():
+    """``ia.align`` on a path that does not exist says so (not "unknown scenario"); a bare unknown name is still an
+    unknown scenario with the list of names."""
+    import insalign_ros as ia
+
+    for path in ("typo.bag", "bags/no_such_bag", Path("no_such_dir")):
+        with pytest.raises(FileNotFoundError, match="not found"):
+            ia.align(path, duration_s=1.0)
+    with pytest.raises(ValueError, match="unknown scenario"):
+        ia.align("no_such_scenario", duration_s=1.0)

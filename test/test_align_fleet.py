@@ -28,6 +28,6 @@ def test_fleet_on_two_workers_equals_serial_and_reports_a_broken_bag(tmp_path):
         final = [float(x) for x in serial[name]["final_err_rpy_deg"].strip("[]").split(",")]
         assert abs(final[2]) < 3.0, final  # from 20 deg in 25 s (the single-bag path's accuracy)
         assert int(serial[name]["gnss_accepted"]) >= 20
-    assert serial["broken"]["rc"] == "2" and "not a readable rosbag2 bag" in serial["broken"]["error"]
+    assert serial["broken"]["rc"] == "2" and "not a readable bag" in serial["broken"]["error"]
     assert (tmp_path / "dask" / "car_1" / "car_1_iekf_metrics.json").exists()
     assert (tmp_path / "serial" / "day2__ship_2" / "ship_2_iekf.csv").exists()

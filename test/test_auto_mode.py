@@ -184,7 +184,7 @@ def test_gyro_bias_from_rest_closed_form():
     trusted heading, the Up part only without), its sigma the closed form (ARW / sqrt(T) x sqrt(pi/2) up to the
     chi-square bound; bias instability; (Omega cos L)^2 / 2 per horizontal axis when the heading is unknown), and
     normalised error over 200 seeds covered at 2 sigma >= 0.95 per axis, RMS 0.6-1 (conservative by the bound)."""
-    from insalign_ros.session.auto import REST_BLOCK_S, gyro_bias_from_rest, rest_rate_mean
+    from insalign_ros.session.rest import REST_BLOCK_S, gyro_bias_from_rest, rest_rate_mean
 
     lat, T, rate = math.radians(48.0), 40.0, 100.0
     C_b_n = earth.C_b_n_from_rpy(math.radians(1.0), math.radians(-0.5), math.radians(150.0))

@@ -25,7 +25,7 @@ def car():
 
 
 def write_foreign_bag(d, path, truth_type="geometry_msgs/msg/PoseStamped", truth_step=10, truth_first=5,
-                      cov_type=0):
+                      cov_type=0, zero_cov=False):
     """A driver-style bag: /imu/data_raw (frame 'imu'), /fix (frame 'gps', covariance type ``cov_type``, zeros),
     a truth pose topic every ``truth_step`` IMU samples from sample ``truth_first`` (10 Hz), ENU about an origin
     ORIGIN_SHIFT_M away from the start, absolute stamps, no metadata."""
@@ -58,7 +58,7 @@ def write_foreign_bag(d, path, truth_type="geometry_msgs/msg/PoseStamped", truth
         events.append((ns, "/fix", T["sensor_msgs/msg/NavSatFix"](
             header=h, status=T["sensor_msgs/msg/NavSatStatus"](status=0, service=1), latitude=float(glat[j]),
             longitude=float(glon[j]), altitude=float(galt[j]),
-            position_covariance=np.diag([4.0, 4.0, 9.0]).ravel() if cov_type else np.zeros(9),
+            position_covariance=np.diag([4.0, 4.0, 9.0]).ravel() if cov_type and not zero_cov else np.zeros(9),
             position_covariance_type=cov_type)))
     for k in range(truth_first, d.n, truth_step):
         h, ns = hdr(d.t_s[k], "map")
@@ -148,6 +148,35 @@ def test_unknown_covariance_fixes_dropped_only_on_request_and_known_ones_kept(ca
     np.testing.assert_allclose(np.diag(C @ r.gnss_R_e[0] @ C.T), [4.0, 4.0, 9.0], atol=1e-9)
     with pytest.raises(ValueError, match="unknown_fix_sigma_m"):
         read_bag(tmp_path / "k", imu_topic="/imu/data_raw", unknown_fix_sigma_m=-1.0)
+    # APPROXIMATED (1) with an all-zero covariance (some drivers): unknown, the same sigma, or dropped on request
+    write_foreign_bag(d, tmp_path / "z", cov_type=1, zero_cov=True)
+    rep = {}
+    r = read_bag(tmp_path / "z", imu_topic="/imu/data_raw", gps_topic="/fix", report=rep, unknown_fix_sigma_m=3.0)
+    np.testing.assert_allclose(np.diag(C @ r.gnss_R_e[0] @ C.T), [9.0, 9.0, 9.0], atol=1e-9)
+    assert r.gnss_t_s.shape == (21,) and rep["unknown_covariance_fixes"] == 21 and rep["rejected"] == {}
+    rep = {}
+    r = read_bag(tmp_path / "z", imu_topic="/imu/data_raw", gps_topic="/fix", report=rep, unknown_fix_sigma_m=None)
+    assert r.gnss_t_s.shape == (0,) and rep["rejected"]["/fix"] == {"position covariance all zeros": 21}
+
+
+def test_topics_found_by_type_and_named_when_missing_or_ambiguous(car, tmp_path):
+    """None for a topic: the contract's name, else the bag's one topic of the type; the report says which."""
+    write_foreign_bag(car, tmp_path / "b", cov_type=2)
+    rep = {}
+    r = read_bag(tmp_path / "b", imu_topic=None, gps_topic=None, vel_topic=None, report=rep)
+    assert rep["topics"] == {"imu": "/imu/data_raw", "gps": "/fix", "vel": None, "truth": None}
+    assert r.n == car.n and r.gnss_t_s.shape == (21,) and not r.has_truth  # truth only by name
+    assert rep["bag_topics"]["/truth"] == "geometry_msgs/msg/PoseStamped"
+    assert not [w for w in rep["warnings"] if "frame_id" in w], rep["warnings"]  # 'imu' and 'gps': a driver's own
+    rep = {}
+    read_bag(tmp_path / "b", imu_topic=None, gps_topic=None, truth_topic="/truth", report=rep)
+    assert [w for w in rep["warnings"] if "frame_id" in w] == ["/truth: frame_id ['map'] != contract 'enu'"]
+    with pytest.raises(ValueError, match=r"no IMU topic '/imu/data' \(--imu-topic\) in the bag; its topics: "
+                                         r"/fix \(sensor_msgs/msg/NavSatFix\), /imu/data_raw \(sensor_msgs/msg/Imu\)"):
+        read_bag(tmp_path / "b")  # the contract's name, which this bag lacks
+    with pytest.raises(ValueError, match="not a readable bag"):
+        (tmp_path / "x.bag").write_bytes(b"#ROSBAG V2.0\nnot really")
+        read_bag(tmp_path / "x.bag", imu_topic=None)
 
 
 def test_truth_reference_from_the_user_when_there_is_no_fix(car, tmp_path):

@@ -24,7 +24,7 @@ ROSDEP = {
 #: optional runtime imports (lazy, an ImportError says how to install): no rosdep key; package.xml says so
 OPTIONAL = {"distributed", "dask"}  # eval/parallel.py imports both only when a parallel run is asked for
 ROS_PACKAGES = {"rclpy", "rcl_interfaces", "sensor_msgs", "geometry_msgs", "std_msgs", "std_srvs", "diagnostic_msgs",
-                "rosgraph_msgs"}
+                "rosgraph_msgs", "tf2_msgs"}  # tf2_msgs: not on PyPI; without it publish_tf warns (nodes/publishing.py)
 
 
 def _runtime_imports() -> set:

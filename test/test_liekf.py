@@ -11,7 +11,7 @@ from insalign_ros.core import earth as E
 from insalign_ros.core import lie
 from insalign_ros.core import mechanization as M
 from insalign_ros.core.types import GnssFix, ImuSample
-from insalign_ros.filters import liekf as LK
+from insalign_ros.filters import eci_batch as LK
 from insalign_ros.filters.registry import make_core
 from insalign_ros.filters.runner import EventRunner, initial_guess
 

@@ -135,7 +135,7 @@ def _bad_imu_messages(feed, k):
     return out
 
 
-@pytest.mark.timeout(150)
+@pytest.mark.timeout(300)
 def test_bad_input_is_rejected_counted_and_the_node_keeps_aligning(tmp_path, ros_env):
     from insalign_ros.nodes.monitor import AlignmentMonitor
     from insalign_ros.sim.scenarios import make_scenario
@@ -155,7 +155,7 @@ def test_bad_input_is_rejected_counted_and_the_node_keeps_aligning(tmp_path, ros
         expected[name] = expected.get(name, 0) + n
 
     try:
-        end = time.monotonic() + 30.0
+        end = time.monotonic() + 180.0  # imports and the kernels' warm-up on a loaded machine
         while feed.pub_imu.get_subscription_count() < 1 or feed.pub_fix.get_subscription_count() < 1:
             assert time.monotonic() < end, "alignment_node did not subscribe"
             time.sleep(0.05)

@@ -101,7 +101,7 @@ def _flag_intervals(log: str):
     return out
 
 
-@pytest.mark.timeout(240)
+@pytest.mark.timeout(400)
 @pytest.mark.parametrize("scenario,duration_s,overrides,bound_deg,grade", [
     ("car", 150.0, {"heading_deg": -120.0}, 1.0, None),  # (a) already moving at 15 m/s at start-up
     ("ship", 240.0, {}, 2.0, None),  # (b) a ship, moving from the start
@@ -128,14 +128,14 @@ def test_driver_style_stream_with_default_parameters(tmp_path, ros_env, scenario
     mon = AlignmentMonitor(keep_poses=100000)
     drv = Driver(d)
     try:
-        end = time.monotonic() + 30.0
+        end = time.monotonic() + 180.0  # imports and the kernels' warm-up on a loaded machine
         while drv.pub_imu.get_subscription_count() < 1 or drv.pub_fix.get_subscription_count() < 1 \
                 or mon.node.count_publishers("/alignment_node/pose") < 1 or mon.diag_count < 1:
             assert time.monotonic() < end, "alignment_node did not come up"
             time.sleep(0.05)
         drv.stream()
         assert mon.wait_for(lambda m: int(m.diag.get("buffered_imu", "1")) == 0
-                            and int(m.diag.get("imu_received", "0")) > 0.9 * d.n, 20.0), mon.diag
+                            and int(m.diag.get("imu_received", "0")) > 0.9 * d.n, 90.0), mon.diag
         time.sleep(1.5)
         log = node.output()
         with mon.lock:

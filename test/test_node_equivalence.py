@@ -37,7 +37,7 @@ def _run(tmp_path, ros_env, bag, node_params, fix_delay_s=0.0, name="alignment_n
                             30.0), "alignment_node never published diagnostics"
         sim = start_node(SIM, ros_env, log_dir=tmp_path, name=f"sim_{name}", params={
             "source": "bag", "bag_path": str(bag), "rate_factor": 10.0, "wait_for_subscribers": 1,
-            "wait_timeout_s": 30.0, "qos": "reliable", "qos_depth": 20000, "fix_delay_s": fix_delay_s,
+            "wait_timeout_s": 180.0, "qos": "reliable", "qos_depth": 20000, "fix_delay_s": fix_delay_s,
             **(sim_params or {})})
         nodes.append(sim)
         assert wait_for_exit(sim, 90.0) == 0, sim.output()[-2000:]
@@ -68,7 +68,7 @@ def _compare(mon, summary, result, t0_s):
     return np.asarray(diffs), len(poses), len(off)
 
 
-@pytest.mark.timeout(240)
+@pytest.mark.timeout(400)
 @pytest.mark.parametrize("core,scenario", [("iekf", "ship"), ("pkf", "static")])
 def test_node_over_dds_equals_the_offline_api(tmp_path, ros_env, core, scenario):
     from insalign_ros.io.bag import write_bag
@@ -98,7 +98,7 @@ def test_node_over_dds_equals_the_offline_api(tmp_path, ros_env, core, scenario)
         mon.close()
 
 
-@pytest.mark.timeout(240)
+@pytest.mark.timeout(400)
 def test_lagged_fixes_over_dds_give_the_on_time_result_and_the_watchdog_drops_the_flag(tmp_path, ros_env):
     from insalign_ros.io.bag import write_bag
     from insalign_ros.sim.scenarios import make_scenario

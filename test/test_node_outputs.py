@@ -39,7 +39,7 @@ def _wait(pred, timeout_s):
 def _play(bag, env, tmp_path, name):
     sim = start_node(SIM, env, log_dir=tmp_path, name=name, params={
         "source": "bag", "bag_path": str(bag), "rate_factor": 10.0, "wait_for_subscribers": 1,
-        "wait_timeout_s": 30.0, "qos": "reliable", "qos_depth": 5000})
+        "wait_timeout_s": 180.0, "qos": "reliable", "qos_depth": 5000})
     assert wait_for_exit(sim, 60.0) == 0, sim.output()[-2000:]
     return sim
 
@@ -69,7 +69,7 @@ def test_imu_message_without_a_measured_sample_says_no_estimate():
 
 
 @pytest.mark.ros
-@pytest.mark.timeout(180)
+@pytest.mark.timeout(360)
 def test_imu_datum_and_reset_over_dds(tmp_path, monkeypatch):
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Imu, NavSatFix
@@ -96,7 +96,8 @@ def test_imu_datum_and_reset_over_dds(tmp_path, monkeypatch):
         nodes.append(start_node(ALIGN, env, log_dir=tmp_path, params={
             "core": "iekf", "init_mode": "guess", "initial_rpy_deg": str(rpy0), "initial_velocity_enu_m_s": str(ship.v_n[0].tolist()),
             "imu_axes": "frd", "imu_mount_rpy_deg": str(mount), "imu_timeout_s": 0.0, "imu_qos": "reliable",
-            "imu_qos_depth": 5000, "gnss_qos": "reliable", "imu_grade": "paper_ship"}))
+            "imu_qos_depth": 5000, "gnss_qos": "reliable", "imu_grade": "paper_ship",
+            "publish_imu_before_aligned": True}))  # ~/imu before the flag too: its content is checked here
         assert mon.wait_for(lambda m: m.diag_count > 0 and n.count_publishers("/alignment_node/imu") > 0, 30.0)
         sim = _play(bag_ship, env, tmp_path, "sim_ship")
         t0_ns = _sim_first_stamp_ns(sim)
@@ -178,5 +179,32 @@ def _assert_datum(msg, lat_rad, lon_rad, h_m):
     from sensor_msgs.msg import NavSatFix
 
     assert abs(msg.latitude - np.degrees(lat_rad)) < 1e-9 and abs(msg.longitude - np.degrees(lon_rad)) < 1e-9
-    assert abs(msg.altitude - h_m) < 1e-3 and msg.header.frame_id == "enu"
+    assert abs(msg.altitude - h_m) < 1e-3 and msg.header.frame_id == "map"  # world_frame (REP 105)
     assert msg.position_covariance_type == NavSatFix.COVARIANCE_TYPE_UNKNOWN
+
+
+def test_tf_frames_rep105():
+    """The TF the node broadcasts with publish_tf: world_frame (map by default) -> tf_child_frame (base_link), the
+    ENU position from the datum and the attitude body FLU -> ENU (the same quaternion as ~/pose). Built without
+    tf2_msgs (geometry_msgs/TransformStamped); the broadcast itself needs tf2_msgs/TFMessage."""
+    from insalign_ros.nodes import conversions as cv
+    from insalign_ros.nodes.params import NODE_PARAMS
+    from insalign_ros.nodes.publishing import tf_msg
+
+    assert (NODE_PARAMS["world_frame"][0], NODE_PARAMS["tf_child_frame"][0], NODE_PARAMS["publish_tf"][0]) == \
+        ("map", "base_link", False)
+    lat, lon, h = np.radians(45.0), np.radians(7.0), 100.0
+    C = Rotation.from_euler("xyz", [1.0, -2.0, 30.0], degrees=True).as_matrix()
+
+    class E:
+        stamp_s, lat_rad, lon_rad, h_m, C_b_n = 2.5, lat + 1e-5, lon, h + 3.0, C
+
+    m = tf_msg(E(), (lat, lon, h), "map", "base_link", 1_700_000_000)
+    assert (m.header.frame_id, m.child_frame_id) == ("map", "base_link")
+    assert (m.header.stamp.sec, m.header.stamp.nanosec) == (1_700_000_002, 500_000_000)
+    t = m.transform.translation
+    want = earth.ecef_to_enu(earth.geodetic_to_ecef(lat + 1e-5, lon, h + 3.0), lat, lon, h)
+    np.testing.assert_allclose([t.x, t.y, t.z], want, atol=1e-9)
+    assert abs(t.y - 63.7) < 0.5 and abs(t.z - 3.0) < 1e-3  # 1e-5 rad north, 3 m up
+    r = m.transform.rotation
+    np.testing.assert_allclose([r.x, r.y, r.z, r.w], cv.quat_xyzw(C), atol=1e-15)

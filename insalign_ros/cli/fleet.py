@@ -1,8 +1,8 @@
 """``insalign-align DIR``: every bag under a directory, each aligned as ``insalign-align BAG`` would (same options),
 as independent Dask tasks (a LocalCluster of ``--workers`` processes, or ``--scheduler tcp://host:8786``, or
 ``--serial``), with a progress bar; per-bag outputs in ``<out-dir>/<bag>/`` and one summary table of the fleet,
-``<out-dir>/fleet_summary.csv`` (and .md), in bag order. A bag that fails is a row with its one-line error, not a
-crash of the fleet.
+``<out-dir>/fleet_summary.csv`` (and .md), in bag order, with the final attitude and its 3-sigma of every bag
+(truth or not). A bag that fails is a row with its one-line error, not a crash of the fleet.
 """
 
 from __future__ import annotations
@@ -23,8 +23,12 @@ PRELOAD = ("insalign_ros", "insalign_ros.cli.fleet", "insalign_ros.cli.align", "
 
 
 def find_bags(root: Path) -> list[Path]:
-    """rosbag2 directories (with a metadata.yaml) under ``root``, sorted by path."""
-    return sorted(p.parent for p in Path(root).rglob("metadata.yaml"))
+    """The bags under ``root``, sorted by path: rosbag2 directories (with a metadata.yaml), ROS 1 ``.bag`` files and
+    ``.mcap`` files that are not inside a rosbag2 directory."""
+    dirs = {p.parent for p in Path(root).rglob("metadata.yaml")}
+    files = {p for ext in ("*.bag", "*.mcap") for p in Path(root).rglob(ext)
+             if p.is_file() and not any(d in p.parents for d in dirs)}
+    return sorted(dirs | files)
 
 
 def align_bag(main, bag: str, argv: list[str], out_dir: str) -> dict:
@@ -46,15 +50,19 @@ def align_bag(main, bag: str, argv: list[str], out_dir: str) -> dict:
     m = json.loads(metrics[-1].read_text()) if metrics else {}
     c = m.get("counters", {})
     row.update({k: m.get(k) for k in ("core", "init_mode", "duration_s", "aligned_first_raised_at_s",
-                                      "final_aligned", "final_err_rpy_deg", "rmse_rpy_deg")})
+                                      "final_aligned", "final_rpy_deg", "final_3sigma_deg", "final_err_rpy_deg",
+                                      "rmse_rpy_deg")})
+    row["warnings"] = "; ".join(m.get("warnings", []))
     row.update({k: c.get(k, 0) for k in ("imu_processed", "imu_gaps", "imu_rejected", "gnss_accepted", "gnss_gated",
                                          "divergences")})
     return row
 
 
+#: final_rpy_deg / final_3sigma_deg: the last estimate (roll, pitch, yaw; yaw from East, CCW) and its 3-sigma [deg],
+#: there with or without truth; final_err_rpy_deg / rmse_rpy_deg only with truth; warnings: the input's (IMU axes)
 COLUMNS = ["bag", "rc", "core", "init_mode", "duration_s", "aligned_first_raised_at_s", "final_aligned",
-           "final_err_rpy_deg", "rmse_rpy_deg", "imu_processed", "imu_gaps", "imu_rejected", "gnss_accepted",
-           "gnss_gated", "divergences", "wall_s", "error"]
+           "final_rpy_deg", "final_3sigma_deg", "final_err_rpy_deg", "rmse_rpy_deg", "imu_processed", "imu_gaps",
+           "imu_rejected", "gnss_accepted", "gnss_gated", "divergences", "wall_s", "warnings", "error"]
 
 
 def run_fleet(main, root: str, argv: list[str], out_dir: str, workers: int, scheduler: str, serial: bool,
@@ -65,7 +73,7 @@ def run_fleet(main, root: str, argv: list[str], out_dir: str, workers: int, sche
 
     bags = find_bags(Path(root))
     if not bags:
-        raise ValueError(f"{root}: no bag (a directory with metadata.yaml) under it")
+        raise ValueError(f"{root}: no bag (a directory with metadata.yaml, a .bag or an .mcap file) under it")
     out = Path(out_dir)
     names = [str(b.relative_to(root)).replace("/", "__") or b.name for b in bags]
     tasks = [(main, str(b), argv, str(out / n)) for b, n in zip(bags, names)]

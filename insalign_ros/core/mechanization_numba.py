@@ -10,10 +10,11 @@ samples (docs/speed.md has the measurements and the decision):
   same mid-point gravity by a fixed point, residual < 1e-10 m);
 * :func:`covariance_steps` = ``P <- Phi_k P Phi_k^T + diag(q_k)`` sample by sample, and the product of the Phi_k.
 
-``ENABLED`` selects these kernels; ``False`` (or ``INSALIGN_NO_NUMBA=1`` in the environment, or numba missing)
-selects the reference numpy paths. test/test_speed_paths.py checks that both give the same attitude (< 1e-9 rad)
-through the session on every core. Kernels are compiled on first use and cached on disk (``cache=True``): next to
-the source, or in :func:`user_cache_dir` when the package directory is read-only (:func:`_jit`).
+The kernels are the implementation (one source per equation); test/oracles.py keeps the numpy formulas they replace
+and test/test_speed_paths.py compares every core through the session on both (attitude < 1e-9 rad). Without numba,
+or with ``INSALIGN_NO_NUMBA=1`` in the environment, the same functions run as plain Python (slow, same numbers).
+Kernels are compiled on first use and cached on disk (``cache=True``): next to the source, or in
+:func:`user_cache_dir` when the package directory is read-only (:func:`_jit`).
 """
 
 from __future__ import annotations
@@ -33,8 +34,8 @@ try:  # numba is a pinned dependency; without it the numpy reference paths run
 except ImportError:  # pragma: no cover - exercised only where numba is not installed
     HAVE_NUMBA = False
 
-#: use the compiled kernels (the cores read this at every flush; tests switch it off for the reference path)
-ENABLED: bool = HAVE_NUMBA and os.environ.get("INSALIGN_NO_NUMBA", "") not in ("1", "true", "yes")
+#: compile the kernels (False: run them as plain Python)
+COMPILE: bool = HAVE_NUMBA and os.environ.get("INSALIGN_NO_NUMBA", "") not in ("1", "true", "yes")
 
 _GM = earth.GM_M3_S2
 _A = earth.A_M
@@ -74,7 +75,7 @@ def _jit(fn):
     """``njit(cache=True)``, the cache next to the source (``__pycache__``) when that is writable, else in
     :func:`user_cache_dir` (a read-only install: colcon ``install/``, a system site-packages); ``$NUMBA_CACHE_DIR``
     wins when set. numba picks the location when it decorates, so only these kernels see the setting."""
-    if not HAVE_NUMBA:
+    if not COMPILE:
         return fn
     from numba.core import config
 

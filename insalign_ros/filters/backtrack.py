@@ -26,7 +26,8 @@ from scipy.spatial.transform import Rotation
 
 from ..core.types import GnssFix, ImuSample
 from .base import AlignmentCore
-from .liekf import Liekf, covariance_batch, propagate_eci_batch, step_increments_batch
+from .eci_batch import covariance_batch, propagate_eci_batch, step_increments_batch
+from .liekf import Liekf
 from .runner import EventRunner, initial_guess
 
 

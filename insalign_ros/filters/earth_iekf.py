@@ -41,9 +41,9 @@ from ..core.units import (
 )
 from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, ImuSample, UpdateResult
 from .config import InMotionConfig
-from .liekf import (
-    _check_imu, joseph_update, liekf_transition_batch, prefix_products, propagate_eci_batch, step_increments_batch,
-)
+from .checks import check_imu
+from .eci_batch import liekf_transition_batch, prefix_products, propagate_eci_batch, step_increments_batch
+from .kalman import joseph_update
 
 _I3 = np.eye(3)
 N_STATES = 18
@@ -191,7 +191,7 @@ class EarthIekf(AlignmentCore):
         if not self._init:
             self._reject("not initialised")
             return
-        reason = _check_imu(imu)
+        reason = check_imu(imu)
         t_last = self._buf[-1][0] if self._buf else self.t_s
         if not reason and not imu.stamp_s > t_last:
             reason = f"stamp {imu.stamp_s:.6f} not after {t_last:.6f}"
@@ -214,7 +214,7 @@ class EarthIekf(AlignmentCore):
             self._reject("not initialised")
             return
         t_cur = self._buf[-1][0] if self._buf else self.t_s
-        reason = _check_imu(imu)
+        reason = check_imu(imu)
         if not reason and abs(imu.stamp_s - t_cur) > 1e-6:
             reason = f"backward sample stamped {imu.stamp_s:.6f} but the core is at {t_cur:.6f}"
         if not reason and not t_prev_s < imu.stamp_s:

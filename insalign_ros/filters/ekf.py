@@ -55,6 +55,9 @@ class ConventionalEkf(BatchedEciCore):
         P[12:15, 12:15] = mg_to_m_s2(self.cfg.init_sigma_acc_bias_mg) ** 2 * _I3
         return P
 
+    _fused_kernel_transitions = False  # its own (multiplicative-error) transitions: the batched products
+    _invariant_position_model = False  # its own position model (_gnss_model below)
+
     def _noise_diag(self, dt):
         d = super()._noise_diag(dt)  # isotropic: C_hat Q C_hat^T = Q
         d[:, 9:12] = self._q_bg * dt[:, None]

@@ -11,9 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core import earth
-from ..core import mechanization_numba as nb
-from .static_model import (DEG_H, MG, StaticConfig, StaticModelInputs, StaticZuptCore, f_model,  # noqa: F401
-                           model_error_jacobian_nb)
+from .static_kernels import model_error_jacobian_nb
+from .static_model import DEG_H, MG, StaticConfig, StaticZuptCore  # noqa: F401
 
 
 @dataclass
@@ -67,14 +66,8 @@ class Ekf10(StaticZuptCore):
         u = self._u_last
         x5 = self.x[:5]
         G = np.zeros((5, 5))
-        if nb.ENABLED:  # the same differences, compiled
-            model_error_jacobian_nb(np.array(x5, dtype=float), np.asarray(u.f_np_ned, float), float(u.lat_rad),
-                                    float(u.r_m), G)
-        else:
-            for j in range(5):
-                e = np.zeros(5)
-                e[j] = 1e-6
-                G[:, j] = (f_model(x5, u, e) - f_model(x5, u, -e)) / 2e-6
+        model_error_jacobian_nb(np.array(x5, dtype=float), np.asarray(u.f_np_ned, float), float(u.lat_rad),
+                                float(u.r_m), G)  # central differences of f_model in m', compiled
         F = np.zeros((10, 10))
         F[:5, :5] = F5
         F[:5, 5:] = G

@@ -24,7 +24,9 @@ from ..core.lie import hat3
 from ..core.units import deg_h_to_rad_s, mg_to_m_s2
 from .base import UpdateResult
 from .config import IekfConfig
-from .liekf import BatchedEciCore, joseph_update, liekf_transition_batch
+from .eci_batch import liekf_transition_batch
+from .kalman import joseph_update
+from .liekf import BatchedEciCore
 
 _I3 = np.eye(3)
 

@@ -43,7 +43,8 @@ import numpy as np
 
 from .base import UpdateResult
 from .config import PiLiekfConfig
-from .liekf import Liekf, nis
+from .kalman import nis
+from .liekf import Liekf
 
 _I3 = np.eye(3)
 

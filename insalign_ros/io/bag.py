@@ -1,4 +1,5 @@
-"""rosbag2 writer and reader for the bag contract (docs/bag_contract.md), with the ``rosbags`` library (no ROS).
+"""rosbag2 writer for the bag contract (docs/bag_contract.md) and a reader of it and of other bags (a rosbag2
+directory, a lone .mcap file, a ROS 1 .bag; rosbags' AnyReader), with the ``rosbags`` library (no ROS).
 
 Topics (names configurable in read_bag for bags from other sources):
   /imu/data           sensor_msgs/msg/Imu          frame "imu_link", body FLU, rad/s, m/s^2
@@ -33,16 +34,17 @@ from scipy.spatial.transform import Rotation
 from ..core import units
 from ..core.recording import ImuSpec, ScenarioData
 from . import validation
+from .topics import INVALID_SUFFIX, VEL_TYPE, listing, resolve_topics
 
 log = logging.getLogger(__name__)
 
 IMU_TOPIC = "/imu/data"
 GPS_TOPIC = "/gps/fix"
 VEL_TOPIC = "/gps/vel"
-VEL_TYPE = "geometry_msgs/msg/TwistWithCovarianceStamped"
+CONTRACT_TOPICS = {"imu": IMU_TOPIC, "gps": GPS_TOPIC, "vel": VEL_TOPIC}
 TRUTH_TOPIC = "/ground_truth/pose"
 META_TOPIC = "/insalign/metadata"
-INVALID_SUFFIX = "_invalid"  #: flagged samples go to <topic>_invalid (docs/bag_contract.md, "Validity")
+#: flagged samples go to <topic>_invalid (docs/bag_contract.md, "Validity"): INVALID_SUFFIX
 IMU_INVALID_TOPIC, GPS_INVALID_TOPIC = IMU_TOPIC + INVALID_SUFFIX, GPS_TOPIC + INVALID_SUFFIX
 #: 1-sigma per axis [m] for a fix with position_covariance_type UNKNOWN: the same rule and default as
 #: alignment_node's ``gnss_sigma_m`` (R_n = sigma^2 I)
@@ -268,26 +270,42 @@ def velocity_n_from_positions(t_s: np.ndarray, lat_rad, lon_rad, h_m) -> np.ndar
     return np.array([earth.C_e_n(a, b) @ v for a, b, v in zip(lat_rad, lon_rad, v_e)])
 
 
-def _read_messages(path, streams: dict, meta_topic: str, unknown_fix_sigma_m: float | None, rep: dict):
-    """All messages of the wanted topics, validated (validation.py); rejected ones counted per topic and reason.
+def _streams(names: dict, invalid: dict, truth_topic: str) -> dict:
+    """topic -> (kind, valid) for the resolved sensor topics, their ``_invalid`` siblings and the truth."""
+    streams = {}
+    for kind in ("imu", "gps"):
+        if names[kind] is not None:
+            streams[names[kind]] = (kind, True)
+            streams[invalid.get(kind) or names[kind] + INVALID_SUFFIX] = (kind, False)
+    if names["vel"] is not None:
+        streams[names["vel"]] = ("vel", True)
+    streams.setdefault(truth_topic, ("truth", True))
+    return streams
 
-    ``streams``: topic -> (kind in imu/gps/truth, valid). Stamps are checked per kind (a topic and its
-    ``_invalid`` sibling form one stream). Returns (meta or None, {kind: lists}, rejected, frames, n_unknown_cov).
+
+def _read_messages(path, wanted: dict, invalid: dict, truth_topic: str, meta_topic: str,
+                   unknown_fix_sigma_m: float | None, rep: dict):
+    """All messages of the sensor topics, validated (validation.py); rejected ones counted per topic and reason.
+
+    ``wanted``: kind -> topic name or None (found: io/topics.py; the result in ``rep["topics"]``, the bag's topics
+    in ``rep["bag_topics"]``). Stamps are checked per kind (a topic and its ``_invalid`` sibling form one stream).
+    Returns (meta or None, {kind: lists}, rejected, frames, n_unknown_cov, streams: topic -> (kind, valid)).
     """
-    from rosbags.rosbag2 import Reader
+    from rosbags.highlevel import AnyReader
 
     ts = typestore()
-    rejected = {topic: Counter() for topic in streams}
-    frames = {topic: set() for topic in streams}
     got = {"imu": {"t": [], "w": [], "f": [], "ok": []}, "gps": {"t": [], "llh": [], "cov": [], "ok": []},
            "truth": {"t": [], "p": [], "q": []}, "vel": {"t": [], "v": [], "R": []}}
     prev = {"imu": None, "gps": None, "truth": None, "vel": None}
     meta, n_unknown = None, 0
-    with Reader(Path(path)) as r:
+    with AnyReader([Path(path)], default_typestore=ts) as r:
         topics = {c.topic: c.msgtype for c in r.connections}
-        imu_topic = next(t for t, (kind, ok) in streams.items() if kind == "imu" and ok)
-        if imu_topic not in topics:
-            raise ValueError(f"{path}: no IMU topic {imu_topic!r}; topics: {sorted(topics)}")
+        rep["bag_topics"] = topics
+        names = resolve_topics(topics, wanted, CONTRACT_TOPICS, rep["warnings"])
+        rep["topics"] = dict(names, truth=truth_topic if truth_topic in topics else None)
+        streams = _streams(names, invalid, truth_topic)
+        rejected = {topic: Counter() for topic in streams}
+        frames = {topic: set() for topic in streams}
         for topic, (kind, _) in streams.items():
             if kind == "truth" and topic in topics and topics[topic] not in TRUTH_POSE:
                 rep["warnings"].append(f"{topic}: type {topics[topic]} is not a pose ({sorted(TRUTH_POSE)}): ignored")
@@ -297,7 +315,7 @@ def _read_messages(path, streams: dict, meta_topic: str, unknown_fix_sigma_m: fl
             c.topic in streams and (streams[c.topic][0] != "truth" or c.msgtype in TRUTH_POSE)
             and (streams[c.topic][0] != "vel" or c.msgtype == VEL_TYPE))]
         for conn, _, raw in r.messages(connections=conns):
-            msg = ts.deserialize_cdr(raw, conn.msgtype)
+            msg = r.deserialize(raw, conn.msgtype)
             if conn.topic == meta_topic:
                 if meta is None:
                     try:
@@ -318,9 +336,11 @@ def _read_messages(path, streams: dict, meta_topic: str, unknown_fix_sigma_m: fl
                     g["t"].append(t_ns), g["w"].append(w), g["f"].append(f), g["ok"].append(ok)
             elif kind == "gps":
                 cov = np.asarray(msg.position_covariance, float).reshape(3, 3)
-                unknown = msg.position_covariance_type == COVARIANCE_TYPE_UNKNOWN
+                typed_unknown = msg.position_covariance_type == COVARIANCE_TYPE_UNKNOWN
+                unknown = typed_unknown or not np.any(cov)  # all zeros under any type (some drivers): unknown
                 if unknown and unknown_fix_sigma_m is None:
-                    reason = reason or "position_covariance_type UNKNOWN"
+                    reason = reason or ("position_covariance_type UNKNOWN" if typed_unknown else
+                                        "position covariance all zeros")
                 elif unknown:
                     cov = np.eye(3) * unknown_fix_sigma_m**2
                 # a flagged fix carries STATUS_NO_FIX by contract: judge the rest of it
@@ -349,7 +369,15 @@ def _read_messages(path, streams: dict, meta_topic: str, unknown_fix_sigma_m: fl
                 rejected[conn.topic][reason] += 1
             else:
                 prev[kind] = t_ns * 1e-9
-    return meta, got, rejected, frames, n_unknown
+    return meta, got, rejected, frames, n_unknown, streams
+
+
+#: words in a driver's own frame ids that pass without a warning (imu, /imu_link, gps, gnss_link, ublox, navsat)
+ORDINARY_FRAME_WORDS = {"imu": ("imu",), "gps": ("gps", "gnss", "navsat", "ublox"), "vel": ("gps", "gnss", "ublox")}
+
+
+def _ordinary_frame(kind: str, frame_id: str) -> bool:
+    return any(w in frame_id.lower() for w in ORDINARY_FRAME_WORDS.get(kind, ()))
 
 
 def _truth_reference(meta: dict, ref_llh_deg, gps: dict, tr_t_ns, tr_p, warnings: list):
@@ -381,18 +409,24 @@ def _truth_reference(meta: dict, ref_llh_deg, gps: dict, tr_t_ns, tr_p, warnings
     return float(lat0), float(lon0), float(h0)
 
 
-def read_bag(path, imu_topic: str = IMU_TOPIC, gps_topic: str = GPS_TOPIC, truth_topic: str = TRUTH_TOPIC,
+def read_bag(path, imu_topic: str | None = IMU_TOPIC, gps_topic: str | None = GPS_TOPIC, truth_topic: str = TRUTH_TOPIC,
              meta_topic: str = META_TOPIC, report: dict | None = None,
              unknown_fix_sigma_m: float | None = DEFAULT_UNKNOWN_FIX_SIGMA_M, imu_invalid_topic: str | None = None,
-             gps_invalid_topic: str | None = None, ref_llh_deg=None, vel_topic: str = VEL_TOPIC) -> ScenarioData:
+             gps_invalid_topic: str | None = None, ref_llh_deg=None, vel_topic: str | None = VEL_TOPIC) -> ScenarioData:
     """Read a contract bag, or any bag with an Imu topic (and optionally NavSatFix and pose topics), into ScenarioData.
+
+    ``path``: a rosbag2 directory (sqlite3 or mcap), a lone .mcap file or a ROS 1 .bag (rosbags' AnyReader).
 
     Parameters
     ----------
-    imu_topic, gps_topic, truth_topic, meta_topic : topic names (truth: PoseStamped, PoseWithCovarianceStamped or
+    imu_topic, gps_topic, vel_topic : sensor topics (default: the contract's). None: the contract's name if the bag
+        has it, else the one topic of the type (io/topics.py); a missing IMU topic, or an ambiguous one, is a
+        ValueError naming it with the bag's topics; a missing fix or velocity topic is a warning (none read). The
+        names read land in ``report["topics"]``, the bag's topics and types in ``report["bag_topics"]``.
+    truth_topic, meta_topic : topic names, never guessed (truth: PoseStamped, PoseWithCovarianceStamped or
         Odometry, orientation body FLU -> ENU, position in a local ENU frame [m]).
-    unknown_fix_sigma_m : 1-sigma per axis [m] for fixes with position_covariance_type UNKNOWN (the node's
-        ``gnss_sigma_m`` rule, R_n = sigma^2 I); None drops such fixes.
+    unknown_fix_sigma_m : 1-sigma per axis [m] for fixes with position_covariance_type UNKNOWN or an all-zero
+        covariance under any type (the node's ``gnss_sigma_m`` rule, R_n = sigma^2 I); None drops such fixes.
     imu_invalid_topic, gps_invalid_topic : topics of flagged samples (default ``<topic>_invalid``): read into
         ``imu_valid`` / ``gnss_valid`` (False), in stamp order with the valid ones.
     ref_llh_deg : (lat [deg], lon [deg], h [m]) ENU origin of the truth positions when the metadata has none.
@@ -411,19 +445,28 @@ def read_bag(path, imu_topic: str = IMU_TOPIC, gps_topic: str = GPS_TOPIC, truth
     rep = report if report is not None else {}
     rep.setdefault("rejected", {})
     rep.setdefault("warnings", [])
-    streams = {imu_topic: ("imu", True), imu_invalid_topic or imu_topic + INVALID_SUFFIX: ("imu", False),
-               gps_topic: ("gps", True), gps_invalid_topic or gps_topic + INVALID_SUFFIX: ("gps", False),
-               truth_topic: ("truth", True), vel_topic: ("vel", True)}
-    from rosbags.rosbag2 import ReaderError
+    from rosbags.highlevel import AnyReaderError
+    from rosbags.rosbag1 import ReaderError as Ros1Error
+    from rosbags.rosbag2 import ReaderError as Ros2Error
 
+    wanted = {"imu": imu_topic, "gps": gps_topic, "vel": vel_topic}
+    invalid = {"imu": imu_invalid_topic, "gps": gps_invalid_topic}
     try:
-        meta, got, rejected, frames, n_unknown = _read_messages(path, streams, meta_topic, unknown_fix_sigma_m, rep)
-    except ReaderError as exc:  # a user error (not a rosbag2 bag, a damaged one): one line, not a traceback
-        raise ValueError(f"{path}: not a readable rosbag2 bag ({exc})") from exc
+        meta, got, rejected, frames, n_unknown, streams = _read_messages(path, wanted, invalid, truth_topic,
+                                                                         meta_topic, unknown_fix_sigma_m, rep)
+    except (AnyReaderError, Ros1Error, Ros2Error) as exc:  # a user error (not a bag, a damaged one): one line
+        raise ValueError(f"{path}: not a readable bag (a rosbag2 directory, an .mcap file or a ROS 1 .bag): "
+                         f"{exc}") from exc
+    gps_topic = rep["topics"]["gps"]
+    if gps_topic is None:
+        rep["warnings"].append(f"no GNSS fix topic (sensor_msgs/msg/NavSatFix) in the bag; its topics: "
+                               f"{listing(rep['bag_topics'])}")
     expect = {"imu": IMU_FRAME, "gps": GPS_FRAME, "truth": TRUTH_FRAME, "vel": GPS_FRAME}
     for topic, fs in frames.items():
-        if fs and fs != {expect[streams[topic][0]]}:
-            rep["warnings"].append(f"{topic}: frame_id {sorted(fs)} != contract {expect[streams[topic][0]]!r}")
+        kind = streams[topic][0]
+        odd = sorted(f for f in fs if f != expect[kind] and not _ordinary_frame(kind, f))
+        if odd:
+            rep["warnings"].append(f"{topic}: frame_id {odd} != contract {expect[kind]!r}")
     for topic, c in rejected.items():
         if c:
             rep["rejected"][topic] = dict(c)
@@ -436,7 +479,7 @@ def read_bag(path, imu_topic: str = IMU_TOPIC, gps_topic: str = GPS_TOPIC, truth
     if not imu["t"]:
         for wmsg in rep["warnings"]:
             log.warning("%s: %s", path, wmsg)
-        raise ValueError(f"{path}: no valid IMU sample on {imu_topic}")
+        raise ValueError(f"{path}: no valid IMU sample on {rep['topics']['imu']}")
     if meta is None:
         rep["warnings"].append(f"no metadata on {meta_topic}: scenario/seed/biases/reference unknown; "
                                "times relative to the first IMU stamp")

@@ -89,3 +89,34 @@ def check_fix(lat_deg: float, lon_deg: float, alt_m: float, cov_enu=None, status
 def format_counts(counts: dict) -> str:
     """{reason: count} -> 'reason: n, ...' sorted by reason (the converters' and readers' reports)."""
     return ", ".join(f"{k}: {n}" for k, n in sorted(counts.items()))
+
+
+#: the mean specific force of a recording further than this from the vehicle's up axis (+z of FLU) means the IMU
+#: axes or mounting are wrong: no vehicle spends a recording tilted this much on average
+MAX_MEAN_TILT_DEG = 60.0
+
+
+def check_gravity_axis(f_ib_v: np.ndarray, imu_axes: str = "flu") -> str | None:
+    """The recording's mean specific force [m/s^2] in the vehicle FLU frame (after the IMU axes and mounting) against
+    gravity: held level, an FLU body measures f ~ (0, 0, +9.8) (the reaction to gravity points up). A mean more
+    than MAX_MEAN_TILT_DEG from +z is a wrong ``imu_axes`` or mounting; a negative z (upside down) is the sign of an
+    FRD IMU read as FLU (or the reverse). Returns None, or the reason with the option to check."""
+    f = np.asarray(f_ib_v, float)
+    f = f[np.all(np.isfinite(f), axis=1)] if f.ndim == 2 else f[None, :]
+    if not f.shape[0]:
+        return None
+    m = f.mean(axis=0)
+    g = float(np.linalg.norm(m))
+    if g < 1.0:  # free fall or no data: nothing to judge
+        return None
+    tilt = math.degrees(math.acos(max(-1.0, min(1.0, m[2] / g))))
+    if tilt <= MAX_MEAN_TILT_DEG:
+        return None
+    where = (f"mean specific force ({m[0]:.2f}, {m[1]:.2f}, {m[2]:.2f}) m/s^2 in the vehicle FLU frame, "
+             f"{tilt:.0f} deg from +z (a level FLU IMU reads about (0, 0, +9.8))")
+    if m[2] < 0 and tilt > 135.0:
+        other = "frd" if imu_axes == "flu" else "flu"
+        why = ("z down: an FRD IMU (x forward, y right, z down) read as FLU?" if other == "frd" else
+               "the data already FLU?")
+        return f"{where}: the IMU looks upside down ({why}); check --imu-axes {other} (node: imu_axes)"
+    return f"{where}: check --imu-axes and --imu-mount-rpy-deg (node: imu_axes, imu_mount_rpy_deg)"

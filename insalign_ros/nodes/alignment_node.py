@@ -10,7 +10,7 @@ Topics (relative names, remappable as usual):
   declare ``supports_gnss_velocity``; the antenna offset is the core parameter ``gnss_lever_arm_b_m``). The Imu's rates and specific
   forces are turned into the vehicle FLU frame once, in the callback (``imu_axes``, ``imu_mount_rpy_deg``:
   conversions.imu_to_vehicle_matrix; the convention is written there and in docs/nodes.md);
-- out ``~/pose`` PoseWithCovarianceStamped (frame ``enu_frame_id``: local ENU anchored at the initial position;
+- out ``~/pose`` PoseWithCovarianceStamped (frame ``world_frame``, REP 105: local ENU anchored at the initial position;
   orientation body FLU -> ENU; covariance in the ROS order x y z rot x rot y rot z [m^2, rad^2]),
   ``~/euler_error`` and ``~/euler_error_3sigma`` geometry_msgs/Vector3Stamped (roll, pitch, yaw [deg]; the error
   only when ground truth is present), ``~/aligned`` std_msgs/Bool (reliable, transient local), ``/diagnostics``;
@@ -18,7 +18,12 @@ Topics (relative names, remappable as usual):
   orientation covariance, and the measured rate and specific force of the IMU sample at that stamp:
   conversions.imu_msg), ``~/datum`` sensor_msgs/NavSatFix (reliable, transient local: the ENU origin of ``~/pose``,
   published at each initialisation);
-- service ``~/reset`` std_srvs/Trigger: drop the estimate and every buffered input, start the alignment over.
+- service ``~/reset`` std_srvs/Trigger: drop the estimate and every buffered input, start the alignment over;
+- /tf world_frame -> tf_child_frame (``publish_tf``). The outputs, the flag before them, the ~/imu gating and the
+  restarts: nodes/publishing.py; the parameter table, ranges and validation: nodes/params.py.
+
+Start-up: the parameters are checked (one line and exit 2 on a bad value), the numba kernels compiled
+(session.warmup: "ready (kernels compiled in X s)"), and only then the node subscribes.
 
 The node only converts messages to samples and pushes them into the session; a timer (``process_rate_hz``) takes
 the Imu and ground-truth messages waiting in their readers (polled: one wake-up per tick, not one per message; the
@@ -39,14 +44,12 @@ from collections import OrderedDict, deque
 
 import numpy as np
 import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistWithCovarianceStamped, Vector3Stamped
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from geometry_msgs.msg import PoseStamped, TwistWithCovarianceStamped
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Imu, NavSatFix
-from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
 from ..core.types import GnssVelocity, ImuSample
@@ -55,142 +58,25 @@ from ..session import catalog
 from ..session.config import SessionConfig
 from ..session.session import AlignmentSession, Ring, TruthSample
 from . import conversions as cv
+from .params import CORE_DOC, NODE_PARAMS, SESSION_DOC, check_value, coerce, descriptor, unknown_parameters
+from .publishing import OutputPublisher, quantiles as _quantiles  # noqa: F401  (re-exported for tests)
 from .qos import QOS_CHOICES, imu_qos
 
-_SESSION_DOC = {  # session parameters the node exposes under the same names (SessionConfig has the meaning)
-    "init_mode": "sensors (no guess: position/velocity from the fixes, level from the accelerometers, unknown heading "
-                 "-> yaw bank), guess (initial_rpy_deg) or truth (ground_truth/pose; init_from_ground_truth)",
-    "init_level_window_s": "sensors: accelerometer averaging window for roll and pitch [s]",
-    "unknown_heading_hypotheses": "sensors: yaw hypotheses when the heading is unknown (GNSS cores)",
-    "init_accel_m_s2": "sensors: vehicle acceleration assumed when the fixes cannot tell it [m/s^2]",
-    "initial_rpy_deg": "initial attitude guess roll, pitch, yaw [deg] (yaw from East, CCW)",
-    "initial_velocity_enu_m_s": "initial velocity guess, ENU [m/s]",
-    "init_rpy_error_deg": "Euler error added to the truth when init_from_ground_truth [deg]",
-    "init_sigma_rpy_deg": "initial roll, pitch, yaw 1-sigma [deg] (NaN: the core's own defaults)",
-    "static_position_deg_m": "static cores: lat [deg], lon [deg], h [m] (NaN: wait for a fix)",
-    "max_rate_rad_s": "reject Imu with |angular_velocity| above this [rad/s] (2000 deg/s)",
-    "max_acc_m_s2": "reject Imu with |linear_acceleration| above this [m/s^2] (50 g)",
-    "max_gap_s": "an Imu stamp more than this from the newest one is a suspect time jump [s]",
-    "time_jump_confirm": "consecutive self-consistent samples that confirm a time jump (then reset)",
-    "gap_factor": "an Imu interval longer than this times the median interval is a gap",
-    "max_fix_lag_s": "fixes up to this late are fused at their stamp: the filter runs this far behind the IMU [s]",
-    "max_fix_ahead_s": "a fix ahead of the IMU by more than this is rejected [s]",
-    "zupt_rate_hz": "zero-velocity update rate for static cores [Hz data time]",
-    "zupt_sigma_m_s": "zero-velocity update 1-sigma [m/s]",
-    "imu_timeout_s": "watchdog: no valid Imu for this long [s wall] drops the flag (0: off)",
-    "gnss_timeout_s": "warn in /diagnostics when no fix was accepted for this long [s data time]",
-    "idle_drain_s": "no input for this long [s wall]: process the buffered tail",
-    "backtrack_passes": "backtracking passes over the stored window (filters/backtrack.py; 0: off)",
-    "backtrack_window_s": "backtracking: stored alignment window after initialisation [s data time]",
-    "backtrack_covariance": "backtracking: 'reset' (honest sigma) or 'reuse' (the paper's, optimistic)",
-    "backtrack_budget_s": "backtracking: wall time per processing tick spent on the passes [s]",
-    "imu_spike_rad_s": ("an Imu rate off both neighbours by more than this (and 20x the recent spread) is a spike: "
-                        "dropped, bridged as a gap (0: off) [rad/s]"),
-    "imu_spike_m_s2": "the same for the specific force [m/s^2]",
-    "gnss_gate_nis": ("outlier gate: a fix with NIS above this is rejected without touching the filter once it claims "
-                      "its attitude (0: off)"),
-    "gnss_gate_max_consecutive": ("that many consecutive gated fixes: the filter (or the GNSS) is lost -> hold or "
-                                  "FAULT and re-initialise"),
-    "gnss_jump_accel_m_s2": ("a fix off the extrapolation of the two before it beyond this acceleration (+5 sigma) "
-                             "is a GNSS jump: hold, not re-initialise [m/s^2]"),
-    "gnss_hold_max_s": "the longest hold on the IMU after a GNSS jump before the new fixes are believed [s data time]",
-    "gnss_hold_drift_m": ("a held filter whose innovation changes by more than this without a jump is "
-                          "re-initialised [m]"),
-    "divergence_nis_window": "divergence guard: fixes in the windowed NIS test (0: off)",
-    "divergence_nis_mean": ("divergence guard: mean NIS over the window above this is a divergence (FAULT, "
-                            "re-initialisation)"),
-    "divergence_level_3sigma_deg": "divergence guard: roll or pitch 3-sigma above this is a divergence [deg]",
-    "divergence_cusum_ratio": "divergence guard: CUSUM alternative, a covariance this many times too small",
-    "divergence_cusum_arm_factor": ("divergence guard: the CUSUM runs while the attitude 3-sigma is within this times "
-                                    "the flag's bounds"),
-    "divergence_cusum_llr": "divergence guard: CUSUM log-likelihood ratio above this is a divergence (0: off)",
-    "divergence_cusum_flag_llr": "divergence guard: CUSUM above this drops the aligned flag (0: off)",
-}
-#: descriptions of core parameters the node shows (others: "<core> core parameter")
-_CORE_DOC = {"gnss_lever_arm_b_m": "GNSS antenna position in the body frame FLU relative to the IMU [m] (x forward, "
-                                   "y left, z up): the fix and gps/vel models predict the antenna"}
-#: node parameters: name -> (default, description, read_only)
-NODE_PARAMS = {
-    "core": ("auto", "alignment core (filters/registry.py): auto (default: static while parked, in-motion iekf once "
-                     "it moves; session/auto.py) or one core; read-only after start", True),
-    "imu_grade": (SessionConfig().imu_grade, "IMU noise model, one of " + ", ".join(catalog.GRADES) + " (docs/imu_grades.md): "
-                  "the defaults of the core's noise and bias parameters; an explicit core parameter overrides it. "
-                  "Read-only after start", True),
-    "init_from_ground_truth": (False, "initialise from ground_truth/pose plus init_rpy_error_deg (tests, demos; "
-                                      "overrides init_mode)", False),
-    "pose_rate_hz": (10.0, "~/pose, ~/euler_error and aligned-flag evaluation rate [Hz data time] (0: every Imu)", False),
-    "use_imu_covariance": (False, "take gyro ARW / accel VRW from the Imu message covariances", False),
-    "gnss_sigma_m": (1.0, "GNSS 1-sigma per axis [m] when NavSatFix gives no covariance", False),
-    "imu_axes": ("flu", "axes of the Imu rates and accelerations: flu (x forward, y left, z up; REP 103) or frd "
-                        "(x forward, y right, z down)", True),
-    "imu_mount_rpy_deg": ([0.0, 0.0, 0.0], "roll, pitch, yaw [deg] of the IMU's FLU axes (after imu_axes) in the "
-                          "vehicle FLU frame, C = Rz(yaw) Ry(pitch) Rx(roll) as a URDF joint base_link -> imu_link; "
-                          "rates and specific forces are rotated into the vehicle frame", True),
-    "body_frame_id": ("base_link", "frame_id of ~/imu: the vehicle FLU frame whose orientation is estimated", False),
-    "imu_frame_id": ("", "required Imu frame_id ('' accepts any: drivers use imu, imu_link, gnss_link, ...; the "
-                         "frames seen are logged)", False),
-    "gnss_frame_id": ("", "required NavSatFix frame_id ('' accepts any)", False),
-    "enu_frame_id": ("enu", "frame_id of ~/pose", False),
-    "diagnostics_period_s": (1.0, "/diagnostics period [s wall]", True),
-    "process_rate_hz": (10.0, "rate of the processing timer [Hz wall]: an output is published up to one period after "
-                              "its Imu sample arrived; each tick costs CPU (docs/nodes.md, \"CPU share\")", True),
-    "imu_qos": ("sensor_data", "Imu and ground-truth subscription QoS: sensor_data (best effort) or reliable", True),
-    "imu_qos_depth": (1000, "keep-last depth of the Imu subscription", True),
-    "gnss_qos": ("sensor_data", "NavSatFix and gps/vel subscription QoS: sensor_data (best effort) or reliable", True),
-    "gnss_qos_depth": (100, "keep-last depth of the NavSatFix and gps/vel subscriptions", True),
-    "poll_inputs": (True, "take every input in the processing tick instead of one executor callback per message "
-                          "(serialized Imu read in one numpy pass per batch; EventsExecutor only; about half the "
-                          "node's CPU at 125 Hz, docs/nodes.md); false: one callback per message", True),
-    "log_throttle_s": (2.0, "throttle of the rejection log lines, per kind [s]", False),
-}
-_RANGES = {"pose_rate_hz": (0.0, 1000.0), "gnss_sigma_m": (1e-3, 1e4), "diagnostics_period_s": (0.01, 60.0),
-           "process_rate_hz": (1.0, 1000.0), "log_throttle_s": (0.0, 3600.0), "max_gap_s": (0.05, 3600.0),
-           "max_fix_lag_s": (0.0, 10.0), "gap_factor": (1.1, 100.0), "imu_timeout_s": (0.0, 3600.0)}
+_SESSION_DOC = SESSION_DOC  # re-exported (test_imu_grade)
+
 #: Imu messages over which /diagnostics reports the node's time per message and the stamp age
 _STATS_WINDOW = 20000
-_INT_RANGES = {"imu_qos_depth": (1, 100000), "gnss_qos_depth": (1, 100000), "time_jump_confirm": (1, 1000),
-               "backtrack_passes": (0, 10)}
-
-
-def _latched_qos() -> QoSProfile:
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
-
-
-def _descriptor(name: str, default, text: str, read_only: bool) -> ParameterDescriptor:
-    d = ParameterDescriptor(description=text, read_only=read_only)
-    if isinstance(default, float) and not isinstance(default, bool):
-        d.dynamic_typing = True  # an integer given for a double (-p gnss_sigma_m:=2) is accepted, then coerced
-        if name in _RANGES:
-            lo, hi = _RANGES[name]
-            d.floating_point_range = [FloatingPointRange(from_value=lo, to_value=hi, step=0.0)]
-            d.additional_constraints = f"range [{lo:g}, {hi:g}]"
-    elif isinstance(default, int) and not isinstance(default, bool) and name in _INT_RANGES:
-        lo, hi = _INT_RANGES[name]
-        d.integer_range = [IntegerRange(from_value=lo, to_value=hi, step=1)]
-    return d
-
-
-def _coerce(old, new):
-    """An int for a float (and a list of ints for a list of floats) is accepted; other type changes are errors."""
-    if isinstance(old, float) and isinstance(new, int) and not isinstance(new, bool):
-        return float(new)
-    if isinstance(old, (list, tuple)) and isinstance(new, (list, tuple)):
-        return [float(x) if isinstance(x, int) and not isinstance(x, bool) else x for x in new]
-    if type(new) is not type(old):
-        raise ValueError(f"wrong type: expected {type(old).__name__}, got {new!r}")
-    return new
 
 
 class AlignmentNode(Node):
-    def __init__(self, **node_kwargs) -> None:
+    def __init__(self, warm_up: bool = True, **node_kwargs) -> None:
         super().__init__("alignment_node", **node_kwargs)
         self.defaults: dict = {}
         for name, (default, text, ro) in NODE_PARAMS.items():
             self._declare(name, default, text, ro)
         for name, default in SessionConfig().to_dict().items():
-            if name in _SESSION_DOC:
-                self._declare(name, default, _SESSION_DOC[name], False)
+            if name in SESSION_DOC:
+                self._declare(name, default, SESSION_DOC[name], False)
         for name, default in AlignedCriteria().to_dict().items():
             self._declare(f"aligned.{name}", default, f"aligned flag criterion {name} (session/flag.py)", False)
         core = self.get_parameter("core").value
@@ -204,14 +90,43 @@ class AlignmentNode(Node):
                 self._declare(name, from_grade[name], f"{core} core parameter, default from imu_grade {grade} "
                                                       "(docs/imu_grades.md)", False)
             elif name not in self.defaults:
-                self._declare(name, default, _CORE_DOC.get(name, f"{core} core parameter (config/{core}.yaml)"), False)
+                self._declare(name, default, CORE_DOC.get(name, f"{core} core parameter (config/{core}.yaml)"), False)
+        for line in unknown_parameters(self._parameter_overrides, self.defaults, core):
+            self.get_logger().warning(line)
         p = {n: self._coerced(n) for n in self.defaults}
         self.session = AlignmentSession(*self._session_args(p), log=self._log)  # ValueError: bad value, exit 2
         self.imu_sub = None  # the Imu subscription, polled by _take_inputs (not dispatched per message by the executor)
         self._polled: list = []  # subscriptions the executor does not see (_poll_only), destroyed with the node
         self._apply_node_params(p)
+        self.add_pre_set_parameters_callback(self._pre_set_parameters)
         self.add_on_set_parameters_callback(self._on_set_parameters)
+        #: measured samples (vehicle FLU) by stamp, for ~/imu: stamp -> (omega, f, cov omega, cov f), arrival order
+        self._recent_imu: OrderedDict = OrderedDict()
+        self._log_state: dict = {}
+        self.out = OutputPublisher(self)  # every publisher, the flag, the restarts (nodes/publishing.py)
+        self.pub_pose, self.pub_imu, self.pub_aligned = self.out.pub_pose, self.out.pub_imu, self.out.pub_aligned
+        self.process_s = self.out.process_s
+        self.create_service(Trigger, "~/reset", self._on_reset)
+        # over the last _STATS_WINDOW Imu messages: /diagnostics reads their quantiles every second (deques of 100,000
+        # cost 9-12 ms, 1 % of a core, once full after 13 min at 125 Hz; of 20,000 ~3 ms; rings of 20,000 ~0.7 ms)
+        self.timing_s = Ring(_STATS_WINDOW)  # node time per Imu message [s] (benchmarks read it)
+        self.stamp_age_s = Ring(_STATS_WINDOW)  # DDS reception time minus header stamp [s]
+        self.imu_messages_taken = 0  # every Imu message the node received (taken or dispatched), valid or not
+        self._cov_ok: dict = {}
+        self._imu_ok: set = set()  # conversions.imu_cdr_key of Imu messages that passed the message-level checks
+        self._prev_imu_stamp: float | None = None
+        self._noise_done = False
+        self.epoch_s: int | None = None
+        self.frames_seen: set = set()
+        self.imu_frame = ""  # the first Imu frame_id seen: /diagnostics hardware_id unless the parameter names one
+        # compile the numba kernels before subscribing: a first sample must not wait 30-90 s in a stalled executor
+        t0 = time.perf_counter()
+        if warm_up:
+            from ..session.warmup import warm_up as _warm
 
+            _warm((core,))
+        self.ready_s = time.perf_counter() - t0
+        self.get_logger().info(f"ready (kernels compiled in {self.ready_s:.1f} s)")
         qi = imu_qos(p["imu_qos"], p["imu_qos_depth"])
         self.imu_sub = self.create_subscription(Imu, "imu/data", self._on_imu, qi)
         self.fix_sub = self.create_subscription(NavSatFix, "gps/fix", self._on_fix,
@@ -219,48 +134,38 @@ class AlignmentNode(Node):
         self.vel_sub = self.create_subscription(TwistWithCovarianceStamped, "gps/vel", self._on_vel,
                                                 imu_qos(p["gnss_qos"], p["gnss_qos_depth"]))
         self.truth_sub = self.create_subscription(PoseStamped, "ground_truth/pose", self._on_truth, qi)
-        self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, "~/pose", 50)
-        self.pub_err = self.create_publisher(Vector3Stamped, "~/euler_error", 50)
-        self.pub_err3 = self.create_publisher(Vector3Stamped, "~/euler_error_3sigma", 50)
-        self.pub_aligned = self.create_publisher(Bool, "~/aligned", _latched_qos())
-        self.pub_imu = self.create_publisher(Imu, "~/imu", 50)
-        self.pub_datum = self.create_publisher(NavSatFix, "~/datum", _latched_qos())
-        self.create_service(Trigger, "~/reset", self._on_reset)
-        self._datum_anchor = None  # the session anchor last published on ~/datum
-        #: measured samples (vehicle FLU) by stamp, for ~/imu: stamp -> (omega, f, cov omega, cov f), arrival order
-        self._recent_imu: OrderedDict = OrderedDict()
-        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self._log_state: dict = {}
-        self.published_aligned = False
-        self.pub_aligned.publish(Bool(data=False))
-        # over the last _STATS_WINDOW Imu messages: /diagnostics reads their quantiles every second (deques of 100,000
-        # cost 9-12 ms, 1 % of a core, once full after 13 min at 125 Hz; of 20,000 ~3 ms; rings of 20,000 ~0.7 ms)
-        self.timing_s = Ring(_STATS_WINDOW)  # node time per Imu message [s] (benchmarks read it)
-        self.stamp_age_s = Ring(_STATS_WINDOW)  # DDS reception time minus header stamp [s]
-        self.process_s: deque = deque(maxlen=10000)
-        self._cov_ok: dict = {}
-        self._imu_ok: set = set()  # conversions.imu_cdr_key of Imu messages that passed the message-level checks
-        self._prev_imu_stamp: float | None = None
-        self._noise_done = False
-        self.epoch_s: int | None = None
-        self.frames_seen: set = set()
         self.create_timer(1.0 / p["process_rate_hz"], self._process)
         self.create_timer(p["diagnostics_period_s"], self._publish_diagnostics)
         self.get_logger().info(f"alignment_node: core {self.core_name}, waiting for imu/data and gps/fix")
 
     # ------------------------------------------------------------------ parameters
     def _declare(self, name: str, default, text: str, read_only: bool) -> None:
+        """Declare with the range (params.descriptor); a value given at start is checked first (params.check_value:
+        one line naming the parameter, its value and its range) and stored with the declared type (an int for a
+        double stays a double, an integer array for a double array is taken)."""
         self.defaults[name] = default
-        self.declare_parameter(name, default, _descriptor(name, default, text, read_only))
+        given = self._parameter_overrides.get(name)
+        if given is not None and given.type_ != Parameter.Type.NOT_SET:
+            self._parameter_overrides[name] = Parameter(name, value=check_value(name, default, given.value))
+        self.declare_parameter(name, default, descriptor(name, default, text, read_only))
 
     def _coerced(self, name: str):
-        try:
-            return _coerce(self.defaults[name], self.get_parameter(name).value)
-        except ValueError as exc:
-            raise ValueError(f"{name}: {exc}") from None
+        return check_value(name, self.defaults[name], self.get_parameter(name).value)
+
+    def _pre_set_parameters(self, params: list) -> list:
+        """Run-time changes: an int for a double (an integer array for a double array) becomes a double, so the
+        parameter keeps its declared type (rclpy's range and type checks follow)."""
+        out = []
+        for prm in params:
+            d = self.defaults.get(prm.name)
+            try:
+                out.append(Parameter(prm.name, value=coerce(d, prm.value)) if d is not None else prm)
+            except ValueError:
+                out.append(prm)  # refused with rclpy's reason (wrong type) or ours
+        return out
 
     def _session_args(self, p: dict):
-        sp = {k: p[k] for k in _SESSION_DOC}
+        sp = {k: p[k] for k in SESSION_DOC}
         sp["core"], sp["imu_grade"] = p["core"], p["imu_grade"]
         if p["init_from_ground_truth"]:
             sp["init_mode"] = "truth"
@@ -289,7 +194,7 @@ class AlignmentNode(Node):
         self.pose_period_s = self.session.cfg.output_period_s
 
     def _on_set_parameters(self, params) -> SetParametersResult:
-        self._take_inputs()
+        self._guarded("take_inputs", self._take_inputs)
         p = dict(self.params)
         try:
             for prm in params:
@@ -298,7 +203,7 @@ class AlignmentNode(Node):
                 if NODE_PARAMS.get(prm.name, (None, None, False))[2]:
                     return SetParametersResult(successful=False, reason=f"{prm.name} is read-only (set it at start; "
                                                                         "restart the node to change it)")
-                p[prm.name] = _coerce(self.defaults[prm.name], prm.value)
+                p[prm.name] = check_value(prm.name, self.defaults[prm.name], prm.value)
             cfg, core_params, crit = self._session_args(p)
         except (ValueError, TypeError) as exc:
             reason = str(exc) if any(prm.name in str(exc) for prm in params) else f"{params[0].name}: {exc}"
@@ -308,7 +213,7 @@ class AlignmentNode(Node):
         self._apply_node_params(p)
         if restarted:
             self.get_logger().warning("core parameters changed: the alignment restarts")
-            self._publish_flag()
+            self.out.restart("core parameters changed")
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ logging
@@ -365,6 +270,7 @@ class AlignmentNode(Node):
             for raw, info in _take_all(self.imu_sub, raw=True):
                 raws.append(raw)
                 recv.append(info["received_timestamp"])
+            self.imu_messages_taken += len(raws)
         others = []
         for sub, on_msg in ((self.fix_sub, self._on_fix), (self.vel_sub, self._on_vel)):
             if sub in self._polled:
@@ -434,6 +340,8 @@ class AlignmentNode(Node):
         p = self.params
         frame = p["imu_frame_id"]
         h = msg.header
+        if received_ns is None:  # one executor callback per message (the polled path counts its batch)
+            self.imu_messages_taken += 1
         if h.frame_id not in self.frames_seen:
             self._note_frame("Imu", h.frame_id)
         passed = False
@@ -497,6 +405,7 @@ class AlignmentNode(Node):
     def _note_frame(self, kind: str, frame_id: str) -> None:
         """Log each frame_id once (a second one on the same topic is worth a warning: two publishers?)."""
         self.frames_seen.add(frame_id)
+        self.imu_frame = self.imu_frame or frame_id
         text = f"{kind} frame_id {frame_id!r} seen (imu_frame_id {self.params['imu_frame_id']!r}: " + (
             "any accepted)" if not self.params["imu_frame_id"] else "only that one accepted)")
         if len(self.frames_seen) > 1:
@@ -513,47 +422,23 @@ class AlignmentNode(Node):
 
     # ------------------------------------------------------------------ processing and outputs
     def _process(self) -> None:
-        self._take_inputs()
-        t0 = time.perf_counter()
+        """The processing tick: take the inputs, let the session process them, publish what comes out; all of it
+        inside one guard (the node never dies on the session's data: counted, logged throttled, carried on)."""
+        self._guarded("take_inputs", self._take_inputs)
+        self._guarded("processing", self._process_and_publish)
+
+    def _guarded(self, where: str, fn, *args):
         try:
-            outs = self.session.process(time.monotonic())
-        except Exception as exc:  # noqa: BLE001 - the session guards the core; this is a last resort
-            self.get_logger().error(f"session error {type(exc).__name__}: {exc}", throttle_duration_sec=5.0)
-            outs = []
-        frame = self.params["enu_frame_id"]
-        if self.session.anchor is not self._datum_anchor:
-            self._publish_datum()
-        # the volatile outputs are built only for a publisher with a matched subscription: a message published
-        # without one is dropped by DDS anyway (~/aligned, ~/datum: transient local, always; docs/nodes.md, "CPU share")
-        pose, imu, err, err3 = ((p.get_subscription_count() > 0 for p in (self.pub_pose, self.pub_imu, self.pub_err,
-                                                                          self.pub_err3)) if outs else (False,) * 4)
-        for o in outs:
-            est = o.estimate
-            if pose or imu:
-                q = cv.quat_xyzw(est.C_b_n)  # once for ~/pose and ~/imu
-            if pose:
-                self.pub_pose.publish(cv.pose_msg(est, self.session.anchor, frame, "", self.epoch_s, q))
-            if imu:
-                self.pub_imu.publish(cv.imu_msg(est, self.params["body_frame_id"], self.epoch_s,
-                                                self._measured_sample(o.stamp_s), q))
-            err_o = err and o.euler_error_deg is not None
-            if not (err3 or err_o):
-                continue
-            m3 = Vector3Stamped()
-            cv.set_stamp(m3, o.stamp_s, self.epoch_s)
-            m3.header.frame_id = frame
-            if err_o:
-                me = Vector3Stamped()
-                me.header = m3.header
-                me.vector.x, me.vector.y, me.vector.z = (float(x) for x in o.euler_error_deg)
-                self.pub_err.publish(me)
-            if err3:
-                m3.vector.x, m3.vector.y, m3.vector.z = (float(x) for x in o.euler_3sigma_deg)
-                self.pub_err3.publish(m3)
-        self._publish_flag()
+            return fn(*args)
+        except Exception as exc:  # noqa: BLE001 - the guard: counted in /diagnostics (node_errors), logged, survived
+            self.out.guard_error(where, exc)
+            return None
+
+    def _process_and_publish(self) -> None:
+        t0 = time.perf_counter()
+        outs = self.session.process(time.monotonic())
+        self.out.publish(outs, t0)
         self._forget_samples()
-        if outs:
-            self.process_s.append(time.perf_counter() - t0)
 
     def _measured_sample(self, t: float):
         """The measured sample at output stamp ``t`` for ~/imu, covariances in vehicle FLU; None when there is none
@@ -570,35 +455,21 @@ class AlignmentNode(Node):
         while d and ((t is not None and next(iter(d)) < t) or len(d) > self.session.MAX_BUFFER):
             d.popitem(last=False)
 
-    def _publish_datum(self) -> None:
-        """~/datum: the ENU origin of ~/pose, once per initialisation (transient local: late joiners get it)."""
-        s = self.session
-        self._datum_anchor = s.anchor
-        if s.anchor is None:
-            return
-        self.pub_datum.publish(cv.datum_msg(s.anchor, s.init_t, self.params["enu_frame_id"], self.epoch_s))
-        self.get_logger().info(f"datum (ENU origin of ~/pose): lat {math.degrees(s.anchor[0]):.7f} deg, lon "
-                               f"{math.degrees(s.anchor[1]):.7f} deg, h {s.anchor[2]:.2f} m")
-
     def _on_reset(self, request, response):
         """~/reset (std_srvs/Trigger): restart the alignment from nothing (the session's reset)."""
-        self._take_inputs()
+        self._guarded("take_inputs", self._take_inputs)
         was = self.session.status.value
         self.session.reset("reset service")
-        self._recent_imu.clear()
-        self._publish_datum()
-        self._publish_flag()
+        self.out.restart("~/reset")
         self.get_logger().warning(f"alignment restarted by ~/reset (was: {was})")
         response.success = True
         response.message = (f"alignment restarted (core {self.core_name}; was {was}); buffered inputs dropped, "
                             f"~/datum is published again at the next initialisation")
         return response
 
-    def _publish_flag(self) -> None:
-        now = self.session.aligned
-        if now != self.published_aligned:
-            self.published_aligned = now
-            self.pub_aligned.publish(Bool(data=now))
+    @property
+    def published_aligned(self) -> bool:
+        return self.out.published_aligned
 
     # ------------------------------------------------------------------ status (read by tests and benchmarks)
     @property
@@ -610,29 +481,8 @@ class AlignmentNode(Node):
         return self.session.flag
 
     def _publish_diagnostics(self) -> None:
-        self._take_inputs()
-        s = self.session
-        st = DiagnosticStatus()
-        st.name = f"{self.get_name()}: alignment"
-        st.hardware_id = self.core_name
-        st.level = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR)[s.level()]
-        st.message = s.message()
-        vals = s.diagnostics()
-        vals.pop("message", None)
-        if len(self.timing_s):  # over the last _STATS_WINDOW Imu messages
-            tt = self.timing_s.view()
-            t50, t99, tmax = _quantiles(tt, (50.0, 99.0, 100.0))
-            a50, a99 = _quantiles(self.stamp_age_s.view(), (50.0, 99.0))
-            vals.update(imu_callback_median_us=f"{t50 * 1e6:.1f}", imu_callback_p99_us=f"{t99 * 1e6:.1f}",
-                        imu_callback_max_us=f"{tmax * 1e6:.1f}", imu_callback_total_s=f"{np.sum(tt):.3f}",
-                        imu_stamp_age_median_ms=f"{a50 * 1e3:.3f}", imu_stamp_age_p99_ms=f"{a99 * 1e3:.3f}")
-        vals.update(session_process_total_s=f"{s.timing['process_s']:.3f}",
-                    session_samples=str(s.timing["samples"]))
-        st.values = [KeyValue(key=k, value=v if isinstance(v, str) else _json(v)) for k, v in vals.items()]
-        arr = DiagnosticArray()
-        arr.header.stamp = self.get_clock().now().to_msg()
-        arr.status = [st]
-        self.pub_diag.publish(arr)
+        self._guarded("take_inputs", self._take_inputs)
+        self._guarded("diagnostics", self.out.publish_diagnostics)
 
     def destroy_node(self):
         self.session.close()
@@ -640,16 +490,6 @@ class AlignmentNode(Node):
         self._polled = []
         self.imu_sub = None
         return super().destroy_node()
-
-
-def _quantiles(x: np.ndarray, qs) -> list[float]:
-    """``np.percentile(x, qs)`` (linear interpolation) from one ``np.partition`` (~2x cheaper than percentile for
-    20,000 values)."""
-    n = x.shape[0]
-    pos = [q / 100.0 * (n - 1) for q in qs]
-    lo = [min(int(p), n - 1) for p in pos]
-    y = np.partition(x, sorted({k for j in lo for k in (j, min(j + 1, n - 1))}))
-    return [float(y[j] + (p - j) * (y[min(j + 1, n - 1)] - y[j])) for p, j in zip(pos, lo)]
 
 
 def _take_all(sub, raw: bool = False) -> list:
@@ -663,15 +503,6 @@ def _take_all(sub, raw: bool = False) -> list:
                 break
             out.append(got)
     return out
-
-
-def _json(v) -> str:
-    import json
-
-    try:
-        return json.dumps(v, default=str)
-    except (TypeError, ValueError):
-        return str(v)
 
 
 def make_executor(kind: str, context=None):
@@ -702,11 +533,9 @@ def main(args=None) -> int:
     try:
         try:
             node = AlignmentNode()
-        except (ValueError, TypeError) as exc:
-            print(f"alignment_node: bad parameter: {exc}", file=sys.stderr)
-            return 2
-        except rclpy.exceptions.InvalidParameterTypeException as exc:
-            print(f"alignment_node: bad parameter type: {exc}", file=sys.stderr)
+        except (ValueError, TypeError, rclpy.exceptions.InvalidParameterValueException,
+                rclpy.exceptions.InvalidParameterTypeException) as exc:
+            print(f"alignment_node: bad parameter: {' '.join(str(exc).split())}", file=sys.stderr)
             return 2
         import os
 

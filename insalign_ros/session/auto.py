@@ -34,12 +34,12 @@ import numpy as np
 
 from ..core import earth
 from ..core.types import GnssFix, ImuSample
-from ..core.stats import chi2_ppf
 from ..filters import imu_grade, registry
 from ..filters.base import AlignmentCore, AlignmentEstimate, AlignmentStatus, UpdateResult
 from ..filters.config import ConfigDict
 from ..filters.hypotheses import YawHypothesisBank
 from .motion import MotionConfig, MotionDetector
+from .rest import REST_BLOCK_S, _BlockMean, block_variance, gyro_bias_from_rest, rest_rate_mean
 
 D2R = math.pi / 180.0
 
@@ -53,8 +53,6 @@ DETECTOR_SKIP_SPEED_M_S = 3.0
 SPEED_CHECK_PERIOD_S = 0.5
 #: the GNSS speed for the motion detector is a position difference over at least this long [s]
 GNSS_SPEED_BASE_S = 0.9
-#: block length of the rest-window gyro means [s] (:func:`rest_rate_mean`)
-REST_BLOCK_S = 1.0
 #: state names (``AutoCore.state``), in the order a parked-then-driving run passes through them
 STATES = ("static, levelling", "static, fine", "in motion", "stopped")
 
@@ -145,77 +143,6 @@ class AutoConfig(ConfigDict):
         """Gyrocompassing floor eps/(omega_ie cos lat) [rad] (inf at the poles)."""
         c = math.cos(lat_rad) * earth.OMEGA_IE_RAD_S
         return math.inf if c <= 1e-12 else self.gyro_bias_deg_h * D2R / 3600.0 / c
-
-
-def block_variance(block_means_b: np.ndarray) -> np.ndarray:
-    """Per-axis variance [rad^2/s^2] of one block mean from n block means (n, 3): the MAD's robust sigma squared at
-    the 95 % upper chi-square bound of a variance from n samples (a few blocks of a person getting in do not
-    inflate it)."""
-    x = np.asarray(block_means_b, float)
-    n = x.shape[0]
-    s = 1.4826 * np.median(np.abs(x - np.median(x, axis=0)), axis=0)
-    return (s * s) * (n - 1) / chi2_ppf(0.05, n - 1)
-
-
-def rest_rate_mean(block_means_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Robust mean angular rate over a rest window from its ``REST_BLOCK_S`` block means (n, 3) [rad/s]: the
-    per-axis median, and the variance of that median [rad^2/s^2] (:func:`block_variance` / n, x pi/2 for a median).
-
-    Blocks average the engine and sway vibration; the median drops the few blocks of a person getting in (the
-    load step tilts the body by ~0.5 deg: in a plain mean over 40 s that is a 45 deg/h bias error)."""
-    x = np.asarray(block_means_b, float)
-    return np.median(x, axis=0), block_variance(x) * (0.5 * math.pi) / x.shape[0]
-
-
-class _BlockMean:
-    """Running ``REST_BLOCK_S`` mean of the gyro rate omega_ib_b [rad/s] from samples that are each the mean rate
-    over their interval; a block with any sample not at rest is dropped."""
-
-    def __init__(self) -> None:
-        self.reset()
-
-    def reset(self) -> None:
-        self.int_w, self.T, self.ok = np.zeros(3), 0.0, True
-
-    def add(self, dt: float, w: np.ndarray, at_rest: bool = True) -> np.ndarray | None:
-        """Add a sample over ``dt`` [s]; the block's mean when this sample completes a block at rest, else None."""
-        self.int_w += w * dt
-        self.T += dt
-        self.ok &= at_rest
-        if self.T < REST_BLOCK_S:
-            return None
-        mean, ok = self.int_w / self.T, self.ok
-        self.reset()
-        return mean if ok else None
-
-
-def gyro_bias_from_rest(omega_mean_b: np.ndarray, var_mean_b: np.ndarray, C_b_n: np.ndarray, lat_rad: float,
-                        heading_trusted: bool, gyro_bias_instability_deg_h: float, sigma_level_rad: float = 0.0,
-                        sigma_yaw_rad: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """Gyro bias [rad/s, body] and its 3x3 covariance [rad^2/s^2] from the mean rate over a rest window.
-
-    At rest the gyros measure ``omega_mean_b = b_g + C_b_n^T Omega_ie_n`` + noise, with
-    ``Omega_ie_n = Omega [0, cos L, sin L]`` (ENU). The Up component (``Omega sin L``) is known from the latitude and
-    the level; the horizontal one (magnitude ``Omega cos L``, towards North) only when the heading is trusted.
-    Subtracted: the known part. Covariance: the variance of the mean ``var_mean_b`` (per body axis; white noise
-    alone: ``ARW^2 / T``, see :func:`rest_rate_mean`), the bias instability (the Allan-deviation floor: averaging
-    longer does not beat it), the Earth-rate projection error of the attitude uncertainty, and (heading not
-    trusted) the horizontal Earth rate itself: North uniform on the horizontal circle, variance
-    ``(Omega cos L)^2 / 2`` per horizontal axis.
-    """
-    C_b_n = np.asarray(C_b_n, float)
-    w_ie_n = earth.omega_ie_n(lat_rad)
-    known_n = w_ie_n if heading_trusted else np.array([0.0, 0.0, w_ie_n[2]])
-    b = np.asarray(omega_mean_b, float) - C_b_n.T @ known_n
-    var = np.asarray(var_mean_b, float) + (gyro_bias_instability_deg_h * D2R / 3600.0) ** 2
-    Om = earth.OMEGA_IE_RAD_S
-    var += (Om * sigma_level_rad) ** 2  # the Up axis is tilted by the level error
-    P_n = np.zeros((3, 3))
-    if heading_trusted:
-        var += (Om * math.cos(lat_rad) * sigma_yaw_rad) ** 2
-    else:
-        P_n[0, 0] = P_n[1, 1] = 0.5 * (Om * math.cos(lat_rad)) ** 2
-    return b, np.diag(var) + C_b_n.T @ P_n @ C_b_n
 
 
 class AutoCore(AlignmentCore):

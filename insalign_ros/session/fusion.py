@@ -66,6 +66,18 @@ class Fusion:
         jump = sess.guard.fix_jump(fix)
         if jump and sess.guard.restart_young_reinit():  # divergence guard
             return
+        if jump and gate > 0 and sess.guard._hold_since is None and not sess.monitor.attitude_claimed():
+            # a jump before the claim: a young filter's covariance lets it through any NIS gate (a fix stamped 5 s
+            # ahead with the position of now: 60 m on a car, NIS < 100); not fused (the fix screen's rule), and the
+            # jump test goes on from the fixes before it (a lone outlier does not make the next fix a jump; a real
+            # shift is fused once the fixes before it are more than 3 s old)
+            sess.guard._fix_seq.pop()
+            sess.counters["gnss_gated"] += 1
+            sess.counters["gnss_rejected"] += 1
+            sess.last_reject = "gnss: a jump in the fix sequence before the filter claims its attitude"
+            sess.log("warn", "gnss_gated", f"fix at {fix.stamp_s + sess.stamp_offset_s:.3f} s not fused: "
+                                           f"{sess.last_reject[6:]} (gnss_gated={sess.counters['gnss_gated']})")
+            return
         # a jump in the fix sequence is suspect by itself: gated even while the core does not claim its attitude
         if gate > 0 and (sess.monitor.attitude_claimed() or jump or sess.guard._hold_since is not None):
             pr = core.predict_gnss(fix)

@@ -165,6 +165,89 @@ class DivergenceGuard:
         return True
 
 
+class FixScreen:
+    """Plausibility of a fix against the vehicle's own recent fixes, filter-free (from the first fix on): off the
+    straight-line extrapolation of the two fixes before it (:func:`extrapolation_excess`), or with one fix within
+    ``SPAN_S`` only, farther than its speed (``MAX_SPEED_M_S`` when unknown) and ``gnss_jump_accel_m_s2`` allow.
+    Enforced at the door while no filter runs (before the first initialisation, while a restart waits); a running
+    filter's fixes only keep the line current (the guard's jump test and NIS gate decide there, fusion.py). ``CONFIRM`` implausible fixes consistent with each other are a new
+    line (a re-acquisition shift, or a first fix that was the bad one): the line moves to them and buffered fixes
+    of the old line are dropped (``inputs_dropped``). docs/session.md, "Outliers and divergence"."""
+
+    SPAN_S = 10.0
+    MAX_SPEED_M_S = 600.0
+    CONFIRM = 3
+
+    def __init__(self, session) -> None:
+        self.s = session
+        self.reset()
+
+    def reset(self) -> None:
+        self.line: list = []  # plausible fixes (stamp, p_e, sigma), stamp order, the last SPAN_S
+        self.cand: list = []  # implausible fixes consistent with each other (a possible new line)
+
+    def excess(self, pts: list, point) -> float:
+        """How far [m] ``point`` lies beyond what the fixes ``pts`` (stamp order) allow; -inf: nothing to tell."""
+        t = point[0]
+        near = [q for q in pts if abs(q[0] - t) <= self.SPAN_S]
+        if not near:
+            return -math.inf
+        before = [q for q in near if q[0] < t]
+        accel = self.s.cfg.gnss_jump_accel_m_s2
+        if len(before) >= 2:
+            e = extrapolation_excess((before[-2], before[-1]), point, accel)
+            if e != -math.inf:
+                return e
+        q = min(near, key=lambda q: abs(q[0] - t))
+        dt = abs(q[0] - t)
+        i = near.index(q)
+        pair = (near[i - 1], q) if i > 0 else (q, near[i + 1]) if i + 1 < len(near) else None
+        speed = self.MAX_SPEED_M_S
+        if pair is not None and 0.0 < pair[1][0] - pair[0][0] <= 3.0:
+            speed = float(np.linalg.norm(pair[1][1] - pair[0][1])) / (pair[1][0] - pair[0][0])
+        noise = 5.0 * math.hypot(q[2], point[2])
+        return float(np.linalg.norm(point[1] - q[1])) - ((speed + accel * dt) * dt + 0.5 * accel * dt * dt + noise)
+
+    def check(self, fix: GnssFix) -> str:
+        """"" when ``fix`` is plausible (it joins the line), else the reason (enforced only while no filter claims
+        its attitude: the caller decides)."""
+        sess = self.s
+        point = fix_point(fix)
+        t = point[0]
+        e = self.excess(self.line, point)
+        if not e > 0:
+            self._join(point)
+            return ""
+        c = self.cand
+        if c and (self.excess(c, point) > 0 or not 0.0 < t - c[-1][0] <= 3.0):
+            c.clear()
+        c.append(point)
+        if len(c) < self.CONFIRM:
+            return (f"{e:.3g} m beyond what the vehicle's recent fixes allow (extrapolation, speed and "
+                    f"{sess.cfg.gnss_jump_accel_m_s2:g} m/s^2)")
+        new = list(c)
+        self.reset()
+        b = sess.buf
+        keep = [k for k in range(len(b.fix_t)) if b.fix_t[k] > t]
+        sess.counters["inputs_dropped"] += len(b.fix_t) - len(keep)
+        b.fix_t[:] = [b.fix_t[k] for k in keep]
+        b.fix[:] = [b.fix[k] for k in keep]
+        sess.log("warn", "gnss_implausible", f"{len(new)} consistent GNSS fixes off the previous ones by {e:.3g} m: "
+                                             "following them (a new line; buffered fixes of the old one dropped)")
+        for q in new:
+            self._join(q)
+        return ""
+
+    def _join(self, point) -> None:
+        line = self.line
+        k = len(line)
+        while k > 0 and line[k - 1][0] > point[0]:
+            k -= 1
+        line.insert(k, point)
+        while line and line[-1][0] - line[0][0] > self.SPAN_S:
+            line.pop(0)
+
+
 def fix_point(fix: GnssFix) -> tuple[float, np.ndarray, float]:
     """(stamp [s], p_e [m], 1-sigma [m] per axis: the RMS of R_e's diagonal) of a fix: the jump detection's input."""
     return float(fix.stamp_s), np.asarray(fix.p_e, float), math.sqrt(max(float(np.trace(fix.R_e)) / 3.0, 0.0))

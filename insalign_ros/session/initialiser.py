@@ -33,6 +33,8 @@ class Initialiser:
         self._probe = None
         self._sensors_reinit = False
         self._kept_level = None  # (t, C_b_n, level 1-sigma) of the lost filter, if it claimed its level
+        #: a restart (time jump, reset, fault, divergence): the vehicle may be moving; start from what the data say
+        self.after_restart = False
         self.pre_init: deque = deque(maxlen=4000)  # IMU samples before the initialisation (level from sensors)
 
     def capabilities(self):
@@ -145,8 +147,11 @@ class Initialiser:
             sess.reason = "waiting for a GNSS fix (initial position)"
             return
         a_est = cfg.init_accel_m_s2
-        if gnss_core:
-            recent = [fx for fx in fixes if t - fx.stamp_s <= 3.0]
+        recent = [fx for fx in fixes if t - fx.stamp_s <= 3.0]
+        # a restart of a static (or auto) core: the vehicle may be driving; wait for two fixes to tell (not for a
+        # site position given by the user)
+        waits = gnss_core or (self.after_restart and used is not None)
+        if waits:
             if len(recent) < 2:
                 sess.status = AlignmentStatus.WAITING_FOR_GNSS
                 sess.reason = f"waiting for a second GNSS fix (initial velocity; {len(recent)} of 2 within 3 s)"
@@ -176,7 +181,13 @@ class Initialiser:
                 v_prev = C_en @ (np.asarray(f1.p_e) - np.asarray(f0.p_e)) / dt0
                 a_est = float(np.linalg.norm(v0 - v_prev)) / (0.5 * (dt + dt0)) + 0.5  # + margin for noise/jerk
             s_p = math.sqrt(max(float(np.trace(f2.R_e)) / 3.0, 0.0))
+            if self.after_restart:  # restart: the turn rate the gyros measure times the speed, and a GNSS velocity
+                a_est = max(a_est, self._turn_accel(t, float(np.linalg.norm(v0[:2]))))
             sig_v = math.sqrt(2.0) * s_p / dt + a_est * (0.5 * dt + (t - f2.stamp_s))
+            if self.after_restart:
+                v0, sig_v = self._gnss_velocity(t, v0, sig_v, a_est)
+            if not gnss_core and not float(np.linalg.norm(v0[:2])) > max(0.5, 3.0 * sig_v):
+                v0, sig_v, a_est = np.zeros(3), sig_v0, 0.0  # a static core at rest: as a first initialisation
         else:
             v0, sig_v, a_est = np.zeros(3), sig_v0, 0.0
         win = [(w_, f_) for (tt, w_, f_) in self.pre_init if tt > t - cfg.init_level_window_s]
@@ -210,6 +221,26 @@ class Initialiser:
             f" (from sensors: level 1-sigma {sig_level / D2R:.2f} deg from {level_from} ({len(win)} samples), "
             f"velocity 1-sigma "
             f"{sig_v:.2f} m/s, heading unknown: {params.get('yaw_hypotheses', 1)} hypotheses)"))
+
+    def _turn_accel(self, t: float, speed_m_s: float) -> float:
+        """A bound of the centripetal acceleration [m/s^2] over the level window: the mean turn rate the gyros
+        measure times the speed from the fixes, plus 0.5 m/s^2 for its change (a car entering a turn at 15 m/s
+        reaches 4.7 m/s^2 in 2 s, which the fixes' second difference, 1 s old, does not see yet)."""
+        win = [w_ for (tt, w_, _) in self.pre_init if tt > t - self.s.cfg.init_level_window_s]
+        if not win:
+            return 0.0
+        return float(np.linalg.norm(np.mean(np.asarray(win, float), axis=0))) * speed_m_s + 0.5
+
+    def _gnss_velocity(self, t: float, v0: np.ndarray, sig_v: float, a_est: float) -> tuple[np.ndarray, float]:
+        """The newest GNSS velocity stamped within 1 s before ``t`` when it is tighter than the fixes' difference:
+        (v_n [m/s], 1-sigma [m/s]: its largest axis plus the acceleration over its age); else ``(v0, sig_v)``."""
+        b = self.s.buf
+        k = bisect.bisect_right(b.vel_t, t)
+        if k == 0 or t - b.vel_t[k - 1] > 1.0:
+            return v0, sig_v
+        vel = b.vel[k - 1]
+        s = math.sqrt(max(float(np.max(np.diag(vel.R_n))), 0.0)) + a_est * (t - vel.stamp_s)
+        return (np.asarray(vel.v_n, float).copy(), s) if s < sig_v else (v0, sig_v)
 
     def _truth_velocity(self, tr: TruthSample) -> np.ndarray:
         """Truth velocity: given, or the slope at ``tr`` of a quadratic through up to two truth positions on each

@@ -12,8 +12,10 @@ from collections import deque
 import numpy as np
 
 from ..core.types import GnssFix, GnssVelocity, ImuSample
-from ..filters.liekf import check_velocity
+from ..filters.checks import check_velocity
+from ..io.validation import check_covariance
 from .buffers import RecentStamps, row_norms
+from .guard import FixScreen
 from .truth import TruthDict, TruthSample, TruthTable, truth_table_valid
 
 #: a GNSS velocity faster than this is not a vehicle's [m/s]
@@ -31,6 +33,7 @@ class InputStage:
         self.recent_stamps = RecentStamps(4096)
         self.fix_stamps: deque = deque(maxlen=256)
         self.jump_candidates: list = []
+        self.screen = FixScreen(self.s)  # the fixes' line (a restart keeps it: AlignmentSession._restart)
 
     def push_imu(self, sample: ImuSample, wall_s: float | None = None) -> bool:
         """Validate and buffer one IMU sample (omega_ib_b [rad/s], f_ib_b [m/s^2], body FLU). False if rejected."""
@@ -168,14 +171,21 @@ class InputStage:
         c["gnss_received"] += 1
         self.touch(wall_s)
         t = float(fix.stamp_s)
+        reason = check_fix_input(t, fix.p_e, fix.R_e)
+        if reason:
+            return self.reject_fix("gnss_invalid", reason)
         if sess.processed_t is not None and t < sess.processed_t:
             return self.reject_fix("gnss_stale", f"stamp {t + sess.stamp_offset_s:.6f} is {sess.processed_t - t:.3f} s behind the filter "
                                                   f"time (max_fix_lag_s {sess.cfg.max_fix_lag_s:g} s)")
-        if t in self.fix_stamps or t in sess.buf.fix_t:
+        key = (t, tuple(np.asarray(fix.p_e, float).ravel().tolist()))
+        if key in self.fix_stamps:  # the same stamp and position: a duplicate (another fix at a stamp is not one)
             return self.reject_fix("gnss_duplicate", f"duplicate stamp {t + sess.stamp_offset_s:.6f}")
         if sess.newest_imu_t is not None and t > sess.newest_imu_t + sess.cfg.max_fix_ahead_s:
             return self.reject_fix("gnss_future", f"stamp {t + sess.stamp_offset_s:.6f} is {t - sess.newest_imu_t:.3f} s ahead of the IMU")
-        self.fix_stamps.append(t)
+        reason = self.screen.check(fix)
+        if reason and sess.core is None:  # a filter's fixes: the guard's jump test and NIS gate (fusion.py)
+            return self.reject_fix("gnss_implausible", reason)
+        self.fix_stamps.append(key)
         i = bisect.bisect(sess.buf.fix_t, t)
         sess.buf.fix_t.insert(i, t)
         sess.buf.fix.insert(i, fix)
@@ -312,6 +322,23 @@ class InputStage:
             del sess.buf.vel_t[0], sess.buf.vel[0]
             c["inputs_dropped"] += 1
         return True
+
+
+def check_fix_input(t: float, p_e, R_e) -> str:
+    """Checks of one GNSS position fix: finite stamp >= 0, a finite ECEF position (3,) within 100 km of the Earth's
+    surface, a symmetric positive semi-definite covariance (3, 3) with positive variances."""
+    if not math.isfinite(t) or t < 0.0:
+        return f"stamp {t!r} is not a finite number >= 0"
+    p = np.asarray(p_e, float)
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        return f"p_e: not 3 finite numbers ({np.array2string(p.ravel()[:6], precision=3)})"
+    r = float(np.linalg.norm(p))
+    if not 6.25e6 < r < 6.5e6:
+        return f"p_e: {r:.4g} m from the Earth's centre (not within 100 km of its surface)"
+    R = np.asarray(R_e, float)
+    if R.shape != (3, 3):
+        return f"R_e: shape {R.shape} instead of (3, 3)"
+    return check_covariance(R, "R_e", require_positive_diag=True) or ""
 
 
 def check_velocity_input(t: float, v_n, R_n) -> str:

@@ -59,9 +59,13 @@ def load_source(source, duration_s: float | None = None, seed: int = 0, **reader
 
         data = read_bag(source, **reader_kwargs)
     elif isinstance(source, str):
-        from ..sim.scenarios import make_scenario
+        from ..sim.scenarios import SCENARIOS, make_scenario
 
+        if source not in SCENARIOS and ("/" in source or "." in Path(source).name):
+            raise FileNotFoundError(f"not found: {source}")  # a path, not a scenario name
         return make_scenario(source, seed=seed, duration_s=duration_s)
+    elif isinstance(source, Path):
+        raise FileNotFoundError(f"not found: {source}")
     else:
         raise ValueError(f"source: not a ScenarioData, an existing bag path or a scenario name: {source!r}")
     return truncate(data, duration_s) if duration_s is not None else data

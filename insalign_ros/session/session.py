@@ -53,6 +53,7 @@ COUNTERS = (
     "zupt_accepted", "watchdog_trips", "inputs_dropped", "gnss_gated", "imu_spikes", "divergences")
 COUNTERS += ("gnss_jumps", "gnss_holds", "divergences_nis", "divergences_covariance", "divergences_cusum")  # guard
 COUNTERS += ("reinit_restarts",)  # divergence guard: a re-initialisation restarted after a GNSS jump
+COUNTERS += ("gnss_implausible",)  # a fix off the vehicle's own recent fixes while no filter claims its attitude
 #: GNSS velocity (push_velocity): received, fused, rejected (total) and per reason
 VEL_COUNTERS = ("gnss_vel_received", "gnss_vel_accepted", "gnss_vel_rejected", "gnss_vel_invalid",
                 "gnss_vel_duplicate", "gnss_vel_stale", "gnss_vel_future", "gnss_vel_before_init", "gnss_vel_gated",
@@ -168,6 +169,7 @@ class AlignmentSession:
         self.processed_t: float | None = None  # stamp of the last processed IMU sample (= the core's time)
         for stage in (self.inputs, self.loop, self.initialiser, self.fusion, self.guard, self.monitor, self.outputs):
             stage.reset()
+        self.initialiser.after_restart = why != "start"  # the vehicle may be moving: start from what the data say
         self.init_t: float | None = None
         self.anchor: tuple[float, float, float] | None = None
         self.next_out_t = -math.inf
@@ -239,14 +241,14 @@ class AlignmentSession:
         """Drop the core, keep the time line and the buffered inputs, status FAULT: re-initialise from what follows."""
         keep_t = self.processed_t
         resets = dict(self.counters)
-        newest, recent = self.newest_imu_t, self.inputs.recent_stamps
+        newest, recent, screen = self.newest_imu_t, self.inputs.recent_stamps, self.inputs.screen
         pending = self.buf
         last_reject, offset = self.last_reject, self.stamp_offset_s
         self._reset_state(f"after {why}")
         self.counters.update(resets)
         self.last_reject, self.stamp_offset_s = last_reject, offset
         # keep the time line and the buffered inputs: re-initialise from the data that follow
-        self.buf, self.newest_imu_t, self.inputs.recent_stamps = pending, newest, recent
+        self.buf, self.newest_imu_t, self.inputs.recent_stamps, self.inputs.screen = pending, newest, recent, screen
         self.processed_t = keep_t
         self.status = AlignmentStatus.FAULT
         self.fault_reason = why

@@ -1,0 +1,197 @@
+"""Reference oracles: the numpy formulas of the package's compiled kernels, kept here (not in the package) so that
+the tests can compare the kernels with them (docs/architecture.md, "One source per equation").
+
+Each function is the plain numpy form of one kernel; :func:`use_reference_paths` patches the package so that a
+whole alignment runs on these formulas (the per-sample mechanizations, numpy batches, numpy updates), which is how
+test/test_speed_paths.py checks every core end to end against the compiled path.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from insalign_ros.core import earth, lie
+from insalign_ros.filters import (
+    checks, earth_iekf, ekf10, iekf, liekf, pi_liekf, pkf, static_model,
+)
+from insalign_ros.filters.eci_batch import covariance_batch, propagate_eci_batch, step_increments_batch
+
+
+# ------------------------------------------------------------------------------------------- Kalman update
+def joseph_update(P, H, N):
+    """Gain and Joseph-form covariance (PI-LIEKF eqs. (11), (13)): (L, P_new, S)."""
+    S = H @ P @ H.T + N
+    S = 0.5 * (S + S.T)
+    L = np.linalg.solve(S, H @ P).T  # P H^T S^-1 (S symmetric)
+    IKH = np.eye(P.shape[0]) - L @ H
+    P_new = IKH @ P @ IKH.T + L @ N @ L.T
+    return L, 0.5 * (P_new + P_new.T), S
+
+
+def nis(S, z) -> float:
+    return float(z @ np.linalg.solve(S, z))
+
+
+def prediction(P, H, N, z):
+    S = H @ P @ H.T + N
+    S = 0.5 * (S + S.T)
+    return S, nis(S, z)
+
+
+def spd3(R) -> bool:
+    try:
+        np.linalg.cholesky(0.5 * (R + R.T))
+    except np.linalg.LinAlgError:
+        return False
+    return True
+
+
+# ------------------------------------------------------------------------------------------- input checks
+def check_fix(fix) -> str:
+    p = np.asarray(fix.p_e, float)
+    R = np.asarray(fix.R_e, float)
+    if p.shape != (3,) or R.shape != (3, 3):
+        return f"bad shapes p_e {p.shape}, R_e {R.shape}"
+    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(R))):
+        return "non-finite position or covariance"
+    if not 6.0e6 < np.linalg.norm(p) < 7.0e6:
+        return f"ECEF position norm {np.linalg.norm(p):.0f} m is not near the Earth's surface"
+    if not spd3(R):
+        return "covariance R_e is not positive definite"
+    return ""
+
+
+def usable_imu_arrays(t_s, omega_ib_b, f_ib_b, t_last_s: float):
+    t = np.asarray(t_s, float)
+    w = np.asarray(omega_ib_b, float)
+    f = np.asarray(f_ib_b, float)
+    n = t.shape[0] if t.ndim == 1 else 0
+    if n == 0 or w.shape != (n, 3) or f.shape != (n, 3):
+        return None
+    # one finiteness test: a sum is non-finite iff a term is (or it overflows)
+    if not math.isfinite(float(t.sum()) + float(w.sum()) + float(f.sum())):
+        return None
+    dt = np.empty(n)
+    dt[0] = t[0] - t_last_s
+    np.subtract(t[1:], t[:-1], out=dt[1:])
+    return (t, w, f, dt) if dt.min() > 0.0 and dt.max() <= 1.0 else None
+
+
+# ------------------------------------------------------------------------------------------- ECI cores
+def retract_se23(C, v, p, xi):
+    """X exp(xi) on SE2(3) by the 5x5 matrices (eq. (14))."""
+    X = lie.se23_from(C, v, p) @ lie.se23_exp(xi[0:9])
+    Cn, vn, pn = lie.se23_parts(X)
+    return Cn.copy(), vn.copy(), pn.copy()
+
+
+def orthonormalize(C):
+    return Rotation.from_matrix(C).as_matrix()
+
+
+def _propagate_block(self, t, w, f):
+    """``BatchedEciCore._propagate_block`` in numpy batches (no compiled kernel)."""
+    w = w - self.b_g
+    f = f - self.b_a
+    dt = np.empty(t.shape[0])
+    dt[0] = t[0] - self.t_s
+    np.subtract(t[1:], t[:-1], out=dt[1:])
+    dC, dv_b, dp_b = step_increments_batch(w, f, dt)
+    C_prev, C, v, p = propagate_eci_batch(self.C, self.v, self.p, dt, dC, dv_b, dp_b)
+    Phi, Qd = self._transitions(dC, dv_b, dp_b, dt, C_prev, f)
+    self.P, Phi_tot = covariance_batch(self.P, Phi, Qd)
+    self._Phi_since_update = Phi_tot @ self._Phi_since_update
+    self.omega_b = w[-1].copy()
+    self.C = orthonormalize(C)
+    self.v, self.p = v, p
+    self.t_s = float(t[-1])
+
+
+def gnss_terms(core, fix):
+    """(z, H, N) of a fix by the core's own ``_gnss_model`` in numpy (ECEF -> ECI, then the model)."""
+    core.flush()
+    Cei = earth.C_e_i(core.t_s, core.t0_s)
+    R_i = Cei @ np.asarray(fix.R_e, float) @ Cei.T
+    return core._gnss_model(Cei @ np.asarray(fix.p_e, float), R_i)
+
+
+# ------------------------------------------------------------------------------------------- static cores
+def f_model(x, u, m_prime=None):
+    """PKF paper eq. (34) (static_model's module docstring) in numpy."""
+    m = np.zeros(5) if m_prime is None else m_prime
+    dvN, dvE, pN, pE, pD = x
+    E = static_model.misalignment_matrix(x[2:5])
+    w = u.omega_ie_ned
+    coriolis = 2.0 * np.array([-w[2] * dvE, w[2] * dvN, w[0] * dvE])
+    acc = u.f_np_ned - E @ u.f_np_ned - coriolis
+    d_w_in = np.array([dvE / u.r_m, -dvN / u.r_m, -dvE * math.tan(u.lat_rad) / u.r_m])  # eq. (25)
+    zeta = E @ (w + d_w_in - m[2:5]) - w
+    rot = static_model.Rz(pD).T @ zeta
+    return np.array([acc[0] + m[0], acc[1] + m[1], rot[0], rot[1], zeta[2]])
+
+
+def jacobian(x, u):
+    """eq. (35) by central differences of :func:`f_model`."""
+    F = np.zeros((5, 5))
+    for j in range(5):
+        h = 1e-6 if j < 2 else 1e-7
+        e = np.zeros(5)
+        e[j] = h
+        F[:, j] = (f_model(x + e, u) - f_model(x - e, u)) / (2 * h)
+    return F
+
+
+def model_error_jacobian(x5, f_np, lat, r_m, G):
+    """d f / d m' by central differences (the 10-state EKF's G), written into G."""
+    u = static_model.StaticModelInputs(np.asarray(f_np, float), float(lat), float(r_m))
+    for j in range(5):
+        e = np.zeros(5)
+        e[j] = 1e-6
+        G[:, j] = (f_model(x5, u, e) - f_model(x5, u, -e)) / 2e-6
+
+
+def corrected_attitude(pN, pE, pD, C_b_n):
+    """``C_b_n <- E C_b_n`` with the eq. (23) misalignment rotation in ENU, re-orthonormalised by an SVD."""
+    E = static_model.misalignment_rotation_enu(np.array([pN, pE, pD]))
+    u, _, vt = np.linalg.svd(E @ C_b_n)
+    return u @ vt
+
+
+def _static_propagate(self, imu):
+    """``StaticZuptCore.propagate`` sample by sample through the numpy local-level mechanization."""
+    dt = static_model.usable_step(self, imu)
+    if dt is None:
+        return
+    self.t_s = float(imu.stamp_s)
+    f_n = self.mech.step(imu.omega_ib_b, imu.f_ib_b, dt)
+    self._f_sum_n += f_n * dt
+    self._dt_acc += dt
+
+
+def use_reference_paths(monkeypatch) -> None:
+    """Run every core on the numpy formulas above instead of the compiled kernels (pytest's ``monkeypatch``)."""
+    for mod in (liekf, iekf, earth_iekf):
+        if hasattr(mod, "joseph_update"):
+            monkeypatch.setattr(mod, "joseph_update", joseph_update)
+    for mod in (liekf, pi_liekf):
+        monkeypatch.setattr(mod, "nis", nis)
+    monkeypatch.setattr(liekf, "prediction", prediction)
+    monkeypatch.setattr(liekf, "check_fix", check_fix)
+    monkeypatch.setattr(liekf, "retract_se23", retract_se23)
+    monkeypatch.setattr(liekf, "orthonormalize", orthonormalize)
+    monkeypatch.setattr(liekf.BatchedEciCore, "_propagate_block", _propagate_block)
+    monkeypatch.setattr(liekf.BatchedEciCore, "_invariant_position_model", False)
+    monkeypatch.setattr(checks, "spd3", spd3)
+    monkeypatch.setattr(checks, "usable_imu_arrays", usable_imu_arrays)
+    monkeypatch.setattr(liekf, "usable_imu_arrays", usable_imu_arrays)
+    monkeypatch.setattr(static_model, "f_model", f_model)
+    monkeypatch.setattr(static_model, "jacobian", jacobian)
+    monkeypatch.setattr(static_model, "_corrected_attitude_nb", corrected_attitude)
+    monkeypatch.setattr(static_model, "usable_imu_arrays", lambda *a: None)  # per-sample propagation below
+    monkeypatch.setattr(static_model.StaticZuptCore, "propagate", _static_propagate)
+    monkeypatch.setattr(ekf10, "model_error_jacobian_nb", model_error_jacobian)
+    for cls in (static_model.StaticZuptCore, pkf.Pkf, ekf10.Ekf10):
+        monkeypatch.setattr(cls, "_fused_zupt", False)
