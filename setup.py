@@ -16,6 +16,7 @@ CONSOLE_SCRIPTS = [
     "insalign-kitti2bag = insalign_ros.cli.kitti2bag:main",
     "insalign-import = insalign_ros.cli.import_data:main",
     "insalign-align = insalign_ros.cli.align:main",
+    "insalign-characterise = insalign_ros.cli.characterise:main",
 ]
 
 setup(
