@@ -1,53 +1,13 @@
 """Yaw from horizontal GNSS velocity in seconds: a Gaussian sum of small EKFs over yaw (EKF-GSF).
 
-The design is PX4's EKF-GSF yaw estimator (PX4-Autopilot, src/modules/ekf2/EKF/yaw_estimator/EKFGSF_yaw.cpp/.h and
-derivation/derivation_yaw_estimator.py, by P. Riseborough). Taken from it:
-
-* a bank of N (default 5) EKFs with states ``[v_E, v_N, yaw]``, started at yaws evenly spaced over the circle
-  (``-pi + (k + 1/2) 2 pi / N``) with a yaw sigma of half the spacing and the velocity of the first measurement;
-* propagation with the IMU's specific force rotated into the local level frame by an AHRS whose yaw is each model's
-  yaw; the yaw error Jacobian of the rotated delta velocity, and process noise on the delta velocity (rotation
-  invariant) and on the yaw;
-* fusion of the horizontal velocity as a direct observation of the two velocity states, the innovation clipped to 5
-  sigma (NIS <= 25), the yaw correction applied to the model's attitude about the vertical;
-* weights multiplied by each model's Gaussian density ``exp(-NIS/2) / (2 pi sqrt(det S))``, floored at 1e-5 so that no
-  model dies, and normalized; the yaw is the weighted circular mean (sum of weighted unit vectors) and its variance
-  ``sum_k w_k (P_yaw,k + wrap(yaw_k - yaw)^2)`` (the components' own variances plus their spread); the whole bank
-  restarts when that variance is not finite and positive;
-* the AHRS: a complementary filter with a tilt-correction gain of 0.2 /s attenuated quadratically as the low-passed
-  specific force departs from 1 g (zero at +-0.5 g), a 10x faster low-pass of the specific force, a gyro-bias integral
-  with gain 0.04 /s (only below 10 deg/s, limited to 0.05 rad/s), and a centripetal correction ``omega x v_b`` with
-  the vehicle's speed along its forward axis (PX4 uses the airspeed of a fixed wing; here the GNSS speed).
-
-What differs, and why:
-
-* ENU and yaw from East counter-clockwise (REP 103; docs/conventions.md) instead of NED and yaw from North.
-* One shared AHRS instead of N: PX4's N complementary filters receive the same data, their tilt corrections depend on
-  the gravity direction in the body only, and each differs from the others by a rotation about the vertical applied
-  on the left, so they stay identical up to that rotation. Each model keeps its yaw offset ``delta_k`` from the shared
-  AHRS: ``C_k = Rz(delta_k) C_shared`` exactly as PX4's N filters would be.
-* The covariance is propagated between measurements in closed form from running sums of the level-frame delta
-  velocity (``_Accumulator``): the same ``F P F' + Q`` as PX4 step by step, without a per-sample matrix product.
-* Process noises are densities (PX4's are per step, so they change with the IMU rate; PX4's values at 100 Hz are
-  0.1 rad/s * sqrt(0.01 s) = 0.01 rad/sqrt(s) on yaw and 2 m/s^2 * sqrt(0.01 s) = 0.2 m/s/sqrt(s), doubled on the
-  ground, on each velocity axis).
-* The longitudinal acceleration (the GNSS speed's rate) is removed from the specific force with the centripetal term,
-  so a car accelerating does not tilt the AHRS; both need ``forward_axis_b`` (the body axis along which the vehicle
-  moves) and are off for vehicles that move sideways (``vehicle_moves_along_forward_axis=False``: ships, drones).
-* A velocity whose stamp is older than the last IMU sample (velocity from the difference of two fixes belongs to the
-  middle of their interval) is fused against the model velocity moved back to its stamp with the level-frame delta
-  velocities since then (``history_s``).
-* The fusion starts with the first velocity after the tilt is aligned (PX4 waits for a speed above the velocity
-  accuracy): at rest every model predicts the same velocity, so the weights stay equal and nothing is lost, and a car
-  that drives off keeps the information of its first metres per second.
-* Optional restart of a floored model (``reseed_floored_models``; not in PX4, off by default): a model at the weight
-  floor for ``reseed_after_updates`` updates is moved to the middle of the widest gap between the models' yaws, so
-  the bank keeps covering the circle.
-* ``valid`` (not in PX4, whose caller tests the variance): fusion started, the horizontal GNSS speed at or above
-  ``valid_speed_m_s`` for at least ``valid_motion_s`` in total, and the yaw 1-sigma at or below
-  ``valid_yaw_sigma_deg``.
-
-Layering: imports only numpy and core/ (no ROS).
+PX4's EKF-GSF yaw estimator (PX4-Autopilot src/modules/ekf2/EKF/yaw_estimator/EKFGSF_yaw.cpp/.h and
+derivation/derivation_yaw_estimator.py) in ENU (yaw from East, counter-clockwise): N EKFs ``[v_E, v_N, yaw]`` started
+at yaws spread over the circle, propagated with the specific force rotated into the level frame by an AHRS, fused
+with the horizontal GNSS velocity (innovation clipped at 5 sigma), weighted by each EKF's Gaussian density (weights
+floored at 1e-5), combined by the weighted circular mean with the variance of the components plus their spread.
+docs/yaw_gsf.md says what is PX4's, what differs and why (one shared AHRS, closed-form propagation between
+velocities, noise densities, the AHRS's motion corrections and acceleration gate, late velocities, ``valid``), and
+what it achieves on simulated and real drives. Imports only numpy and core/ (no ROS).
 """
 
 from __future__ import annotations
@@ -89,6 +49,8 @@ class YawGsfConfig:
     tilt_gate_quiet_m_s2: float = 1.5
     #: the first tilt is taken only from a quiet sample: rate below this [rad/s] and |f| within 3 % of g
     tilt_init_max_rate_rad_s: float = 0.05
+    #: no quiet sample after this long [s]: the tilt is taken as PX4 does (|f| within 10 % of g)
+    tilt_init_timeout_s: float = 10.0
     #: the vehicle moves along forward_axis_b (cars, wheeled robots): the AHRS removes the centripetal and the
     #: longitudinal acceleration from the GNSS speed; False for ships and multicopters
     vehicle_moves_along_forward_axis: bool = True
@@ -96,8 +58,6 @@ class YawGsfConfig:
     min_vel_sigma_m_s: float = 0.01  #: floor of the velocity sigma (PX4)
     innovation_clip_sigma: float = 5.0  #: PX4 clips the innovation at 5 sigma
     min_weight: float = 1e-5  #: PX4's weight floor
-    reseed_floored_models: bool = False
-    reseed_after_updates: int = 30
     history_s: float = 3.0  #: how far back a late velocity can be fused [s]
     #: an IMU interval longer than this is a gap (dropped samples): the sample is applied over it and every model's
     #: yaw variance grows by (gap_yaw_rate_rad_s * dt)^2, its velocity variance by (gap_accel_m_s2 * dt)^2
@@ -225,6 +185,7 @@ class YawGsf:
         self._acc_long_m_s2 = 0.0
         self._last_vel = None  # (stamp, speed, var, v2, R2) of the last velocity
         self._quiet = 0  # consecutive velocity intervals without horizontal acceleration
+        self._init_wait_s, self._dt_last = 0.0, 0.0
         self._along_used = False  # the longitudinal acceleration comes from a precise velocity interval
         self._kin_sigma_m_s2 = 0.0  # sigma of the last interval's horizontal acceleration from the velocities
         self._started = False
@@ -232,7 +193,6 @@ class YawGsf:
         self._delta = np.zeros(N)  # yaw offset of each model from the shared AHRS [rad]
         self._P = np.zeros((N, 3, 3))
         self._w = np.full(N, 1.0 / N)
-        self._floored = np.zeros(N, int)
         self._acc = _Accumulator()
         self._hist = deque()  # (t_s, cumulative shared level-frame delta velocity (2-tuple))
         self._cum = (0.0, 0.0)
@@ -323,6 +283,7 @@ class YawGsf:
             return
         dt = t - self._t_s
         self._t_s = t
+        self._dt_last = dt
         c = self.cfg
         gap = dt > c.imu_gap_s  # the sample is applied over the whole gap; the models' variances grow to cover it
         coef = min(10.0 * dt * c.tilt_gain_1_s, 1.0)
@@ -380,13 +341,17 @@ class YawGsf:
         for the vehicle's motion) within 3 % of g."""
         c = self.cfg
         compensated = c.vehicle_moves_along_forward_axis and self._along_used  # the car's whole acceleration
-        if self._last_vel is None or not (self._quiet >= 1 or compensated or self._kin_sigma_m_s2 > c.tilt_gate_m_s2):
+        self._init_wait_s += self._dt_last
+        late = self._init_wait_s > c.tilt_init_timeout_s  # then PX4's test: |f| within 10 % of g
+        if not late and (self._last_vel is None or not (self._quiet >= 1 or compensated
+                                                        or self._kin_sigma_m_s2 > c.tilt_gate_m_s2)):
             return False
         ax, ay, az = self._motion_corrected(wx, wy, wz, *self._f_lpf)
         sx, sy, sz = self._motion_corrected(wx, wy, wz, fx, fy, fz)
         fn, ln = math.sqrt(sx * sx + sy * sy + sz * sz), math.sqrt(ax * ax + ay * ay + az * az)
-        if not (0.97 * G0_M_S2 < fn < 1.03 * G0_M_S2 and 0.97 * G0_M_S2 < ln < 1.03 * G0_M_S2
-                and wx * wx + wy * wy + wz * wz < c.tilt_init_max_rate_rad_s ** 2):
+        tol = 0.1 if late else 0.03
+        if not (abs(fn / G0_M_S2 - 1.0) < tol and abs(ln / G0_M_S2 - 1.0) < tol
+                and (late or wx * wx + wy * wy + wz * wz < c.tilt_init_max_rate_rad_s ** 2)):
             return False
         r, p, _ = earth.level_from_specific_force(np.array([[ax, ay, az]]), float(ln))
         self._q = _quat_from_C(earth.C_b_n_from_rpy(r, p, 0.0))
@@ -466,7 +431,6 @@ class YawGsf:
         self._P[:, :2, :2] = R2
         self._P[:, 2, 2] = (0.5 * inc) ** 2
         self._w = np.full(N, 1.0 / N)
-        self._floored[:] = 0
         self._acc = _Accumulator()
         self._yaw, self._var = 0.0, (math.pi / 2) ** 2
         self._started = True
@@ -481,10 +445,9 @@ class YawGsf:
         c = self.cfg
         v2 = v_n[:2]
         R2 = 0.5 * (R_n[:2, :2] + R_n[:2, :2].T)
-        floor = c.min_vel_sigma_m_s ** 2
-        R2 = R2 + np.diag(np.maximum(floor - np.diag(R2), 0.0))
-        if np.linalg.eigvalsh(R2)[0] <= 0:
+        if np.linalg.eigvalsh(R2)[0] < 0:  # not a covariance
             return False
+        R2 = R2 + np.diag(np.maximum(c.min_vel_sigma_m_s ** 2 - np.diag(R2), 0.0))
         self._track_speed(float(stamp_s), v2, R2)
         if self._q is None or self._t_s is None:
             return False
@@ -531,9 +494,6 @@ class YawGsf:
         if ok:
             w = np.maximum(self._w * dens, c.min_weight)
             self._w = w / w.sum()
-        self._floored = np.where(self._w <= c.min_weight * 1.0001, self._floored + 1, 0)
-        if c.reseed_floored_models:
-            self._reseed(v2, R2)
         self._combine()
         self.n_updates += 1
         if not (self._var > 0 and math.isfinite(self._var)):
@@ -576,19 +536,6 @@ class YawGsf:
         self._yaw = math.atan2(s, co)
         dy = _wrap(yaws - self._yaw)
         self._var = float(np.sum(self._w * (self._P[:, 2, 2] + dy ** 2)))
-
-    def _reseed(self, v2, R2):
-        c = self.cfg
-        for k in np.flatnonzero(self._floored >= c.reseed_after_updates):
-            others = np.sort(_wrap(np.delete(self._delta, k)))
-            gaps = np.diff(np.concatenate([others, others[:1] + 2 * np.pi]))
-            j = int(np.argmax(gaps))
-            self._delta[k] = float(_wrap(others[j] + 0.5 * gaps[j]))
-            self._x[k] = v2
-            self._P[k] = 0.0
-            self._P[k, :2, :2] = R2
-            self._P[k, 2, 2] = (0.25 * gaps[j]) ** 2
-            self._floored[k] = 0
 
 
 def velocity_from_fixes(t_s, p_e, R_e, max_dt_s: float = 2.5):
