@@ -38,6 +38,8 @@ from insalign_ros.sim.scenarios import make_scenario  # noqa: E402
 
 DATA = Path("/work/shared/data")
 VEL_SIGMA_M_S = 0.1
+EXTRA_CFG: dict = {}  # --cfg key=value: YawGsfConfig overrides for every run
+SIDE_SLIP_DEG = 3.0  # the optional lateral-velocity constraint of wheeled vehicles (YawGsfConfig.side_slip_sigma_deg)
 HEADINGS = np.arange(0.0, 360.0, 45.0)
 CASES = {  # name: (duration [s], cruise speed [m/s] for the floor, config overrides)
     "car": (60.0, 15.0, {}),
@@ -77,11 +79,11 @@ def evaluate(out, t_ref, yaw_ref_rad, t_zero):
     }
 
 
-def sim_run(name, seed, heading_deg, source, level_truth=False):
+def sim_run(name, seed, heading_deg, source, level_truth=False, **cfg):
     dur, _, over = CASES[name]
     kw = {"gnss_vel_sigma_m_s": VEL_SIGMA_M_S} if source == "vel" else {}
     d = make_scenario(name, seed=seed, duration_s=dur, heading_deg=heading_deg, **kw)
-    gsf = YawGsf(YawGsfConfig(**over))
+    gsf = YawGsf(YawGsfConfig(**{**over, **cfg, **EXTRA_CFG}))
     vt, vn, vR, arr = fuse_inputs(d, source)
     out = run_on_arrays(gsf, d.t_s, d.omega_ib_b, d.f_ib_b, vt, vn, vR, vel_arrival_s=arr,
                         C_b_n_level=d.C_b_n if level_truth else None)
@@ -115,27 +117,39 @@ def floor_deg(name, source, d=None):
 
 
 def sim_table(seeds, names, sources):
-    lines = ["| scenario | velocity | runs | floor sigma_v/V [deg] | valid after [s] median / max | never valid | "
-             "abs(err) at valid [deg] median / max | final abs(err) [deg] median / max | final sigma [deg] | "
-             "coverage 3-sigma min / mean | max abs(err) while valid [deg] |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| scenario | velocity | side-slip constraint | runs | floor sigma_v/V [deg] | valid after [s] median / "
+             "max | never valid | abs(err) at valid [deg] median / max | final abs(err) [deg] median / max | "
+             "final sigma [deg] | coverage 3-sigma min / mean | max abs(err) while valid [deg] |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for name in names:
         for source in sources:
-            t0 = time.time()
-            rows = [sim_run(name, s, h, source) for s in range(seeds) for h in HEADINGS]
-            S = summarize(rows)
-            fl, V = floor_deg(name, source)
-            src = "GNSS 0.1 m/s" if source == "vel" else "fix differences (1 m)"
-            lines.append(f"| {name} | {src} | {S['runs']} | {fl:.2f} (V {V:.0f} m/s) | {S['tv_med']:.1f} / "
-                         f"{S['tv_max']:.1f} | {S['never']} | {S['ev_med']:.2f} / {S['ev_max']:.2f} | "
-                         f"{S['ef_med']:.2f} / {S['ef_max']:.2f} | {S['sf_med']:.2f} | {S['cov_min']:.2f} / "
-                         f"{S['cov_mean']:.3f} | {S['maxv']:.2f} |")
-            print(lines[-1], f"({time.time() - t0:.0f} s)", flush=True)
+            for slip in ((0.0, SIDE_SLIP_DEG) if name != "ship" else (0.0,)):
+                t0 = time.time()
+                rows = [sim_run(name, s, h, source, side_slip_sigma_deg=slip) for s in range(seeds) for h in HEADINGS]
+                S = summarize(rows)
+                fl, V = floor_deg(name, source)
+                src = "GNSS 0.1 m/s" if source == "vel" else "fix differences (1 m)"
+                lines.append(f"| {name} | {src} | {_slip(slip)} | {S['runs']} | {fl:.2f} (V {V:.0f} m/s) | "
+                             f"{S['tv_med']:.1f} / {S['tv_max']:.1f} | {S['never']} | {S['ev_med']:.2f} / "
+                             f"{S['ev_max']:.2f} | {S['ef_med']:.2f} / {S['ef_max']:.2f} | {S['sf_med']:.2f} | "
+                             f"{S['cov_min']:.2f} / {S['cov_mean']:.3f} | {S['maxv']:.2f} |")
+                print(lines[-1], f"({time.time() - t0:.0f} s)", flush=True)
+        if name == "ship":
+            for source in sources:
+                rows = [sim_run(name, s, h, source, level_truth=True) for s in range(seeds) for h in HEADINGS]
+                S = summarize(rows)
+                fl, V = floor_deg(name, source)
+                src = ("GNSS 0.1 m/s" if source == "vel" else "fix differences (1 m)") + ", level given"
+                lines.append(f"| ship | {src} | off (PX4) | {S['runs']} | {fl:.2f} (V {V:.0f} m/s) | "
+                             f"{S['tv_med']:.1f} / {S['tv_max']:.1f} | {S['never']} | {S['ev_med']:.2f} / "
+                             f"{S['ev_max']:.2f} | {S['ef_med']:.2f} / {S['ef_max']:.2f} | {S['sf_med']:.2f} | "
+                             f"{S['cov_min']:.2f} / {S['cov_mean']:.3f} | {S['maxv']:.2f} |")
+                print(lines[-1], flush=True)
     return lines
 
 
 # ----------------------------------------------------------------------------------------------- real data
-def kitti_runs(drive, source):
+def kitti_runs(drive, source, **cfg):
     from insalign_ros.io import kitti
 
     path = DATA / "kitti_raw_oxts_sync" / f"{drive}_oxts"
@@ -153,7 +167,7 @@ def kitti_runs(drive, source):
         arr = None
     else:
         vt, vn, vR, arr = fuse_inputs(d, "fix")
-    gsf = YawGsf()
+    gsf = YawGsf(YawGsfConfig(**{**cfg, **EXTRA_CFG}))
     out = run_on_arrays(gsf, d.t_s[ok], d.omega_ib_b[ok], d.f_ib_b[ok], vt, vn, vR, vel_arrival_s=arr)
     speed = np.linalg.norm(d.v_n[:, :2], axis=1)
     moving = speed >= 5.0
@@ -164,18 +178,18 @@ def kitti_runs(drive, source):
     return ev
 
 
-def car_circles_runs():
+def car_circles_runs(reference="cog", **cfg):
     from insalign_ros.io import datasets
 
     path = DATA / "car_circles_vn100"
     if not path.exists():
         return None
-    d, cog, _ = datasets.read_car_circles(path)
+    d, cog, ahrs = datasets.read_car_circles(path)
     vt, vn, vR, arr = fuse_inputs(d, "fix")
     # the VN-100's x axis points to the rear (io/datasets.py CAR_MOUNT_YAW_DEG): the car moves along -x
-    gsf = YawGsf(YawGsfConfig(forward_axis_b=(-1.0, 0.0, 0.0)))
+    gsf = YawGsf(YawGsfConfig(**{"forward_axis_b": (-1.0, 0.0, 0.0), **cfg, **EXTRA_CFG}))
     out = run_on_arrays(gsf, d.t_s, d.omega_ib_b, d.f_ib_b, vt, vn, vR, vel_arrival_s=arr)
-    ref = cog.at(out["t_s"])[:, 2]
+    ref = (cog if reference == "cog" else ahrs).at(out["t_s"])[:, 2]
     ok = np.isfinite(ref)
     sp = np.linalg.norm(vn[:, :2], axis=1)
     t_zero = float(vt[np.argmax(sp >= 3.0)]) if (sp >= 3.0).any() else 0.0
@@ -186,30 +200,38 @@ def car_circles_runs():
     return ev
 
 
-def real_lines():
-    lines = ["| recording | velocity | t first >= 5 m/s [s] | valid after [s] | abs(err) at valid [deg] | "
-             "final abs(err) / sigma [deg] | coverage 3-sigma | max abs(err) while valid [deg] |",
-             "|---|---|---|---|---|---|---|---|"]
+def real_lines(slips=(0.0, SIDE_SLIP_DEG)):
+    lines = ["| recording | velocity | side-slip constraint | t first >= 5 m/s [s] | valid after [s] | "
+             "abs(err) at valid [deg] | final abs(err) / sigma [deg] | coverage 3-sigma | max abs(err) while valid "
+             "[deg] |", "|---|---|---|---|---|---|---|---|---|"]
     for drive in ("2011_10_03_drive_0042", "2011_09_30_drive_0018", "2011_09_30_drive_0020",
                   "2011_09_26_drive_0057"):
         for source in ("vel", "fix"):
-            ev = kitti_runs(drive, source)
-            if ev is None:
-                print(f"skip {drive}: absent")
-                continue
-            src = "OXTS velocity 1 Hz" if source == "vel" else "fix differences 1 Hz"
-            lines.append(f"| KITTI {drive[-10:]} | {src} | {ev['t_zero']:.1f} | {ev['t_valid_s']:.1f} | "
-                         f"{ev['err_at_valid_deg']:.2f} | {ev['err_final_deg']:.2f} / {ev['sigma_final_deg']:.2f} | "
-                         f"{ev['coverage']:.3f} | {ev['max_err_valid_deg']:.2f} |")
-            print(lines[-1], flush=True)
-    ev = car_circles_runs()
-    if ev is not None:
-        lines.append(f"| car_circles_vn100 (ref: course over ground + 180 deg; time zero: 3 m/s) | fix differences "
-                     f"1 Hz | {ev['t_zero']:.1f} | {ev['t_valid_s']:.1f} | {ev['err_at_valid_deg']:.2f} | "
-                     f"{ev['err_final_deg']:.2f} / {ev['sigma_final_deg']:.2f} | {ev['coverage']:.3f} | "
-                     f"{ev['max_err_valid_deg']:.2f} |")
+            for slip in slips:
+                ev = kitti_runs(drive, source, side_slip_sigma_deg=slip)
+                if ev is None:
+                    print(f"skip {drive}: absent")
+                    continue
+                src = "OXTS velocity 1 Hz" if source == "vel" else "fix differences 1 Hz"
+                lines.append(f"| KITTI {drive[-10:]} | {src} | {_slip(slip)} | {ev['t_zero']:.1f} | "
+                             f"{ev['t_valid_s']:.1f} | {ev['err_at_valid_deg']:.2f} | {ev['err_final_deg']:.2f} / "
+                             f"{ev['sigma_final_deg']:.2f} | {ev['coverage']:.3f} | {ev['max_err_valid_deg']:.2f} |")
+                print(lines[-1], flush=True)
+    for slip, ref in ((0.0, "cog"), (0.0, "ahrs"), (SIDE_SLIP_DEG, "cog")):
+        ev = car_circles_runs(ref, side_slip_sigma_deg=slip)
+        if ev is None:
+            break
+        rname = "course over ground + 180 deg" if ref == "cog" else "the VN-100's magnetic AHRS"
+        lines.append(f"| car_circles_vn100 (ref: {rname}; time zero: 3 m/s) | fix differences "
+                     f"1 Hz | {_slip(slip)} | {ev['t_zero']:.1f} | {ev['t_valid_s']:.1f} | "
+                     f"{ev['err_at_valid_deg']:.2f} | {ev['err_final_deg']:.2f} / {ev['sigma_final_deg']:.2f} | "
+                     f"{ev['coverage']:.3f} | {ev['max_err_valid_deg']:.2f} |")
         print(lines[-1], flush=True)
     return lines
+
+
+def _slip(slip):
+    return f"{slip:.0f} deg" if slip > 0 else "off (PX4)"
 
 
 def main(argv=None):
@@ -219,7 +241,11 @@ def main(argv=None):
     ap.add_argument("--sources", default="vel,fix")
     ap.add_argument("--real-only", action="store_true")
     ap.add_argument("--sim-only", action="store_true")
+    ap.add_argument("--cfg", action="append", default=[], help="YawGsfConfig override key=value (repeatable)")
     a = ap.parse_args(argv)
+    for kv in a.cfg:
+        k, v = kv.split("=", 1)
+        EXTRA_CFG[k] = type(getattr(YawGsfConfig(), k))(v)
     if not a.real_only:
         sim_table(a.seeds, a.scenarios.split(","), a.sources.split(","))
     if not a.sim_only:

@@ -32,7 +32,7 @@ class YawGsfConfig:
     n_models: int = 5
     #: white noise on each level-frame velocity axis [m/s/sqrt(s)]: the specific force errors after the tilt
     #: (PX4: 0.2 at 100 Hz in the air, 0.4 on the ground)
-    accel_noise_m_s_sqrt_s: float = 0.1
+    accel_noise_m_s_sqrt_s: float = 0.2
     #: yaw random walk of each model [rad/sqrt(s)] (PX4: 0.01 at 100 Hz)
     yaw_noise_rad_sqrt_s: float = 0.003
     tilt_gain_1_s: float = 0.2  #: AHRS tilt-correction gain (PX4)
@@ -55,6 +55,11 @@ class YawGsfConfig:
     #: longitudinal acceleration from the GNSS speed; False for ships and multicopters
     vehicle_moves_along_forward_axis: bool = True
     forward_axis_b: tuple = (1.0, 0.0, 0.0)
+    #: > 0: a wheeled vehicle drives forward along forward_axis_b up to this side-slip [deg]: above
+    #: valid_speed_m_s each model also fuses its course (the direction of its velocity) as the forward axis' yaw
+    #: (sigma: the slip and 0.2 m/s across). Not in PX4; wrong while reversing faster than valid_speed_m_s;
+    #: 0 (off) keeps PX4's pure GSF, safe for every platform
+    side_slip_sigma_deg: float = 0.0
     min_vel_sigma_m_s: float = 0.01  #: floor of the velocity sigma (PX4)
     innovation_clip_sigma: float = 5.0  #: PX4 clips the innovation at 5 sigma
     min_weight: float = 1e-5  #: PX4's weight floor
@@ -460,39 +465,25 @@ class YawGsf:
         self._sync()
         D = np.array(self._cum) - cum  # shared level-frame delta velocity from the stamp to now
         R = _rz2(self._delta)
-        N = c.n_models
-        dens = np.zeros(N)
-        ok = True
-        for k in range(N):
+        dens = np.ones(c.n_models)
+        psi_s, fwd = self._shared_yaw(), math.atan2(self._fwd_b[1], self._fwd_b[0])
+        for k in range(c.n_models):
             RD = R[k] @ D
-            h = self._x[k] - RD
             H = np.zeros((2, 3))
             H[:, :2] = np.eye(2)
             H[:, 2] = -(_J @ RD)
-            P = self._P[k]
-            S = H @ P @ H.T + R2
-            det = float(np.linalg.det(S))
-            if not det > 0:
-                ok = False
-                continue
-            Si = np.linalg.inv(S)
-            y = v2 - h
-            nis = float(y @ Si @ y)
-            clip = c.innovation_clip_sigma ** 2
-            if nis > clip:
-                y = y * math.sqrt(clip / nis)
-                nis = clip
-            K = P @ H.T @ Si
-            dx = K @ y
-            IKH = np.eye(3) - K @ H
-            P = IKH @ P @ IKH.T + K @ R2 @ K.T
-            self._P[k] = 0.5 * (P + P.T)
-            self._x[k] += dx[:2]
-            self._delta[k] = float(_wrap(self._delta[k] + dx[2]))
-            self.last_nis[k] = nis
-            dens[k] = math.exp(-0.5 * nis) / (2.0 * math.pi * math.sqrt(det))
-        if ok:
-            w = np.maximum(self._w * dens, c.min_weight)
+            dens[k] = self._kalman(k, v2 - (self._x[k] - RD), H, R2)
+            if c.side_slip_sigma_deg > 0:  # a wheeled vehicle's course is its forward axis' yaw, now
+                vx, vy = self._x[k]
+                v_sq = vx * vx + vy * vy
+                if v_sq >= max(c.valid_speed_m_s ** 2, 9.0 * float(np.max(np.diag(R2)))):
+                    Hc = np.array([[-vy / v_sq, vx / v_sq, -1.0]])
+                    r_c = math.radians(c.side_slip_sigma_deg) ** 2 + 0.04 / v_sq  # slip, 0.2 m/s across
+                    y = _wrap(self._delta[k] + psi_s + fwd - math.atan2(vy, vx))  # 0 - h(x)
+                    dens[k] *= self._kalman(k, np.array([float(y)]), Hc, np.array([[r_c]]))
+        w = self._w * dens
+        if np.all(np.isfinite(w)) and w.sum() > 0:  # PX4 floors before normalizing; the floor is relative here
+            w = np.maximum(w / w.sum(), c.min_weight)
             self._w = w / w.sum()
         self._combine()
         self.n_updates += 1
@@ -500,6 +491,30 @@ class YawGsf:
             self.n_restarts += 1
             self._initialise(v2, R2)
         return True
+
+    def _kalman(self, k, y, H, Rm):
+        """Update model k with the innovation y = z - h(x), H, Rm (innovation clipped at innovation_clip_sigma,
+        Joseph form); returns the Gaussian density of the (clipped) innovation (nan if S is not positive)."""
+        c = self.cfg
+        P = self._P[k]
+        S = H @ P @ H.T + Rm
+        det = float(np.linalg.det(S))
+        if not det > 0:
+            return float("nan")
+        Si = np.linalg.inv(S)
+        nis = float(y @ Si @ y)
+        if nis > c.innovation_clip_sigma ** 2:
+            y = y * math.sqrt(c.innovation_clip_sigma ** 2 / nis)
+            nis = c.innovation_clip_sigma ** 2
+        K = P @ H.T @ Si
+        dx = K @ y
+        IKH = np.eye(3) - K @ H
+        P = IKH @ P @ IKH.T + K @ Rm @ K.T
+        self._P[k] = 0.5 * (P + P.T)
+        self._x[k] += dx[:2]
+        self._delta[k] = float(_wrap(self._delta[k] + dx[2]))
+        self.last_nis[k] = nis
+        return math.exp(-0.5 * nis) / ((2.0 * math.pi) ** (0.5 * len(y)) * math.sqrt(det))
 
     def _track_speed(self, stamp, v2, R2):
         """Speed and longitudinal acceleration for the AHRS's motion corrections, the quiet-interval count of the
