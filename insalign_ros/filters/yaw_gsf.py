@@ -151,17 +151,10 @@ class _Accumulator:
         self.W = W + q_yaw
         self.Qv += q_vel
 
-    @property
-    def S(self):
-        return np.array([self.sx, self.sy])
-
-    @property
-    def A(self):
-        return np.array([self.ax, self.ay])
-
-    @property
-    def M(self):
-        return np.array([[self.mxx, self.mxy], [self.mxy, self.myy]])
+    def arrays(self):
+        """(S (2,), A (2,), M (2, 2))."""
+        return (np.array([self.sx, self.sy]), np.array([self.ax, self.ay]),
+                np.array([[self.mxx, self.mxy], [self.mxy, self.myy]]))
 
 
 class YawGsf:
@@ -186,8 +179,7 @@ class YawGsf:
         self._q = None  # shared AHRS attitude body -> ENU (w, x, y, z); None until the tilt is aligned
         self._b_g = [0.0, 0.0, 0.0]
         self._f_lpf = None
-        self._speed_m_s = 0.0
-        self._acc_long_m_s2 = 0.0
+        self._speed_m_s, self._acc_long_m_s2 = 0.0, 0.0
         self._last_vel = None  # (stamp, speed, var, v2, R2) of the last velocity
         self._quiet = 0  # consecutive velocity intervals without horizontal acceleration
         self._init_wait_s, self._dt_last = 0.0, 0.0
@@ -201,11 +193,8 @@ class YawGsf:
         self._acc = _Accumulator()
         self._hist = deque()  # (t_s, cumulative shared level-frame delta velocity (2-tuple))
         self._cum = (0.0, 0.0)
-        self._yaw = float("nan")
-        self._var = float("inf")
-        self._motion_s = 0.0
-        self.n_updates = 0
-        self.n_restarts = 0
+        self._yaw, self._var, self._motion_s = float("nan"), float("inf"), 0.0
+        self.n_updates = self.n_restarts = 0
         self.last_nis = np.full(N, np.nan)
 
     @property
@@ -238,7 +227,7 @@ class YawGsf:
                     and self._var <= math.radians(c.valid_yaw_sigma_deg) ** 2)
 
     @property
-    def weights(self) -> np.ndarray:
+    def weights(self) -> np.ndarray:  # the models' weights and yaws [rad], for logs
         return self._w.copy()
 
     @property
@@ -396,16 +385,15 @@ class YawGsf:
     def _sync(self):
         """Apply the accumulated propagation to every model (closed form of PX4's per-step F P F' + Q)."""
         acc = self._acc
+        S, A, M = acc.arrays()
         R = _rz2(self._delta)  # (N, 2, 2)
         JR = _J @ R
-        RS = R @ acc.S
-        self._x += RS
-        N = self.cfg.n_models
-        F = np.tile(np.eye(3), (N, 1, 1))
-        F[:, :2, 2] = JR @ acc.S
+        self._x += R @ S
+        F = np.tile(np.eye(3), (self.cfg.n_models, 1, 1))
+        F[:, :2, 2] = JR @ S
         P = F @ self._P @ np.transpose(F, (0, 2, 1))
-        P[:, :2, :2] += acc.Qv * np.eye(2) + JR @ acc.M @ np.transpose(JR, (0, 2, 1))
-        cross = JR @ acc.A
+        P[:, :2, :2] += acc.Qv * np.eye(2) + JR @ M @ np.transpose(JR, (0, 2, 1))
+        cross = JR @ A
         P[:, :2, 2] += cross
         P[:, 2, :2] += cross
         P[:, 2, 2] += acc.W
