@@ -161,6 +161,7 @@ def test_bad_input_is_rejected_without_a_crash_and_late_velocities_beyond_the_hi
     gsf.propagate(ImuSample(3.0, np.full(3, np.nan), f_rest))
     assert not gsf.update_velocity(3.0, np.array([np.nan, 0.0, 0.0]), np.eye(3))
     assert not gsf.update_velocity(3.0, np.zeros(3), -np.eye(3))
+    assert not gsf.update_velocity(float("nan"), np.zeros(3), np.eye(3))
     assert not gsf.update_velocity(-10.0, np.zeros(3), np.eye(3))  # older than history_s
     assert gsf.started and not gsf.valid and math.isfinite(gsf.yaw_rad)
     assert gsf.yaw_var_rad2 > math.radians(30.0) ** 2  # at rest the yaw is unknown, and says so

@@ -433,7 +433,8 @@ class YawGsf:
         A stamp older than the last IMU sample (up to history_s) is fused against the models moved back to it.
         Returns False when the sample is rejected (non-finite, too old, no tilt yet)."""
         v_n, R_n = np.asarray(v_n, float), np.asarray(R_n, float)
-        if v_n.shape != (3,) or R_n.shape != (3, 3) or not (np.all(np.isfinite(v_n)) and np.all(np.isfinite(R_n))):
+        if v_n.shape != (3,) or R_n.shape != (3, 3) or not (np.all(np.isfinite(v_n)) and np.all(np.isfinite(R_n))
+                                                             and math.isfinite(stamp_s)):
             return False
         c = self.cfg
         v2 = v_n[:2]
