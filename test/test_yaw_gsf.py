@@ -134,6 +134,15 @@ def test_car_with_velocity_from_fix_differences_only_meets_the_looser_bound():
     assert inside / n >= 0.95
 
 
+def test_with_the_course_constraint_fix_differences_alone_make_a_car_valid_within_15_s_of_5_m_s():
+    """A car's course is its yaw up to the side-slip: each velocity then tells the yaw directly (5.4 deg per velocity
+    from 1-m fixes at 15 m/s), so ``valid`` (2 deg) rises after a handful of velocities, not after the first turns."""
+    for h in (45.0, 225.0):
+        out, _ = _run(make_scenario("car", seed=6, duration_s=40.0, heading_deg=h), "fix", side_slip_sigma_deg=3.0)
+        assert _t_valid(out, 0.0) - out["t5_s"] <= 15.0
+        assert not np.any(out["valid"] & (np.abs(out["err_deg"]) > 3 * 2.0))
+
+
 def test_ship_converges_with_a_given_level_and_never_flags_a_wrong_yaw_with_its_own_ahrs():
     """A ship in waves (0.8 g horizontal wave accelerations) has no quiet moment for the accelerometer tilt: with its
     own AHRS the GSF stays not valid (and honest); with the level given (from the INS core or a VRU) it converges."""
