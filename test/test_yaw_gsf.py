@@ -143,19 +143,19 @@ def test_with_the_course_constraint_fix_differences_alone_make_a_car_valid_withi
         assert not np.any(out["valid"] & (np.abs(out["err_deg"]) > 3 * 2.0))
 
 
-def test_ship_converges_with_a_given_level_and_never_flags_a_wrong_yaw_with_its_own_ahrs():
+def test_ship_converges_with_a_given_level_and_is_never_valid_with_its_own_ahrs():
     """A ship in waves (0.8 g horizontal wave accelerations) has no quiet moment for the accelerometer tilt: with its
-    own AHRS the GSF stays not valid (and honest); with the level given (from the INS core or a VRU) it converges."""
+    own AHRS the tilt sigma stays 10 deg and the GSF never reaches ``valid`` (its yaw sigma is then not honest: a
+    tilt error is a bias, not noise); with the level given (from the INS core or a VRU) it converges in seconds."""
     d = make_scenario("ship", seed=2, duration_s=60.0, heading_deg=120.0, gnss_vel_sigma_m_s=VEL_SIGMA_M_S)
     out, _ = _run(d, "vel", level_truth=True, vehicle_moves_along_forward_axis=False)
     tv = _t_valid(out, 0.0)
     assert tv <= 30.0
     assert abs(out["err_deg"][-1]) <= 1.0
     print(f"ship, level given: valid at {tv:.0f} s, final |error| {abs(out['err_deg'][-1]):.2f} deg")
-    out, _ = _run(d, "vel", vehicle_moves_along_forward_axis=False)
-    assert not np.any(out["valid"] & (np.abs(out["err_deg"]) > 3 * 2.0))
-    fin = np.isfinite(out["err_deg"])
-    assert fin.sum() > 40 and np.mean(np.abs(out["err_deg"][fin]) <= 3 * out["sig_deg"][fin]) >= 0.95
+    for source in ("vel", "fix"):
+        out, _ = _run(d, source, vehicle_moves_along_forward_axis=False)
+        assert out["accepted"].sum() > 40 and not out["valid"].any()
 
 
 def test_bad_input_is_rejected_without_a_crash_and_late_velocities_beyond_the_history_are_refused():

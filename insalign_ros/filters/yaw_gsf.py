@@ -44,13 +44,18 @@ class YawGsfConfig:
     #: f_h the specific force (after the vehicle-motion corrections) across the estimated up direction [m/s^2];
     #: 0: off. A tilt error of 1 deg leaves 0.85 of the gain, an unmodelled 1 m/s^2 acceleration 0.004
     tilt_gate_m_s2: float = 0.3
-    #: after two consecutive GNSS velocity intervals with no horizontal acceleration (|dv/dt| + 2 sigma below
-    #: tilt_gate_m_s2), the gate widens to this [m/s^2] so that a tilt error the gate would hide is corrected
+    #: after two consecutive GNSS velocity intervals with no horizontal acceleration (|dv/dt| below tilt_gate_m_s2
+    #: + its sigma, and that sigma below tilt_gate_m_s2), the gate widens to this [m/s^2] so that a tilt error the gate would hide is corrected
     tilt_gate_quiet_m_s2: float = 1.5
     #: the first tilt is taken only from a quiet sample: rate below this [rad/s] and |f| within 3 % of g
     tilt_init_max_rate_rad_s: float = 0.05
     #: no quiet sample after this long [s]: the tilt is taken as PX4 does (|f| within 10 % of g)
     tilt_init_timeout_s: float = 10.0
+    #: the AHRS tilt's variance: 0.5 deg at a quiet start, 1 deg from a car's compensated specific force, 3 deg when
+    #: the velocities cannot tell, 10 deg after the timeout; it grows by this random walk [deg/sqrt(s)] and shrinks
+    #: with the tilt gain only in quiet intervals (or with a car's compensation). g * its sigma is added to the
+    #: velocity noise: a ship whose tilt the accelerometer cannot find is never confident
+    tilt_drift_deg_sqrt_s: float = 0.02
     #: the vehicle moves along forward_axis_b (cars, wheeled robots): the AHRS removes the centripetal and the
     #: longitudinal acceleration from the GNSS speed; False for ships and multicopters
     vehicle_moves_along_forward_axis: bool = True
@@ -72,6 +77,7 @@ class YawGsfConfig:
     valid_speed_m_s: float = 3.0
     valid_motion_s: float = 3.0
     valid_yaw_sigma_deg: float = 2.0
+    valid_tilt_sigma_deg: float = 1.0
 
     def __post_init__(self):
         if self.n_models < 2:
@@ -182,7 +188,7 @@ class YawGsf:
         self._speed_m_s, self._acc_long_m_s2 = 0.0, 0.0
         self._last_vel = None  # (stamp, speed, var, v2, R2) of the last velocity
         self._quiet = 0  # consecutive velocity intervals without horizontal acceleration
-        self._init_wait_s, self._dt_last = 0.0, 0.0
+        self._init_wait_s, self._dt_last, self._tilt_var = 0.0, 0.0, 0.0
         self._along_used = False  # the longitudinal acceleration comes from a precise velocity interval
         self._kin_sigma_m_s2 = 0.0  # sigma of the last interval's horizontal acceleration from the velocities
         self._started = False
@@ -215,32 +221,18 @@ class YawGsf:
         return float(self._var) if self._started else float("inf")
 
     @property
-    def motion_s(self) -> float:
-        """Total time [s] with the GNSS horizontal speed >= valid_speed_m_s."""
-        return self._motion_s
-
-    @property
     def valid(self) -> bool:
-        """Fusion started, moved >= valid_motion_s at >= valid_speed_m_s, yaw sigma <= valid_yaw_sigma_deg."""
+        """Fusion started, moved >= valid_motion_s at >= valid_speed_m_s, yaw sigma <= valid_yaw_sigma_deg, and the
+        AHRS tilt sigma <= valid_tilt_sigma_deg (a tilt error biases the yaw by g dtilt / a; the course constraint
+        measures the yaw without the tilt)."""
         c = self.cfg
         return bool(self._started and self._motion_s >= c.valid_motion_s
-                    and self._var <= math.radians(c.valid_yaw_sigma_deg) ** 2)
+                    and self._var <= math.radians(c.valid_yaw_sigma_deg) ** 2
+                    and (self._tilt_var <= math.radians(c.valid_tilt_sigma_deg) ** 2 or c.side_slip_sigma_deg > 0))
 
     @property
-    def weights(self) -> np.ndarray:  # the models' weights and yaws [rad], for logs
+    def weights(self) -> np.ndarray:  # the models' weights, for logs
         return self._w.copy()
-
-    @property
-    def model_yaws_rad(self) -> np.ndarray:
-        return _wrap(self._delta + self._shared_yaw())
-
-    @property
-    def tilt_C_b_n(self) -> np.ndarray | None:
-        """The AHRS attitude body -> ENU with the Gaussian-sum yaw (None before the tilt is aligned)."""
-        if self._q is None:
-            return None
-        C = _quat_to_C(self._q)
-        return earth.C_b_n_from_rpy(*earth.rpy_from_C_b_n(C)[:2], self.yaw_rad if self._started else 0.0)
 
     def _shared_yaw(self) -> float:
         if self._q is None:
@@ -305,7 +297,9 @@ class YawGsf:
         while hist[0][0] < t - c.history_s:
             hist.popleft()
         if self._started:
-            q_yaw, q_vel = c.yaw_noise_rad_sqrt_s ** 2 * dt, c.accel_noise_m_s_sqrt_s ** 2 * dt
+            # a tilt error is a horizontal specific-force bias g dtilt: as velocity noise over the 1-s GNSS interval
+            q_yaw = c.yaw_noise_rad_sqrt_s ** 2 * dt
+            q_vel = (c.accel_noise_m_s_sqrt_s ** 2 + G0_M_S2 ** 2 * self._tilt_var * 1.0) * dt
             if gap:
                 q_yaw += (c.gap_yaw_rate_rad_s * dt) ** 2
                 q_vel += (c.gap_accel_m_s2 * dt) ** 2
@@ -349,6 +343,7 @@ class YawGsf:
             return False
         r, p, _ = earth.level_from_specific_force(np.array([[ax, ay, az]]), float(ln))
         self._q = _quat_from_C(earth.C_b_n_from_rpy(r, p, 0.0))
+        self._tilt_var = math.radians(10.0 if late else 0.5 if self._quiet >= 1 else 1.0 if compensated else 3.0) ** 2
         return True
 
     def _ahrs(self, wx, wy, wz, dt):
@@ -374,6 +369,10 @@ class YawGsf:
             cx, cy, cz = (ay * uz - az * uy) * k, (az * ux - ax * uz) * k, (ax * uy - ay * ux) * k
         else:
             cx = cy = cz = 0.0
+        # the tilt's variance: grows with the gyro, shrinks only where gravity is known to be the reference
+        self._tilt_var += math.radians(c.tilt_drift_deg_sqrt_s) ** 2 * dt
+        if self._quiet >= 1 or (c.vehicle_moves_along_forward_axis and self._along_used):
+            self._tilt_var = max(self._tilt_var * (1.0 - 2.0 * gain * dt), math.radians(0.2) ** 2)
         if learn and wx * wx + wy * wy + wz * wz < math.radians(10.0) ** 2:
             lim, kb = c.gyro_bias_limit_rad_s, c.gyro_bias_gain_1_s * dt
             self._b_g = [min(max(b[0] - cx * kb, -lim), lim), min(max(b[1] - cy * kb, -lim), lim),
@@ -524,7 +523,8 @@ class YawGsf:
                 self._along_used = use
                 a_kin = float(np.linalg.norm(v2 - lv[3])) / dt
                 sig_k = math.sqrt(float(np.trace(R2 + lv[4]))) / dt
-                self._quiet = self._quiet + 1 if a_kin + 2.0 * sig_k < c.tilt_gate_m_s2 else 0
+                quiet = sig_k <= c.tilt_gate_m_s2 and a_kin < c.tilt_gate_m_s2 + sig_k
+                self._quiet = self._quiet + 1 if quiet else 0
                 self._kin_sigma_m_s2 = sig_k
                 if significant and speed >= c.valid_speed_m_s and self._started:
                     self._motion_s += dt
