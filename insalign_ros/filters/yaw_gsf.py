@@ -29,7 +29,7 @@ _J = np.array([[0.0, -1.0], [1.0, 0.0]])  # d/dyaw of Rz2(yaw) = J Rz2(yaw)
 class YawGsfConfig:
     """Parameters of :class:`YawGsf` (units in the names)."""
 
-    n_models: int = 5
+    n_models: int = 8  #: PX4: 5. With 5 (72 deg apart) an EKF started 36 deg off collapsed its covariance before its yaw (ship: valid with 8 deg errors); 8 did not
     #: white noise on each level-frame velocity axis [m/s/sqrt(s)]: the specific force errors after the tilt
     #: (PX4: 0.2 at 100 Hz in the air, 0.4 on the ground)
     accel_noise_m_s_sqrt_s: float = 0.2
