@@ -118,7 +118,7 @@ def test_cli_writes_plot_json_and_a_grade_yaml_that_loads_back(tmp_path, capsys)
     g = A.load_grade_yaml(tmp_path / "imu1_imu_grade.yaml")  # the round trip: ImuGrade(**yaml)
     assert isinstance(g, ImuGrade) and g.to_dict() == d["imu_grade"] and g.name == "imu1"
     assert abs(g.gyro_arw_deg_sqrt_h / 0.4 - 1.0) < 0.2 and abs(g.acc_vrw_m_s_sqrt_h / 0.1 - 1.0) < 0.2
-    p = yaml.safe_load((tmp_path / "imu1_params.yaml").read_text())["alignment_node"]["ros__parameters"]
+    p = yaml.safe_load((tmp_path / "imu1_params.yaml").read_text())["/**"]["ros__parameters"]
     assert p["imu_grade"] == "industrial_mems" and p["core"] == "iekf"
     core_p = {k: v for k, v in p.items() if k not in ("core", "imu_grade")}
     assert core_p == catalog.grade_defaults(g, "iekf")

@@ -269,7 +269,7 @@ def test_config_yaml_is_the_dataclass_and_gnss_velocity_reaches_the_inmotion_cor
     from insalign_ros.filters.imu_grade import GRADE_FIELDS
 
     root = __import__("pathlib").Path(__file__).resolve().parents[1]
-    p = dict(yaml.safe_load((root / "config" / "auto.yaml").read_text())["alignment_node"]["ros__parameters"])
+    p = dict(yaml.safe_load((root / "config" / "auto.yaml").read_text())["/**"]["ros__parameters"])
     assert p.pop("core") == "auto"
     assert p == {k: v for k, v in AutoConfig().to_dict().items() if k not in GRADE_FIELDS}
     d = make_scenario("car", seed=6, duration_s=15.0, gnss_vel_sigma_m_s=0.1)

@@ -128,7 +128,7 @@ def test_config_yaml_matches_dataclass_defaults():
     import yaml
 
     doc = yaml.safe_load((Path(__file__).resolve().parents[1] / "config" / "earth_iekf.yaml").read_text())
-    params = dict(doc["alignment_node"]["ros__parameters"])
+    params = dict(doc["/**"]["ros__parameters"])
     assert params.pop("core") == "earth_iekf"
     from insalign_ros.filters.imu_grade import GRADE_FIELDS  # noise and bias fields: from imu_grade
 

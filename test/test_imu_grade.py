@@ -136,7 +136,7 @@ def test_alignment_node_yaml_is_node_params():
     core's own fields) with the node's default and description."""
     from insalign_ros.nodes.alignment_node import _SESSION_DOC, NODE_PARAMS
 
-    p = yaml.safe_load((ROOT / "config" / "alignment_node.yaml").read_text())["alignment_node"]["ros__parameters"]
+    p = yaml.safe_load((ROOT / "config" / "alignment_node.yaml").read_text())["/**"]["ros__parameters"]
     p.pop("aligned")
     want = {k: v[0] for k, v in NODE_PARAMS.items() if k != "core"}
     want.update({k: SessionConfig().to_dict()[k] for k in _SESSION_DOC})

@@ -81,7 +81,7 @@ def test_every_core_has_its_config_file_in_the_launch(name):
     for core in {"auto", *CORES}:
         f = ROOT / "config" / mapping.get(core, f"{core}.yaml")
         assert f.exists(), f"{name}: core:={core} -> {f.name} missing"
-        block = yaml.safe_load(f.read_text())["alignment_node"]["ros__parameters"]
+        block = yaml.safe_load(f.read_text())["/**"]["ros__parameters"]
         assert block.get("core") in (core, "liekf" if core == "liekf_backtrack" else core)
 
 

@@ -16,7 +16,7 @@ ROOT = Path(__file__).resolve().parents[1]
 @pytest.mark.parametrize("name", registry.INMOTION_CORE_NAMES)
 def test_yaml_matches_dataclass_defaults_and_builds_the_core(name):
     doc = yaml.safe_load((ROOT / "config" / f"{name}.yaml").read_text())
-    params = dict(doc["alignment_node"]["ros__parameters"])
+    params = dict(doc["/**"]["ros__parameters"])
     assert params.pop("core") == name
     # the IMU noise and bias fields come from imu_grade (filters/imu_grade.py), not from the core's file
     defaults = {k: v for k, v in registry.CORES[name][1]().to_dict().items() if k not in GRADE_FIELDS}

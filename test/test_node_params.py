@@ -46,7 +46,7 @@ def test_config_files_set_declared_parameters(node_factory):
     common = ROOT / "config" / "alignment_node.yaml"
     core = ROOT / "config" / "liekf.yaml"
     node = node_factory(["--params-file", str(common), "--params-file", str(core), "-p", "aligned.hold_s:=7.5"])
-    want = yaml.safe_load(common.read_text())["alignment_node"]["ros__parameters"]
+    want = yaml.safe_load(common.read_text())["/**"]["ros__parameters"]
     flat = {}
     for k, v in want.items():
         if isinstance(v, dict):
@@ -63,7 +63,7 @@ def test_config_files_set_declared_parameters(node_factory):
         else:
             assert got == v, k
     assert node.criteria.hold_s == 7.5
-    core_want = yaml.safe_load(core.read_text())["alignment_node"]["ros__parameters"]
+    core_want = yaml.safe_load(core.read_text())["/**"]["ros__parameters"]
     for k, v in core_want.items():
         assert node.get_parameter(k).value == v, k
 

@@ -15,7 +15,7 @@ CASES = [("pkf", PkfConfig), ("ekf10", Ekf10Config), ("coarse", CoarseConfig)]
 
 @pytest.mark.parametrize("name,cls", CASES)
 def test_yaml_equals_dataclass_defaults(name, cls):
-    p = yaml.safe_load((ROOT / "config" / f"{name}.yaml").read_text())["alignment_node"]["ros__parameters"]
+    p = yaml.safe_load((ROOT / "config" / f"{name}.yaml").read_text())["/**"]["ros__parameters"]
     assert p.pop("core") == name
     assert cls.from_dict(p) == cls()
 
@@ -56,7 +56,7 @@ def test_yaml_per_imu_grade_is_config_for_imu(name, cls):
     from insalign_ros.sim.error_model import ADIS16488A, NAVGRADE
 
     for suffix, spec in (("", ADIS16488A), ("_navgrade", NAVGRADE)):
-        p = yaml.safe_load((ROOT / "config" / f"{name}{suffix}.yaml").read_text())["alignment_node"]["ros__parameters"]
+        p = yaml.safe_load((ROOT / "config" / f"{name}{suffix}.yaml").read_text())["/**"]["ros__parameters"]
         assert p.pop("core") == name
         assert cls.from_dict(p) == config_for_imu(cls, spec), suffix
     nav = config_for_imu(cls, NAVGRADE)

@@ -147,7 +147,7 @@ def write_outputs(out: Path, name: str, res, grade, base: str, core: str, source
             f"# Load: insalign_ros.eval.allan.load_grade_yaml(path) -> ImuGrade; pass back: {paths['params'].name}.\n")
     paths["grade"].write_text(head + yaml.safe_dump(grade.to_dict(), sort_keys=False, width=1000))
     from_grade = catalog.grade_defaults(grade, core)
-    params = {"alignment_node": {"ros__parameters": {"core": core, "imu_grade": base, **from_grade}}}
+    params = {"/**": {"ros__parameters": {"core": core, "imu_grade": base, **from_grade}}}
     phead = (f"# alignment_node parameters from {PROG} {source}: imu_grade {base!r} under the measured grade's\n"
              f"# {core} core parameters (explicit core parameters win over imu_grade; docs/imu_grades.md).\n"
              f"#   ros2 run insalign_ros alignment_node --ros-args --params-file {paths['params'].name}\n"

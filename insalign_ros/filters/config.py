@@ -5,7 +5,7 @@ gyro ARW 2.0 deg/sqrt(h), VRW 0.2 m/s/sqrt(h), gyro bias 25.2 deg/h, acceleromet
 rho = 0.01: the noise and bias fields are the IMU grade ``paper_ship`` (filters/imu_grade.py). Sessions, the node and
 insalign-align set those fields from their ``imu_grade`` (default ``unknown_mems``, a conservative MEMS prior); an
 explicit field overrides the grade. ``config/<core>.yaml`` holds the other defaults in ROS 2 parameter-file layout
-(``alignment_node: ros__parameters: ...``); ``test/test_liekf_config.py`` checks that they agree.
+(``/**: ros__parameters: ...``, any node name or namespace); ``test/test_liekf_config.py`` checks that they agree.
 
 ``from_dict`` validates: unknown keys, wrong types and out-of-range values raise ``ValueError`` with the field
 name and the reason.
