@@ -275,29 +275,34 @@ def run(case: Case, margin: float = MARGIN, floor_deg: float = FLOOR_DEG) -> Rep
                                     f"{np.round(err, 2).tolist()} deg vs 3-sigma "
                                     f"{np.round(o.euler_3sigma_deg, 2).tolist()} deg")
 
+    # the caller's wall clock (watchdog, idle drain): it follows the scenario time of the IMU rows pushed, so a gap
+    # is silence and a burst arrives at once
+    wall, last_row = 0.0, 0
     try:
         for a in stream(case):
             kind = a[0]
             if kind == "imu":
                 sample, k = a[1], a[2]
+                wall += min(max(float(d.t_s[k] - d.t_s[last_row]), 0.0), 100.0)
+                last_row = k
                 if case.core != "auto":
                     s.push_truth(replace(table.sample(k), stamp_s=sample.stamp_s))
                 if math.isfinite(sample.stamp_s):
                     stamp_row[float(sample.stamp_s)] = k
                 sent["imu"] += 1
-                false["imu"] += not s.push_imu(sample)
+                false["imu"] += not s.push_imu(sample, wall)
                 n_imu += 1
                 if n_imu % PROCESS_EVERY == 0:
-                    judge(s.process())
+                    judge(s.process(wall))
             elif kind == "fix":
                 sent["fix"] += 1
-                false["fix"] += not s.push_fix(a[1])
+                false["fix"] += not s.push_fix(a[1], wall)
             elif kind == "vel":
                 sent["vel"] += 1
-                false["vel"] += not s.push_velocity(a[1])
+                false["vel"] += not s.push_velocity(a[1], wall)
             elif kind == "nofix":
                 sent["nofix"] += 1
-                s.reject_input("gnss", "gnss_no_fix", "no fix (status < 0)")
+                s.reject_input("gnss", "gnss_no_fix", "no fix (status < 0)", wall)
             elif kind == "reset":
                 user_resets += 1
                 s.reset("fuzz")
@@ -352,12 +357,13 @@ def counter_problems(c: dict, sent: dict, false: dict, confirm: int) -> list[str
 
 
 def physical_floor(duration_s: float = 40.0, seeds=(0, 1)) -> dict:
-    """Largest (|error| - FLOOR_DEG) / 3-sigma of flag-up outputs without faults, per scenario and core."""
+    """(largest (|error| - FLOOR_DEG) / 3-sigma of flag-up outputs, flag-up outputs) without faults, per scenario
+    and core."""
     out = {}
     for name in SCENARIOS:
         for core in ("iekf", "auto"):
-            out[(name, core)] = max(run(Case(name, sd, duration_s, core), margin=math.inf).worst_ratio
-                                    for sd in seeds)
+            reps = [run(Case(name, sd, duration_s, core), margin=math.inf) for sd in seeds]
+            out[(name, core)] = (max(r.worst_ratio for r in reps), sum(r.flag_up for r in reps))
     return out
 
 
@@ -378,9 +384,9 @@ def main(argv=None) -> int:
     rng = np.random.default_rng(seed)
     print(f"seed {seed}, margin {MARGIN} x 3-sigma + {FLOOR_DEG} deg")
     if not a.no_floor:
-        for key, v in physical_floor().items():
-            print(f"physical floor {key[0]:10s} {key[1]:5s}: largest (|err| - floor) / 3-sigma with the flag up "
-                  f"{v:.2f}")
+        for key, (v, n_up) in physical_floor().items():
+            print(f"physical floor {key[0]:10s} {key[1]:5s}: largest (|err| - {FLOOR_DEG:g} deg) / 3-sigma with the "
+                  f"flag up {v:.2f} ({n_up} flag-up outputs, 40 s, seeds 0-1)")
     t_end = time.monotonic() + 60.0 * a.minutes
     n = fails = flag_up = 0
     worst = worst_all = 0.0

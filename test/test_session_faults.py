@@ -138,3 +138,22 @@ def test_the_fix_screen_holds_before_any_filter_exists():
     assert [s2.push_fix(_fix_at(d, j)) for j in (1, 2, 3, 4)] == [False, False, True, True]
     assert s2.counters["gnss_implausible"] == 2 and s2.counters["inputs_dropped"] == 1
     assert s2.buf.fix_t == [float(d.gnss_t_s[3]), float(d.gnss_t_s[4])]
+
+
+def test_two_fixes_at_one_stamp_before_the_initialisation():
+    """Found by benchmarks/fuzz_session.py (early_fix): a fix stamped ahead and the genuine fix at that stamp, both
+    buffered before the first initialisation from the sensors, made the velocity a division by a zero interval:
+    a core fault at every IMU sample (200 in 10 s). The later arrival is used: one initialisation, no fault."""
+    d = make_scenario("car", seed=1, duration_s=10.0)
+    s = AlignmentSession(SessionConfig.from_dict({"core": "iekf"}))
+    for kind, item in events_in_arrival_order(d):
+        if kind == "imu" and item.stamp_s >= 0.5:  # the IMU starts after the first fixes
+            s.push_imu(item)
+            s.process()
+        elif kind == "fix":
+            if item.stamp_s == 0.0:
+                assert s.push_fix(GnssFix(1.0, item.p_e, item.R_e))  # early: the stamp of the next fix
+            assert s.push_fix(item)
+    s.finish()
+    assert s.counters["core_faults"] == 0 and s.core is not None
+    assert s.counters["gnss_accepted"] >= 8

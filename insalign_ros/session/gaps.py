@@ -70,6 +70,8 @@ def window_errors(bridge: Bridge, t: np.ndarray, W: np.ndarray, F: np.ndarray, m
     """Apply ``bridge`` to windows of ``m - 1`` consecutive samples of the history (stamps ``t`` [s], rates ``W``
     [rad/s], specific forces ``F`` [m/s^2]) as if they were missing; return the errors of their integrals: attitude
     increment [rad] and velocity increment [m/s], one row per window (empty when the history is too short)."""
+    if len(t) < 3:  # no interval to measure (a gap right after the initialisation): no window
+        return np.empty((0, 3)), np.empty((0, 3))
     h = float(np.median(np.diff(t)))
     kb = int(round(bridge.span_before_s / h)) + 1
     ka = int(round(bridge.span_after_s / h)) + 1

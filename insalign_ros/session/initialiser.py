@@ -148,6 +148,8 @@ class Initialiser:
             return
         a_est = cfg.init_accel_m_s2
         recent = [fx for fx in fixes if t - fx.stamp_s <= 3.0]
+        # two fixes at one stamp (an early wrong one and the genuine one): the later arrival (no zero interval)
+        recent = [fx for i, fx in enumerate(recent) if i + 1 == len(recent) or recent[i + 1].stamp_s != fx.stamp_s]
         # a restart of a static (or auto) core: the vehicle may be driving; wait for two fixes to tell (not for a
         # site position given by the user)
         waits = gnss_core or (self.after_restart and used is not None)
