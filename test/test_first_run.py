@@ -25,8 +25,11 @@ _PROBE = """
 import json, sys
 import insalign_ros
 from insalign_ros.session import warmup
-if sys.argv[1] == "warm":
-    warmup.warm_up(("auto",))
+if sys.argv[1] == "warm":  # a static core's kernels (6): where the cache goes does not depend on which kernels, and
+    # compiling them all in a cold copy costs minutes on a loaded machine (test_node_ready compiles auto's cold)
+    from insalign_ros.session.offline import align
+    from insalign_ros.sim.scenarios import make_scenario
+    align(make_scenario("static", seed=0, duration_s=10.0, rate_hz=25.0), core="pkf")
 else:  # import every core (and so every module that decorates kernels), compile nothing
     import insalign_ros.filters.registry
 print(json.dumps({"package": insalign_ros.__file__, "kernels": warmup.kernel_stats()}))
@@ -111,7 +114,7 @@ def test_read_only_install_caches_in_the_user_cache_dir_and_a_second_process_hit
     paths = {Path(k["cache_path"]) for k in first["kernels"]}
     assert paths and all(p.parent == user_dir for p in paths), paths
     compiled = {k["kernel"]: k["cache_misses"] for k in first["kernels"] if k["cache_misses"]}
-    assert len(compiled) >= 5, compiled  # auto's static model and in-motion filter kernels
+    assert len(compiled) >= 5, compiled  # the static core's kernels
     files = _cache_files(user_dir)
     assert sum(f.endswith(".nbi") for f in files) >= len(compiled)
     assert not list(read_only_install.rglob("*.nbi")) and not list(read_only_install.rglob("__pycache__"))
@@ -119,7 +122,8 @@ def test_read_only_install_caches_in_the_user_cache_dir_and_a_second_process_hit
     second = _probe("warm", read_only_install, cache_home)
     rows = {k["kernel"]: k for k in second["kernels"]}
     assert sum(k["cache_misses"] for k in rows.values()) == 0, {n: k for n, k in rows.items() if k["cache_misses"]}
-    assert sum(k["cache_hits"] for k in rows.values()) >= 3, rows  # (a kernel inlined in a loaded one shows none)
+    assert sum(k["cache_hits"] for k in rows.values()) >= 2, rows  # the two the core calls (a kernel inlined in a
+    # loaded one shows none)
     assert _cache_files(user_dir) == files  # nothing compiled, nothing rewritten
 
 
