@@ -70,3 +70,27 @@ def test_diagnostics_window_and_quantiles_equal_a_deque_and_numpy_percentile():
         assert np.array_equal(np.sort(w.view()), np.sort(np.asarray(d)))
         got = _quantiles(w.view(), (50.0, 99.0, 100.0))
         assert np.allclose(got, np.percentile(np.asarray(d), [50, 99, 100]), rtol=1e-14, atol=0), m
+
+
+def test_a_fix_with_an_all_zero_covariance_takes_the_default_sigma():
+    """A driver that fills APPROXIMATED (or any type) with zeros has said nothing about the covariance: the node uses
+    ``gnss_sigma_m`` (as for UNKNOWN) instead of refusing the fix; a negative variance is still refused."""
+    import numpy as np
+    from sensor_msgs.msg import NavSatFix
+
+    from insalign_ros.nodes.conversions import fix_from_msg
+
+    m = NavSatFix()
+    m.header.stamp.sec = 100
+    m.latitude, m.longitude, m.altitude = 48.0, 11.0, 500.0
+    m.status.status = NavSatFix().status.STATUS_FIX
+    for kind in (NavSatFix.COVARIANCE_TYPE_APPROXIMATED, NavSatFix.COVARIANCE_TYPE_DIAGONAL_KNOWN,
+                 NavSatFix.COVARIANCE_TYPE_UNKNOWN):
+        m.position_covariance_type = kind
+        m.position_covariance = [0.0] * 9
+        fix, reason = fix_from_msg(m, 2.5)
+        assert fix is not None, reason
+        assert np.allclose(np.linalg.eigvalsh(fix.R_e), 2.5**2)  # isotropic: the same in ECEF
+    m.position_covariance_type = NavSatFix.COVARIANCE_TYPE_DIAGONAL_KNOWN
+    m.position_covariance = [-1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0]
+    assert fix_from_msg(m, 2.5)[0] is None

@@ -213,14 +213,15 @@ def fix_from_msg(msg: NavSatFix, default_sigma_m: float, frame_id: str = "",
                  epoch_s: int = 0) -> tuple[GnssFix | None, str]:
     """sensor_msgs/NavSatFix -> GnssFix (ECEF p_e [m], R_e [m^2]) or (None, reason).
 
-    Covariance: ``position_covariance`` (ENU, m^2) when its type is not UNKNOWN, else ``default_sigma_m`` per axis.
+    Covariance: ``position_covariance`` (ENU, m^2) when its type is not UNKNOWN, else ``default_sigma_m`` per axis;
+    an all-zero covariance under any type (drivers that fill APPROXIMATED with zeros) is unknown too.
     """
     if frame_id and msg.header.frame_id != frame_id:
         return None, f"frame_id {msg.header.frame_id!r} is not {frame_id!r}"
     lat, lon, h = msg.latitude, msg.longitude, msg.altitude
     t = stamp_s(msg, epoch_s)
-    known = msg.position_covariance_type != NavSatFix.COVARIANCE_TYPE_UNKNOWN
     cov = np.asarray(msg.position_covariance, float).reshape(3, 3)
+    known = msg.position_covariance_type != NavSatFix.COVARIANCE_TYPE_UNKNOWN and bool(np.any(cov != 0.0))
     reason = validation.check_fix(lat, lon, h, cov if known else None, int(msg.status.status))
     if reason:
         return None, reason
