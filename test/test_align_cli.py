@@ -53,3 +53,42 @@ def test_a_missing_bag_path_is_not_found_in_the_python_api_too():
             ia.align(path, duration_s=1.0)
     with pytest.raises(ValueError, match="unknown scenario"):
         ia.align("no_such_scenario", duration_s=1.0)
+
+
+def test_csv_says_status_and_unknown_for_a_3_sigma_beyond_180_deg(tmp_path):
+    """From the sensors the heading starts unknown (a yaw bank: its 3-sigma is hundreds of degrees, which says
+    nothing about an angle): the CSV writes "unknown" there, never a number above 180 deg, and has the status of
+    every output; the JSON's final 3-sigma is a number or null."""
+    rc = main(["--scenario", "ship", "--duration", "30", "--core", "iekf", "--session-param", "init_mode=sensors",
+               "--imu-grade", "paper_ship", "--out-dir", str(tmp_path), "--no-progress", "--no-plot"])
+    assert rc == 0
+    rows = list(csv.DictReader(open(tmp_path / "ship_s0_iekf.csv")))
+    yaw3 = [r["sigma3_yaw_deg"] for r in rows]
+    assert "unknown" in yaw3, yaw3[:5]
+    assert all(v == "unknown" or float(v) <= 180.0 for v in yaw3)
+    assert {r["status"] for r in rows} <= {"aligning", "aligned", "fault", "waiting for data", "waiting for GNSS",
+                                            "waiting for motion"}, {r["status"] for r in rows}
+    m = json.loads((tmp_path / "ship_s0_iekf_metrics.json").read_text())
+    assert all(x is None or 0.0 < x <= 180.0 for x in m["final_3sigma_deg"])
+
+
+def test_metrics_keep_the_first_flag_and_count_restarts_across_a_restart():
+    """A clock step of 100 s at 90 s of a ship run resets the alignment (time jump): the metrics still give the first
+    flag of the run (it rose at 18 s), one restart, and the span from the first IMU sample (data time, the step
+    included); before, the first flag and the duration restarted with the filter."""
+    import dataclasses
+
+    import numpy as np
+
+    import insalign_ros as ia
+
+    d = ia.simulate("ship", seed=2, duration_s=150.0)
+    k, j = int(np.searchsorted(d.t_s, 90.0)), int(np.searchsorted(d.gnss_t_s, 90.0))
+    t, g = d.t_s.copy(), d.gnss_t_s.copy()
+    t[k:] += 100.0
+    g[j:] += 100.0
+    r = ia.align(dataclasses.replace(d, t_s=t, gnss_t_s=g), core="iekf", init_mode="truth",
+                 init_rpy_error_deg=[1.0, 1.0, 5.0], output_period_s=1.0, imu_grade="paper_ship")
+    assert r.counters["time_resets"] == 1 and r.metrics["restarts"] == 1
+    assert r.metrics["aligned_first_raised_at_s"] is not None and r.metrics["aligned_first_raised_at_s"] < 90.0
+    assert r.metrics["duration_s"] == pytest.approx(t[-1] - t[0], abs=1.0)

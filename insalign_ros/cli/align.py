@@ -34,6 +34,14 @@ from pathlib import Path
 import numpy as np
 
 
+#: an angle's 3-sigma above this says nothing about the angle: the CSV writes "unknown", the JSON null
+SIGMA3_UNKNOWN_DEG = 180.0
+
+
+def _sigma3_cell(x: float) -> str:
+    return f"{x:.6f}" if x <= SIGMA3_UNKNOWN_DEG else "unknown"
+
+
 def _kv(items: list[str], what: str) -> dict:
     out = {}
     for kv in items:
@@ -199,13 +207,15 @@ def _run(args) -> int:
     with open(f"{stem}.csv", "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["t_s", "roll_deg", "pitch_deg", "yaw_deg", "roll_err_deg", "pitch_err_deg", "yaw_err_deg",
-                    "sigma3_roll_deg", "sigma3_pitch_deg", "sigma3_yaw_deg", "nees", "aligned"])
+                    "sigma3_roll_deg", "sigma3_pitch_deg", "sigma3_yaw_deg", "nees", "aligned", "status"])
         for i in range(len(r.t_s)):
             w.writerow([f"{r.t_s[i]:.3f}", *(f"{x:.6f}" for x in r.rpy_deg[i]), *(f"{x:.6f}" for x in r.rpy_err_deg[i]),
-                        *(f"{x:.6f}" for x in r.sigma3_deg[i]), f"{r.nees[i]:.4f}", int(r.aligned[i])])
+                        *(_sigma3_cell(x) for x in r.sigma3_deg[i]), f"{r.nees[i]:.4f}", int(r.aligned[i]),
+                        r.status[i]])
     summ = dict(r.metrics)
     summ.update(data=name, init_mode=sp["init_mode"], imu_grade=sp.get("imu_grade", SessionConfig().imu_grade),
-                final_rpy_deg=r.rpy_deg[-1].tolist(), final_3sigma_deg=r.sigma3_deg[-1].tolist(),
+                final_rpy_deg=r.rpy_deg[-1].tolist(),
+                final_3sigma_deg=[None if not x <= SIGMA3_UNKNOWN_DEG else float(x) for x in r.sigma3_deg[-1]],
                 final_aligned=bool(r.aligned[-1]), warnings=warnings, counters=r.counters,
                 diagnostics={k: v for k, v in r.diagnostics.items() if k.startswith("core.")})
     if rpy_error is not None:

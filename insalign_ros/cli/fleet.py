@@ -49,7 +49,7 @@ def align_bag(main, bag: str, argv: list[str], out_dir: str) -> dict:
     metrics = sorted(Path(out_dir).glob("*_metrics.json"))
     m = json.loads(metrics[-1].read_text()) if metrics else {}
     c = m.get("counters", {})
-    row.update({k: m.get(k) for k in ("core", "init_mode", "duration_s", "aligned_first_raised_at_s",
+    row.update({k: m.get(k) for k in ("core", "init_mode", "duration_s", "aligned_first_raised_at_s", "restarts",
                                       "final_aligned", "final_rpy_deg", "final_3sigma_deg", "final_err_rpy_deg",
                                       "rmse_rpy_deg")})
     row["warnings"] = "; ".join(m.get("warnings", []))
@@ -60,7 +60,7 @@ def align_bag(main, bag: str, argv: list[str], out_dir: str) -> dict:
 
 #: final_rpy_deg / final_3sigma_deg: the last estimate (roll, pitch, yaw; yaw from East, CCW) and its 3-sigma [deg],
 #: there with or without truth; final_err_rpy_deg / rmse_rpy_deg only with truth; warnings: the input's (IMU axes)
-COLUMNS = ["bag", "rc", "core", "init_mode", "duration_s", "aligned_first_raised_at_s", "final_aligned",
+COLUMNS = ["bag", "rc", "core", "init_mode", "duration_s", "aligned_first_raised_at_s", "restarts", "final_aligned",
            "final_rpy_deg", "final_3sigma_deg", "final_err_rpy_deg", "rmse_rpy_deg", "imu_processed", "imu_gaps",
            "imu_rejected", "gnss_accepted", "gnss_gated", "divergences", "wall_s", "warnings", "error"]
 

@@ -249,8 +249,12 @@ def result_from_outputs(core: str, outs: list[Output], session: AlignmentSession
         err, nees = r.rpy_err_deg, r.nees
         metrics = MT.summary(r)
     aligned = np.array([o.aligned for o in outs], bool)
-    metrics.update(core=core, duration_s=float(t[-1] - init_t) if n else 0.0,
-                   aligned_first_raised_at_s=session.flag.first_raised_at_s,
+    c = session.counters
+    # from the outputs, not the session's current flag and initialisation (a restart resets those): the first flag of
+    # the whole run, the span from the first IMU sample, and the restarts with the reasons in the status column
+    metrics.update(core=core, duration_s=float(t[-1] - data.t_s[0]) if n and data.n else 0.0,
+                   aligned_first_raised_at_s=float(t[np.argmax(aligned)]) if aligned.any() else None,
+                   restarts=int(c.get("divergences", 0) + c.get("core_faults", 0) + c.get("time_resets", 0)),
                    final_aligned=bool(aligned[-1]) if n else False)
     return AlignResult(core, t, rpy, s3, aligned, err, nees, [o.status.value for o in outs], outs,
                        dict(session.counters), session.diagnostics(), metrics, init_t)
