@@ -33,6 +33,16 @@ def test_every_section_has_its_command_and_load_and_no_notebook_traces():
     assert not re.search(r"\b(third|fourth|fifth) pass\b", text)
 
 
+def test_no_page_of_the_documentation_is_a_lab_notebook():
+    """docs/ is a reference for users: no dates, no branch names, no machine paths (the numbers carry their command
+    and machine load instead); research/notebook/ keeps the history."""
+    for page in sorted((ROOT / "docs").glob("*.md")):
+        text = page.read_text()
+        assert not re.search(r"\b20\d\d-\d\d-\d\d\b", text), f"a date in {page.name}"
+        assert "/work/" not in text, f"a machine-specific path in {page.name}"
+        assert not re.search(r"\bbranch [0-9a-z]", text), f"a branch name in {page.name}"
+
+
 def test_clean_drops_the_benchmarks_command_lines_progress_and_temporary_paths():
     R = _results()
     out = R.clean("command: nice x\nseed 3 done\nwrote /tmp/abc/x.md\n## Head\n| a |\n| a |\nsame\nsame\n")
