@@ -186,7 +186,7 @@ def test_config_file_matches_the_declared_parameters(monkeypatch):
     from insalign_ros.nodes.imu_sim_node import ImuSimNode
 
     cfg = Path(__file__).resolve().parents[1] / "config" / "imu_sim.yaml"
-    want = yaml.safe_load(cfg.read_text())["imu_sim_node"]["ros__parameters"]
+    want = yaml.safe_load(cfg.read_text())["/**"]["ros__parameters"]
     for k, v in isolated_ros_env(base={}).items():
         monkeypatch.setenv(k, v)
     ctx = rclpy.Context()

@@ -188,7 +188,7 @@ def test_bad_input_is_rejected_counted_and_the_node_keeps_aligning(tmp_path, ros
                     m = feed.fix(j)
                     setattr(m, attr, val)
                     bad.append(("gnss_invalid", m))
-                for cov in ([0.0] * 9, [-1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0], [float("nan")] * 9):
+                for cov in ([-1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0], [float("nan")] * 9):  # (all zeros: gnss_sigma_m)
                     m = feed.fix(j)
                     m.position_covariance = cov
                     bad.append(("gnss_invalid", m))
