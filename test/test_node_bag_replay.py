@@ -85,7 +85,9 @@ def test_paced_bag_replay_as_fast_as_the_consumer_loses_nothing(tmp_path, monkey
         summary = json.loads([ln for ln in sim.output().splitlines() if ln.startswith("SIM_SUMMARY ")][-1][12:])
         assert summary["imu_sent"] == data.n and summary["paused_s"] > 0.1, (summary, sim.output()[-3000:])
         assert "backpressure off" not in sim.output()
-        assert mon.wait_for(lambda m: m.counter("imu_received") == data.n, 15.0), (mon.diag, summary)
+        assert mon.wait_for(lambda m: m.counter("imu_received") == data.n, 60.0), (  # state, not time: the
+            # diagnostics come from the processing timer, late on a loaded machine
+            {k: v for k, v in mon.diag.items() if "imu" in k or "time" in k}, summary)
         assert int(mon.diag["imu_rejected"]) == 0 and int(mon.diag.get("imu_gaps", 0)) == 0, mon.diag
     finally:
         stop_nodes(nodes)
