@@ -21,7 +21,17 @@ def test_fleet_on_two_workers_equals_serial_and_reports_a_broken_bag(tmp_path):
     opts = ["--core", "iekf", "--rpy-error", "3", "-3", "20", "--no-plot", "--no-progress"]
     assert main([str(fleet), *opts, "--serial", "--out-dir", str(tmp_path / "serial")]) == 1  # one bag failed
     assert main([str(fleet), *opts, "--workers", "2", "--out-dir", str(tmp_path / "dask")]) == 1
+    # bags sent to the workers as bytes (a remote cluster without a shared file system), outputs sent back
+    assert main([str(fleet), *opts, "--workers", "2", "--ship-bags", "--out-dir", str(tmp_path / "ship")]) == 1
     serial, dask = _rows(tmp_path / "serial" / "fleet_summary.csv"), _rows(tmp_path / "dask" / "fleet_summary.csv")
+    ship = _rows(tmp_path / "ship" / "fleet_summary.csv")
+    assert sorted(ship) == sorted(serial)
+    for name in ("car_1", "ship_2"):
+        assert ship[name]["final_err_rpy_deg"] == serial[name]["final_err_rpy_deg"]
+        assert ship[name]["bag"] == serial[name]["bag"]  # the client's path, not the worker's temporary copy
+    assert ship["broken"]["rc"] == "2" and str(fleet / "broken") in ship["broken"]["error"]
+    assert (tmp_path / "ship" / "car_1" / "car_1_iekf_metrics.json").read_text() \
+        == (tmp_path / "dask" / "car_1" / "car_1_iekf_metrics.json").read_text()
     assert sorted(serial) == ["broken", "car_1", "ship_2"]
     for name in ("car_1", "ship_2"):
         assert serial[name]["rc"] == "0" and serial[name]["final_err_rpy_deg"] == dask[name]["final_err_rpy_deg"]
@@ -31,3 +41,32 @@ def test_fleet_on_two_workers_equals_serial_and_reports_a_broken_bag(tmp_path):
     assert serial["broken"]["rc"] == "2" and "not a readable bag" in serial["broken"]["error"]
     assert (tmp_path / "dask" / "car_1" / "car_1_iekf_metrics.json").exists()
     assert (tmp_path / "serial" / "day2__ship_2" / "ship_2_iekf.csv").exists()
+
+
+def test_kernels_are_compiled_once_per_machine(tmp_path, monkeypatch):
+    """warm_up_once holds a machine-wide file lock: a second process (here a thread with its own open file) waits
+    until the first has filled the cache, then loads it."""
+    import fcntl
+    import threading
+    import time
+
+    from insalign_ros.session import warmup
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    path = warmup.lock_path()
+    assert path.startswith(str(tmp_path))
+    (tmp_path / "insalign_ros").mkdir()
+    got = {}
+    with open(path, "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)  # a first worker compiling
+        t = threading.Thread(target=lambda: got.setdefault("r", warmup.warm_up_once((), duration_s=1.0)))
+        t.start()
+        held_from = time.perf_counter()
+        t.join(timeout=1.0)
+        assert t.is_alive(), "the second warm-up did not wait for the lock"
+        held = time.perf_counter() - held_from
+        fcntl.flock(fh, fcntl.LOCK_UN)
+    t.join(timeout=120)
+    assert not t.is_alive()
+    waited, _ = got["r"]
+    assert waited >= held * 0.9, (waited, held)

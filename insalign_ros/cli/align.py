@@ -107,13 +107,16 @@ def main(argv=None) -> int:
     g.add_argument("--workers", type=int, default=0, help="LocalCluster worker processes (default: the CPU count)")
     g.add_argument("--scheduler", default="", help="address of a running Dask scheduler, e.g. tcp://host:8786")
     g.add_argument("--serial", action="store_true", help="no Dask: the bags one after the other, in this process")
+    g.add_argument("--ship-bags", action=argparse.BooleanOptionalAction, default=None,
+                   help="send each bag to its worker as bytes and its outputs back (default: with --scheduler only; "
+                        "for workers that do not share this file system)")
     argv = list(sys.argv[1:] if argv is None else argv)
     args = ap.parse_args(argv)
     if bool(args.bag) == bool(args.scenario):
         ap.error("give exactly one of BAG or --scenario")
     fleet = bool(args.bag) and Path(args.bag).is_dir() and not (Path(args.bag) / "metadata.yaml").exists()
-    if not fleet and (args.workers or args.scheduler or args.serial):
-        ap.error("--workers/--scheduler/--serial apply to a directory of bags")
+    if not fleet and (args.workers or args.scheduler or args.serial or args.ship_bags is not None):
+        ap.error("--workers/--scheduler/--serial/--ship-bags apply to a directory of bags")
     try:
         if args.bag and not Path(args.bag).exists():
             raise ValueError(f"not found: {args.bag}")
@@ -136,12 +139,12 @@ def _run_fleet(args, argv: list[str]) -> int:
             skip = False
         elif a in drop_value:
             skip = True
-        elif a == "--serial" or a == args.bag or a.split("=", 1)[0] in drop_value:
+        elif a in ("--serial", "--ship-bags", "--no-ship-bags") or a == args.bag or a.split("=", 1)[0] in drop_value:
             continue
         else:
             rest.append(a)
     rows = run_fleet(main, args.bag, rest, args.out_dir, args.workers, args.scheduler, args.serial,
-                     progress=not args.no_progress)
+                     progress=not args.no_progress, ship_bags=args.ship_bags)
     bad = [r for r in rows if r["rc"] != 0]
     for r in bad:
         print(f"insalign-align: {r['bag']}: {r.get('error', '')}", file=sys.stderr)

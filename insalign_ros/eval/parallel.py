@@ -94,6 +94,30 @@ def _forkserver_preload(modules: tuple[str, ...]) -> dict:
     return cfg
 
 
+def _setup_plugin(fn, args: tuple = ()):
+    """A Dask worker plugin that calls ``fn(*args)`` once in every worker, before it runs a task (also in workers that
+    join a remote cluster later). Its result goes to the worker's log; an exception does not stop the worker. (The
+    class derives from distributed's WorkerPlugin, imported here: importing this module does not import Dask.)"""
+    from distributed.diagnostics.plugin import WorkerPlugin
+
+    class SetupPlugin(WorkerPlugin):
+        name = "insalign-setup"
+
+        def __init__(self, fn, args):
+            self.fn, self.args = fn, args
+
+        def setup(self, worker):
+            import logging
+
+            log = logging.getLogger("distributed.worker")
+            try:
+                log.info("insalign setup: %s", self.fn(*self.args))
+            except Exception as exc:  # noqa: BLE001 - a failed warm-up costs the first task its compile time only
+                log.warning("insalign setup failed: %s", exc)
+
+    return SetupPlugin(fn, args)
+
+
 def make_client(workers: int, scheduler: str = "", upload: tuple[str, ...] = (), preload: tuple[str, ...] = ()):
     """A distributed Client on ``scheduler`` (e.g. tcp://host:8786) or on a new LocalCluster of ``workers``
     single-threaded processes; ``upload``: module files the workers import by name; ``preload``: modules the runs
@@ -127,7 +151,41 @@ def _resolve(task: tuple, values: dict) -> tuple:
     return tuple(values[a] if isinstance(a, Shared) else a for a in task)
 
 
-def _run_serial(fn, tasks, bar, records):
+def _run_windowed(client, fn, tasks, order, prepare, window: int, bar, records, on_result=None) -> list:
+    """Submit ``tasks`` in ``order`` with at most ``window`` in flight, each prepared just before it is submitted."""
+    from distributed import as_completed
+
+    out = [None] * len(tasks)
+    pending = iter(order)
+    index: dict = {}
+    ac = as_completed()
+
+    def submit_next() -> bool:
+        i = next(pending, None)
+        if i is None:
+            return False
+        t = prepare(tasks[i]) if prepare is not None else tasks[i]
+        fut = client.submit(_timed_with_shared, fn, (), *t, pure=False)
+        index[fut.key] = i
+        ac.add(fut)
+        return True
+
+    for _ in range(window):
+        if not submit_next():
+            break
+    for fut in ac:
+        i = index.pop(fut.key)
+        out[i], rec, _ = fut.result()
+        if on_result is not None:
+            out[i] = on_result(i, out[i])
+        records.append(("task", i) + rec)
+        fut.release()  # the result is ours now: the worker may drop it
+        bar.update(1)
+        submit_next()
+    return out
+
+
+def _run_serial(fn, tasks, bar, records, prepare=None, on_result=None):
     remaining: dict = {}
     for t in tasks:
         for a in t:
@@ -140,7 +198,9 @@ def _run_serial(fn, tasks, bar, records):
             if isinstance(a, Shared) and a not in values:
                 values[a], rec = _timed(a.fn, *a.args)
                 records.append(("shared", -1) + rec)
-        res, rec = _timed(fn, *_resolve(t, values))
+        res, rec = _timed(fn, *_resolve(prepare(t) if prepare is not None else t, values))
+        if on_result is not None:
+            res = on_result(i, res)
         records.append(("task", i) + rec)
         out.append(res)
         for a in t:
@@ -154,14 +214,20 @@ def _run_serial(fn, tasks, bar, records):
 
 def run_tasks(fn, tasks: list[tuple], workers: int = 0, scheduler: str = "", serial: bool = False,
               desc: str = "runs", upload: tuple[str, ...] = (), progress: bool = True, cost=None,
-              stats: dict | None = None, preload: tuple[str, ...] = ()) -> list:
+              stats: dict | None = None, preload: tuple[str, ...] = (), worker_setup: tuple | None = None,
+              prepare=None, window: int = 0, on_result=None) -> list:
     """``[fn(*t) for t in tasks]``, as Dask tasks unless ``serial``; a tqdm bar on stderr; results in task order.
 
     ``fn`` must be a module-level function (pickled by reference or, from ``__main__``, by value); ``workers``:
     LocalCluster processes (0: the CPU count). ``cost``: an estimate of each task's run time (any unit; a list
     parallel to ``tasks``): the parallel path submits the longest first. A :class:`Shared` in a task is replaced by its
     value, computed once. ``stats``: a dict to fill with the timing records (see :func:`efficiency`). ``preload``:
-    modules ``fn`` imports, loaded once before a LocalCluster's workers start (:func:`make_client`)."""
+    modules ``fn`` imports, loaded once before a LocalCluster's workers start (:func:`make_client`).
+    ``worker_setup``: ``(setup_fn, args)`` called once in each worker before its first task (e.g. compiling the
+    kernels under a machine-wide lock). ``prepare``: ``task -> task`` applied just before a task is submitted (or run
+    serially), e.g. reading a bag into bytes; with ``window`` > 0 at most that many tasks are in flight at once, so
+    the client holds at most ``window`` prepared tasks (no Shared arguments then). ``on_result``: ``(i, result) ->
+    result`` called in the client as each result arrives (e.g. writing a run's files and dropping their bytes)."""
     from tqdm import tqdm
 
     bar = tqdm(total=len(tasks), desc=desc, file=sys.stderr, mininterval=2, disable=not progress)
@@ -170,11 +236,14 @@ def run_tasks(fn, tasks: list[tuple], workers: int = 0, scheduler: str = "", ser
     workers = 1 if serial else (workers or os.cpu_count() or 1)
     try:
         if serial:
-            return _run_serial(fn, tasks, bar, records)
+            return _run_serial(fn, [prepare(t) for t in tasks] if prepare and not window else tasks, bar, records,
+                               prepare if window else None, on_result)
         client, cluster = make_client(workers, scheduler, upload, preload)
         try:
             from distributed import as_completed
 
+            if worker_setup is not None:
+                client.register_plugin(_setup_plugin(*worker_setup))
             t_ready = time.time()
             if scheduler:  # the efficiency figures count the cluster's worker threads, not --workers
                 workers = sum(w.get("nthreads", 1) for w in client.scheduler_info().get("workers", {}).values()) \
@@ -182,6 +251,14 @@ def run_tasks(fn, tasks: list[tuple], workers: int = 0, scheduler: str = "", ser
             order = list(range(len(tasks)))
             if cost is not None:
                 order.sort(key=lambda i: -cost[i])  # stable: equal costs keep the caller's order
+            if window > 0:
+                out = _run_windowed(client, fn, tasks, order, prepare, window, bar, records, on_result)
+                if stats is not None:
+                    stats["cluster_start_s"] = t_ready - t0
+                    stats["client_cpu_s"] = time.process_time() - c0
+                return out
+            if prepare is not None:
+                tasks = [prepare(t) for t in tasks]
             shared: dict = {}
             futures = []
             for rank, i in enumerate(order):
@@ -200,6 +277,8 @@ def run_tasks(fn, tasks: list[tuple], workers: int = 0, scheduler: str = "", ser
             for fut in as_completed(futures):
                 i = index[fut.key]
                 out[i], rec, srecs = fut.result()
+                if on_result is not None:
+                    out[i] = on_result(i, out[i])
                 records.append(("task", i) + rec)
                 shared_recs.update(srecs)
                 bar.update(1)

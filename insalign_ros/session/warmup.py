@@ -51,6 +51,35 @@ def warm_up(cores: tuple[str, ...] = ("auto",), duration_s: float = 30.0, rate_h
     return time.perf_counter() - t0
 
 
+def lock_path() -> str:
+    """The machine-wide warm-up lock (beside the user cache of :func:`core.mechanization_numba.user_cache_dir`)."""
+    import os
+
+    from ..core.mechanization_numba import user_cache_dir
+
+    return os.path.join(os.path.dirname(user_cache_dir()), "warmup.lock")
+
+
+def warm_up_once(cores: tuple[str, ...] = ("auto",), duration_s: float = 30.0) -> tuple[float, float]:
+    """:func:`warm_up` under an exclusive file lock shared by every process of this user on this machine: when
+    several processes start cold at once (the workers of a fleet), the first compiles the kernels into the on-disk
+    cache while the others wait, then load them from it (about a second each), instead of every process compiling
+    the same kernels at once. Returns (seconds waited for the lock, seconds of warm-up)."""
+    import fcntl
+    import os
+
+    path = lock_path()
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    t0 = time.perf_counter()
+    with open(path, "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            waited = time.perf_counter() - t0
+            return waited, warm_up(cores, duration_s)
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
 def kernel_stats() -> list[dict]:
     """One row per numba kernel of the package that is loaded: name, cache directory, signatures compiled in this
     process, cache hits and misses (numba's dispatcher ``stats``). Empty without numba."""
