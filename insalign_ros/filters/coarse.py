@@ -66,8 +66,6 @@ class CoarseConfig(StaticConfig):
     """Coarse alignment: averaging window and the sensor errors that set its covariance (ADIS16488A defaults)."""
 
     min_window_s: float = 10.0
-    gyro_bias_deg_h: float = 5.1
-    acc_bias_mg: float = 0.07
     #: beyond this azimuth 1-sigma the core reports no heading [deg]
     max_azimuth_sigma_deg: float = 30.0
     #: "inertial" (vibration-immune, default) or "average" (TRIAD on averaged outputs); see the module docstring

@@ -17,6 +17,8 @@ import dataclasses
 import math
 from dataclasses import dataclass, fields
 
+from .imu_grade import ImuGrade, apply_aliases
+
 
 class ConfigDict:
     """from_dict / to_dict / field type checks shared by every core config dataclass (in-motion and static)."""
@@ -24,7 +26,7 @@ class ConfigDict:
     @classmethod
     def from_dict(cls, params: dict | None = None):
         """Build from a (possibly partial) dict; ints are accepted for floats. Raises ValueError."""
-        params = dict(params or {})
+        params = apply_aliases(dict(params or {}))  # deprecated names (filters/imu_grade.py, one table)
         known = {f.name: f for f in fields(cls)}
         unknown = sorted(set(params) - set(known))
         if unknown:
@@ -47,6 +49,11 @@ class ConfigDict:
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+    def imu_grade(self) -> ImuGrade:
+        """The typed IMU grade this configuration's noise and bias fields hold (one name per datasheet number,
+        filters/imu_grade.py; a number the core does not use is 0)."""
+        return ImuGrade.from_fields(type(self).__name__, self.to_dict())
 
     def check_field_types(self, non_negative: bool = False) -> None:
         """Strings are strings, ints ints, every other field a finite number (and >= 0 when asked)."""
@@ -246,16 +253,16 @@ class BiasStatesConfig(InMotionGnssConfig):
     """Cores with gyro and accelerometer bias states (imperfect IEKF, conventional EKF)."""
 
     #: initial 1-sigma gyro bias [deg/h] (PI-LIEKF Table 1/2: b_Gyro = 25.2 deg/h)
-    init_sigma_gyro_bias_deg_h: float = 25.2
+    gyro_bias_deg_h: float = 25.2
     #: initial 1-sigma accelerometer bias [mg] (Table 1/2: b_Acc = 0.2 mg)
-    init_sigma_acc_bias_mg: float = 0.2
+    acc_bias_mg: float = 0.2
     #: bias random walks (the paper's Q has 0 on the bias block; a small value keeps the filter from locking)
     gyro_bias_rw_deg_h_sqrt_h: float = 0.5
     acc_bias_rw_mg_sqrt_h: float = 0.005
 
     def validate(self) -> None:
         super().validate()
-        for name in ("init_sigma_gyro_bias_deg_h", "init_sigma_acc_bias_mg"):
+        for name in ("gyro_bias_deg_h", "acc_bias_mg"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}: must be > 0, got {getattr(self, name)}")
         for name in ("gyro_bias_rw_deg_h_sqrt_h", "acc_bias_rw_mg_sqrt_h"):

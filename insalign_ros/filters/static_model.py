@@ -143,10 +143,11 @@ class StaticConfig(ConfigDict):
     azimuth_feedback_sigma_deg: float = 180.0
     #: status ALIGNED once the 3-sigma azimuth uncertainty is below this [deg]
     aligned_yaw_3sigma_deg: float = 1.0
-    #: 1-sigma sensor biases the 5-state cores do not estimate: added to the reported attitude covariance as the
-    #: physical floor ((b_acc/g)^2 level, (eps/(omega_ie cos lat))^2 azimuth) so P_att_n stays honest
-    consider_gyro_bias_deg_h: float = 5.1
-    consider_acc_bias_mg: float = 0.07
+    #: 1-sigma sensor biases (the IMU grade's): the 5-state cores do not estimate them and add them to the reported
+    #: attitude covariance as the physical floor ((b_acc/g)^2 level, (eps/(omega_ie cos lat))^2 azimuth) so P_att_n
+    #: stays honest; the 10-state EKF starts its bias states with them; coarse alignment puts them in its covariance
+    gyro_bias_deg_h: float = 5.1
+    acc_bias_mg: float = 0.07
     #: azimuth bootstrap (docs/static_alignment.md, "Large initial azimuth"): when the initial yaw 1-sigma exceeds
     #: ``azimuth_bootstrap_above_sigma_deg``, the first ``azimuth_bootstrap_s`` seconds run the mechanization open
     #: loop, fit the drift of its velocity (quadratic in time: the level error grows at the residual horizontal
@@ -425,7 +426,7 @@ class StaticZuptCore(AlignmentCore):
         s_r_arw = self.cfg.gyro_arw_deg_sqrt_h * D2R / 60.0 * math.sqrt(12.0 / (5.0 * T))
         s_noise_rad = math.hypot(s_r_fit, s_r_arw) / w_h
         s_lvl = float(np.linalg.norm([sigma_v_m_s * math.sqrt(12.0 / n) / (g * T),
-                                      self.cfg.consider_acc_bias_mg * MG / g,
+                                      self.cfg.acc_bias_mg * MG / g,
                                       self.cfg.gyro_arw_deg_sqrt_h * D2R / 60.0 * math.sqrt(T)]))
         self.x[:] = 0.0
         self.x[0:2] = V[-1]
@@ -501,8 +502,8 @@ class StaticZuptCore(AlignmentCore):
         if self.n_bias == 0:
             g = float(np.linalg.norm(self.mech.g_n))
             w_h = earth.OMEGA_IE_RAD_S * math.cos(self.mech.lat_rad)
-            lvl = (self.cfg.consider_acc_bias_mg * MG / g) ** 2
-            P_att = P_att + np.diag([lvl, lvl, (self.cfg.consider_gyro_bias_deg_h * DEG_H / w_h) ** 2])
+            lvl = (self.cfg.acc_bias_mg * MG / g) ** 2
+            P_att = P_att + np.diag([lvl, lvl, (self.cfg.gyro_bias_deg_h * DEG_H / w_h) ** 2])
         yaw3 = 3.0 * math.sqrt(max(P_att[2, 2], 0.0))
         status = AlignmentStatus.ALIGNED if yaw3 < self.cfg.aligned_yaw_3sigma_deg * D2R else AlignmentStatus.CONVERGING
         reason = ("3-sigma azimuth %.3g deg" % (yaw3 / D2R))

@@ -58,7 +58,8 @@ from ..session import catalog
 from ..session.config import SessionConfig
 from ..session.session import AlignmentSession, Ring, TruthSample
 from . import conversions as cv
-from .params import CORE_DOC, NODE_PARAMS, SESSION_DOC, check_value, coerce, descriptor, unknown_parameters
+from .params import (CORE_DOC, NODE_PARAMS, SESSION_DOC, check_value, coerce, descriptor, rename_deprecated,
+                     unknown_parameters)
 from .publishing import OutputPublisher, quantiles as _quantiles  # noqa: F401  (re-exported for tests)
 from .qos import QOS_CHOICES, imu_qos
 
@@ -85,6 +86,8 @@ class AlignmentNode(Node):
         self.core_param_names = list(core_defaults)
         grade = self.get_parameter("imu_grade").value
         from_grade = catalog.grade_defaults(grade, core)  # ValueError: unknown grade, exit 2
+        for line in rename_deprecated(self._parameter_overrides, core_defaults):
+            self.get_logger().warning(line)
         for name, default in core_defaults.items():
             if name in from_grade:
                 self._declare(name, from_grade[name], f"{core} core parameter, default from imu_grade {grade} "

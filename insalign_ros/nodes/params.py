@@ -212,6 +212,27 @@ def core_parameter_owners() -> dict:
     return out
 
 
+def rename_deprecated(overrides: dict, declared_core_params) -> list[str]:
+    """Parameters given at start (``overrides``: name -> rclpy Parameter) under a deprecated name
+    (catalog.DEPRECATED_ALIASES, the one table) are renamed in place to the name the core declares, the value
+    scaled by the table's factor; one warning line each. Old and new name with different values: ValueError."""
+    from rclpy.parameter import Parameter
+
+    lines = []
+    for old in [n for n in overrides if n in catalog.DEPRECATED_ALIASES]:
+        new, factor = catalog.DEPRECATED_ALIASES[old]
+        if new not in declared_core_params:
+            continue  # not this core's: unknown_parameters names it
+        value = overrides.pop(old).value
+        if factor != 1.0 and is_numeric(value):
+            value = float(value) * factor
+        if new in overrides and overrides[new].value != value:
+            raise ValueError(f"{old}: deprecated name of {new!r}, given both with different values")
+        overrides[new] = Parameter(new, value=value)
+        lines.append(catalog.deprecation_message(old))
+    return lines
+
+
 def unknown_parameters(given, declared, core: str) -> list[str]:
     """One warning line per parameter ``given`` (set at start: a file or -p) that the node does not declare: a
     misspelling, or a parameter of another core than ``core``."""

@@ -122,11 +122,8 @@ class AutoConfig(ConfigDict):
     def grade_params(self, core: str) -> dict:
         """The parameters of ``core`` (the static or the in-motion one) that the IMU grade sets (only the fields its
         config has): noise, bias priors, bias random walks, consider floors."""
-        grade = {"gyro_arw_deg_sqrt_h": self.gyro_arw_deg_sqrt_h, "acc_vrw_m_s_sqrt_h": self.acc_vrw_m_s_sqrt_h,
-                 "consider_gyro_bias_deg_h": self.gyro_bias_deg_h, "consider_acc_bias_mg": self.acc_bias_mg,
-                 "init_sigma_gyro_bias_deg_h": self.gyro_bias_deg_h, "init_sigma_acc_bias_mg": self.acc_bias_mg,
-                 "gyro_bias_rw_deg_h_sqrt_h": self.gyro_bias_rw_deg_h_sqrt_h,
-                 "acc_bias_rw_mg_sqrt_h": self.acc_bias_rw_mg_sqrt_h, "gnss_sigma_floor_m": self.gnss_sigma_floor_m}
+        grade = {k: getattr(self, k) for k in imu_grade.GRADE_FIELDS}  # the same names in every core config
+        grade["gnss_sigma_floor_m"] = self.gnss_sigma_floor_m
         known = {f.name for f in fields(registry.CORES[core][1])}
         if any(self.gnss_lever_arm_b_m):
             grade["gnss_lever_arm_b_m"] = list(self.gnss_lever_arm_b_m)

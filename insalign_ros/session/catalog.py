@@ -6,10 +6,10 @@ filters/ (.importlinter); this module is its one door.
 from __future__ import annotations
 
 from ..filters import registry
-from ..filters.imu_grade import DEFAULT_IMU_GRADE, GRADES, grade_params
+from ..filters.imu_grade import DEFAULT_IMU_GRADE, DEPRECATED_ALIASES, GRADES, deprecation_message, grade_params
 from . import auto as _auto  # noqa: F401  the composed core 'auto' registers itself with filters.registry
 
-__all__ = ["DEFAULT_IMU_GRADE", "GRADES", "backtracking_core", "check_core_config", "core_names", "core_defaults",
+__all__ = ["DEFAULT_IMU_GRADE", "DEPRECATED_ALIASES", "GRADES", "deprecation_message", "backtracking_core", "check_core_config", "core_names", "core_defaults",
            "grade_defaults"]
 
 
