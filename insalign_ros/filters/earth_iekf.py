@@ -72,7 +72,7 @@ class EarthIekfConfig(InMotionConfig):
     #: zero-velocity observation: period [s] of the automatic update (0: only on update_zero_velocity) and std [m/s]
     auto_zupt_period_s: float = 0.5
     auto_zupt_sigma_m_s: float = 0.001
-    aligned_yaw_3sigma_deg: float = 0.05
+    status_yaw_3sigma_deg: float = 0.05
     fading_nis_threshold: float = 0.0
 
     def validate(self) -> None:
@@ -375,7 +375,7 @@ class EarthIekf(AlignmentCore):
         P_att = C_b_n @ self.P[0:3, 0:3] @ C_b_n.T
         P_att = 0.5 * (P_att + P_att.T)
         sig3 = 3.0 * math.degrees(math.sqrt(max(P_att[2, 2], 0.0)))
-        status = AlignmentStatus.ALIGNED if sig3 < self.cfg.aligned_yaw_3sigma_deg else AlignmentStatus.CONVERGING
+        status = AlignmentStatus.ALIGNED if sig3 < self.cfg.status_yaw_3sigma_deg else AlignmentStatus.CONVERGING
         return AlignmentEstimate(
             stamp_s=self.t_s, C_b_n=C_b_n, v_n=C_e_n @ v_e_from_vbar(self.v, self.p), lat_rad=lat, lon_rad=lon,
             h_m=h, P_att_n=P_att, P=self.P.copy(), state_names=self.state_names, bias_gyro_b=self.b_g.copy(),

@@ -157,6 +157,9 @@ DEPRECATED_ALIASES = {
     "init_sigma_acc_bias_mg": ("acc_bias_mg", 1.0),
     "consider_acc_bias_mg": ("acc_bias_mg", 1.0),
     "init_sigma_acc_bias_ug": ("acc_bias_mg", 1e-3),
+    # not an IMU number, the same one table: a core's own status ALIGNED (AlignmentEstimate.status), not the aligned
+    # flag, whose bounds are the flag criteria aligned.yaw_3sigma_deg / aligned.roll_pitch_3sigma_deg
+    "aligned_yaw_3sigma_deg": ("status_yaw_3sigma_deg", 1.0),
 }
 
 

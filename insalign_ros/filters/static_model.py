@@ -29,7 +29,7 @@ from ..core import earth, lie
 from ..core import mechanization_numba as nb
 from ..core.mechanization_n import LocalLevelMechanization
 from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, ImuSample, UpdateResult
-from .config import ConfigDict
+from .config import ConfigDict, param
 from .static_kernels import _corrected_attitude_nb, _f_model_nb, _jacobian_nb, _M0, _zupt_step_nb
 from .checks import ImuBuffer, usable_imu_arrays
 
@@ -140,9 +140,13 @@ class StaticConfig(ConfigDict):
     #: in the state the honest 10-state EKF, whose sigma never drops below the ~24 deg MEMS bias floor, would
     #: carry a large phiD for ever and its velocity rows then depend to first order on the horizontal specific
     #: force; see docs/static_alignment.md, "Feedback and rates")
-    azimuth_feedback_sigma_deg: float = 180.0
+    azimuth_feedback_sigma_deg: float = param(180.0, range=(0.0, 360.0))
     #: status ALIGNED once the 3-sigma azimuth uncertainty is below this [deg]
-    aligned_yaw_3sigma_deg: float = 1.0
+    status_yaw_3sigma_deg: float = param(
+        1.0,
+        "the core's own status ALIGNED below this 3-sigma yaw [deg] (not the aligned flag: "
+        'aligned.yaw_3sigma_deg)',
+        range=(0.0, 360.0))
     #: 1-sigma sensor biases (the IMU grade's): the 5-state cores do not estimate them and add them to the reported
     #: attitude covariance as the physical floor ((b_acc/g)^2 level, (eps/(omega_ie cos lat))^2 azimuth) so P_att_n
     #: stays honest; the 10-state EKF starts its bias states with them; coarse alignment puts them in its covariance
@@ -153,7 +157,7 @@ class StaticConfig(ConfigDict):
     #: loop, fit the drift of its velocity (quadratic in time: the level error grows at the residual horizontal
     #: rate), and start the filter at the azimuth of the horizontal Earth rate seen in the computed frame. 0 = off.
     azimuth_bootstrap_s: float = 20.0
-    azimuth_bootstrap_above_sigma_deg: float = 10.0
+    azimuth_bootstrap_above_sigma_deg: float = param(10.0, range=(0.0, 360.0))
     #: time constant of the low-pass on the interval-mean specific force that enters the error model [s]: the
     #: engine vibration (25 Hz) leaves ~5e-3 m/s^2 in a 0.1 s mean; its velocity is not a motion the zero-velocity
     #: update can see, and with the raw value the phiD column of the velocity rows turns it into false azimuth
@@ -162,7 +166,7 @@ class StaticConfig(ConfigDict):
 
     def validate(self) -> None:
         self.check_field_types(non_negative=True)
-        for name in ("init_sigma_v_m_s", "aligned_yaw_3sigma_deg", "azimuth_feedback_sigma_deg"):
+        for name in ("init_sigma_v_m_s", "status_yaw_3sigma_deg", "azimuth_feedback_sigma_deg"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}: must be > 0, got {getattr(self, name)}")
 
@@ -505,7 +509,7 @@ class StaticZuptCore(AlignmentCore):
             lvl = (self.cfg.acc_bias_mg * MG / g) ** 2
             P_att = P_att + np.diag([lvl, lvl, (self.cfg.gyro_bias_deg_h * DEG_H / w_h) ** 2])
         yaw3 = 3.0 * math.sqrt(max(P_att[2, 2], 0.0))
-        status = AlignmentStatus.ALIGNED if yaw3 < self.cfg.aligned_yaw_3sigma_deg * D2R else AlignmentStatus.CONVERGING
+        status = AlignmentStatus.ALIGNED if yaw3 < self.cfg.status_yaw_3sigma_deg * D2R else AlignmentStatus.CONVERGING
         reason = ("3-sigma azimuth %.3g deg" % (yaw3 / D2R))
         if self._boot:
             status, reason = AlignmentStatus.CONVERGING, "azimuth bootstrap (open-loop drift fit) running"

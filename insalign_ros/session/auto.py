@@ -36,7 +36,7 @@ from ..core import earth
 from ..core.types import GnssFix, ImuSample
 from ..filters import imu_grade, registry
 from ..filters.base import AlignmentCore, AlignmentEstimate, AlignmentStatus, UpdateResult
-from ..filters.config import ConfigDict
+from ..filters.config import ConfigDict, param
 from ..filters.hypotheses import YawHypothesisBank
 from .motion import MotionConfig, MotionDetector
 from .rest import REST_BLOCK_S, _BlockMean, block_variance, gyro_bias_from_rest, rest_rate_mean
@@ -82,11 +82,11 @@ class AutoConfig(ConfigDict):
     #: in-motion core: GNSS antenna position in the body frame FLU relative to the IMU [m] (its ``gnss_lever_arm_b_m``)
     gnss_lever_arm_b_m: list = field(default_factory=lambda: [0.0, 0.0, 0.0])
     #: gyrocompassing is trusted for the heading only where the azimuth floor eps/(omega_ie cos lat) is below this
-    heading_floor_max_deg: float = 1.0
+    heading_floor_max_deg: float = param(1.0, range=(0.0, 360.0))
     #: ... and the static yaw 1-sigma at the hand-over below this (else the yaw bank is used)
-    heading_trust_sigma_deg: float = 10.0
+    heading_trust_sigma_deg: float = param(10.0, range=(0.0, 360.0))
     #: yaw hypotheses of the in-motion bank when the heading is not trusted
-    unknown_heading_hypotheses: int = 8
+    unknown_heading_hypotheses: int = param(8, range=(2, 36))  # the session's (catalog.SHARED_WITH_CORES)
     #: the static snapshot the in-motion core starts from is at least this long before the motion onset [s]
     handover_margin_s: float = 0.3
     #: the in-motion core starts from the gyro bias measured at rest (:func:`gyro_bias_from_rest`) when the rest
@@ -97,7 +97,7 @@ class AutoConfig(ConfigDict):
     stop_hold_rate_hz: float = 10.0
     #: stops: zero-angular-rate updates from 1-s gyro means once this many blocks of the stop are in (their spread
     #: is the update's noise); 0 turns them off
-    stop_zero_rate_min_blocks: int = 5
+    stop_zero_rate_min_blocks: int = param(5, range=(0, 10000))
     #: ... only when the in-motion core's own horizontal speed agrees: below this [m/s] (the IMU-only detector can
     #: take a smooth constant acceleration for rest: a position hold while driving would wreck the attitude)
     stop_speed_max_m_s: float = 0.5
