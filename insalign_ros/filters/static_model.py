@@ -28,6 +28,7 @@ import numpy as np
 from ..core import earth, lie
 from ..core import mechanization_numba as nb
 from ..core.mechanization_n import LocalLevelMechanization
+from ..core.units import G0_M_S2
 from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, ImuSample, UpdateResult
 from .config import ConfigDict, param
 from .static_kernels import _corrected_attitude_nb, _f_model_nb, _jacobian_nb, _M0, _zupt_step_nb
@@ -38,7 +39,7 @@ T_NED_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 H_ZUPT = np.hstack([np.eye(2), np.zeros((2, 3))])  #: eq. (32)
 D2R = math.pi / 180.0
 DEG_H = D2R / 3600.0
-MG = 9.80665e-3
+MG = G0_M_S2 * 1e-3  # [m/s^2] per mg (== 9.80665e-3 to the bit)
 
 
 def ned_from_enu(v_enu: np.ndarray) -> np.ndarray:
@@ -526,7 +527,7 @@ class StaticZuptCore(AlignmentCore):
 
 # ---------------------------------------------------------------------------------------------- runner helpers
 def physical_floor(C_b_n_true: np.ndarray, bias_gyro_b: np.ndarray, bias_acc_b: np.ndarray, lat_rad: float,
-                   g_m_s2: float = 9.80665) -> dict:
+                   g_m_s2: float = G0_M_S2) -> dict:
     """The static-alignment floor from the biases actually present (papers README):
     level ~ b_acc_horizontal / g (per ENU axis), azimuth ~ eps_east / (omega_ie cos(lat)); 'azimuth_rad' is the exact
     form atan2(|eps_E|, omega_ie cos(lat) + eps_N), 'azimuth_linear_rad' the first-order one.
