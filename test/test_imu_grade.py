@@ -193,6 +193,11 @@ def test_node_imu_grade_parameter(node_factory):
     with pytest.raises(ValueError) as e:
         node_factory(["-p", "imu_grade:=mems"])
     assert "\n" not in str(e.value) and "unknown IMU grade 'mems'" in str(e.value)
+    # a deprecated name at start (a file or -p): taken under the new name, value scaled by the one alias table
+    node = node_factory(["-p", "core:=earth_iekf", "-p", "init_sigma_acc_bias_ug:=30"])
+    assert node.get_parameter("acc_bias_mg").value == pytest.approx(0.03)
+    assert node.session.core_params["acc_bias_mg"] == pytest.approx(0.03)
+    assert not node.has_parameter("init_sigma_acc_bias_ug")
 
 
 def test_status_says_when_the_conservative_default_grade_holds_the_flag_down():
