@@ -14,7 +14,8 @@ from insalign_ros.session import catalog
 REGENERATE = "python -m insalign_ros.session.catalog --write-yaml --write-docs"
 
 
-@pytest.mark.parametrize("rel", ["config/alignment_node.yaml", "docs/nodes.md"])
+@pytest.mark.parametrize("rel", ["config/alignment_node.yaml", "docs/nodes.md"]
+                         + [f"config/{core}.yaml" for core in catalog.CORE_YAMLS])
 def test_shipped_file_is_the_generated_one(rel):
     new, shipped = catalog.generated_files()[rel]
     if new != shipped:

@@ -70,7 +70,7 @@ class CoarseConfig(StaticConfig):
     #: beyond this azimuth 1-sigma the core reports no heading [deg]
     max_azimuth_sigma_deg: float = param(30.0, range=(0.0, 360.0))
     #: "inertial" (vibration-immune, default) or "average" (TRIAD on averaged outputs); see the module docstring
-    method: str = "inertial"
+    method: str = param("inertial", 'inertial (vibration-immune heading) or average (TRIAD on means)')
 
     def validate(self) -> None:
         super().validate()

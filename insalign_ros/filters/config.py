@@ -222,7 +222,10 @@ class PiLiekfConfig(InMotionGnssConfig):
     lmi_solver: str = "CLARABEL"
     #: candidate gains "k_P:k_I,..." (scalars times I; k_I in 1/s) in order of preference; the first one that the
     #: eq. (20) LMI certifies on the exact window product is used
-    lmi_candidates: str = "1.6:0.5,1.6:0.3,1.3:0.3,1.0:0.1"
+    lmi_candidates: str = param(
+        "1.6:0.5,1.6:0.3,1.3:0.3,1.0:0.1",
+        'the one formulation: eq. (20) certifies the first of these k_P:k_I candidates on 3 windows of '
+        'lmi_window_updates fixes')
     #: GNSS intervals W of each certification window (history needed: W + 2 W/3 intervals)
     lmi_window_updates: int = param(30, range=(2, 600))
     #: re-solve the LMI every this many GNSS updates (1 = every update, as Alg. 2 reads); the gains are cached
@@ -242,7 +245,9 @@ class PiLiekfConfig(InMotionGnssConfig):
     #: its own limit; a solve that has not returned within the budget gives the safe gains with the reason and is
     #: counted (diagnostics lmi_budget_misses); its late result is discarded. A synchronous update waits at most
     #: this long
-    lmi_time_budget_s: float = 2.0
+    lmi_time_budget_s: float = param(
+        2.0,
+        'wall-time budget of one LMI solve [s]: a miss gives the safe gains with the reason (diagnostics)')
     #: safe fallback gains when the LMI is infeasible: k_P = I, k_I = safe_k_I_per_s I [1/s] (0 = the LIEKF)
     safe_k_I_per_s: float = 0.0
     #: margin of the strict inequalities (LMI <= -eps I, J >= eps I)

@@ -9,8 +9,8 @@ import math
 from dataclasses import dataclass, fields
 
 from ..filters import registry
-from ..filters.imu_grade import (DEFAULT_IMU_GRADE, DEPRECATED_ALIASES, GRADES, apply_aliases, deprecation_message,
-                                 grade_params)
+from ..filters.imu_grade import (DEFAULT_IMU_GRADE, DEPRECATED_ALIASES, GRADE_FIELDS, GRADES, apply_aliases,
+                                 deprecation_message, grade_params)
 from . import auto as _auto  # noqa: F401  the composed core 'auto' registers itself with filters.registry
 
 __all__ = ["DEFAULT_IMU_GRADE", "DEPRECATED_ALIASES", "GRADES", "deprecation_message", "backtracking_core", "check_core_config", "core_names", "core_defaults",
@@ -159,10 +159,12 @@ def core_field_metadata() -> dict:
 def core_parameter_specs(core: str, grade=None) -> list[ParamSpec]:
     """The parameters of ``core`` as the node declares them: defaults from the IMU grade where it sets them."""
     meta = core_field_metadata()
+    own = {f.name: f.metadata for f in fields(_config_class(core))}
     from_grade = grade_defaults(grade, core) if grade is not None else {}
     out = []
     for name, default in core_defaults(core).items():
-        md = meta.get(name, {})
+        md = {k: v for k, v in meta.get(name, {}).items() if v not in (None, "")}
+        md.update({k: v for k, v in own[name].items() if k in ("doc", "range") and v not in (None, "")})
         doc = md.get("doc") or f"{core} core parameter (config/{core}.yaml)"
         if name in from_grade:
             default = from_grade[name]
@@ -188,7 +190,10 @@ def _yaml_value(v) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, float):
-        return ".nan" if math.isnan(v) else (".inf" if v == math.inf else repr(v))
+        if math.isnan(v) or math.isinf(v):
+            return ".nan" if math.isnan(v) else (".inf" if v > 0 else "-.inf")
+        mant, e, exp = repr(v).partition("e")
+        return f"{mant}.0e{exp}" if e and "." not in mant else repr(v)  # 1.0e-06: a float to YAML 1.1
     if isinstance(v, (list, tuple)):
         return "[" + ", ".join(_yaml_value(x) for x in v) + "]"
     if isinstance(v, str):
@@ -210,6 +215,32 @@ def alignment_node_yaml() -> str:
     lines.append("    aligned:  # the aligned-flag criteria (insalign_ros/session/flag.py, docs/nodes.md)")
     for p in crit:
         lines.append(f"      {p.name.split('.', 1)[1]}: {_yaml_value(p.default)}  # {p.doc}")
+    return "\n".join(lines) + "\n"
+
+
+#: the cores whose defaults ship as config/<core>.yaml (generated; config/<core>_navgrade.yaml pin a grade by hand)
+CORE_YAMLS = ("liekf", "pi_liekf", "iekf", "ekf", "earth_iekf", "pkf", "ekf10", "coarse", "auto")
+
+
+def core_yaml(core: str) -> str:
+    """config/<core>.yaml: the core's defaults but the IMU-grade fields, commented from the fields' metadata."""
+    cls = _config_class(core)
+    first = " ".join((cls.__doc__ or "").strip().split("\n\n")[0].split())
+    grade = [n for n in core_defaults(core) if n in GRADE_FIELDS]
+    lines = [f"# {core}: the defaults of {cls.__module__}.{cls.__name__}. {first}",
+             "# Units are in the names. GENERATED from the configuration's field metadata: do not edit, run",
+             "#   python -m insalign_ros.session.catalog --write-yaml",
+             "# Load: make_core(p.pop('core'), p) with p = ros__parameters; the node: with config/alignment_node.yaml.",
+             "/**:", "  ros__parameters:", f"    core: {core}"]
+    if grade:
+        lines += [f"    # IMU noise and bias priors ({', '.join(grade)}):",
+                  "    # from imu_grade (config/alignment_node.yaml, docs/imu_grades.md); a value set here overrides the grade"]
+    own = {f.name: f.metadata.get("doc", "") for f in fields(cls)}
+    for p in core_parameter_specs(core):
+        if p.name in GRADE_FIELDS:
+            continue
+        doc = own.get(p.name) or ""
+        lines.append(f"    {p.name}: {_yaml_value(p.default)}" + (f"  # {doc}" if doc else ""))
     return "\n".join(lines) + "\n"
 
 
@@ -257,8 +288,12 @@ def generated_files() -> dict:
         new_docs = docs[:i] + nodes_md_table() + docs[j:]
     else:
         new_docs = docs + "\n" + nodes_md_table() + "\n"
-    return {"config/alignment_node.yaml": (alignment_node_yaml(), yaml_path.read_text()),
-            "docs/nodes.md": (new_docs, docs)}
+    out = {"config/alignment_node.yaml": (alignment_node_yaml(), yaml_path.read_text()),
+           "docs/nodes.md": (new_docs, docs)}
+    for core in CORE_YAMLS:
+        path = root / "config" / f"{core}.yaml"
+        out[f"config/{core}.yaml"] = (core_yaml(core), path.read_text() if path.exists() else "")
+    return out
 
 
 def main(argv=None) -> int:
@@ -272,7 +307,7 @@ def main(argv=None) -> int:
     ap.add_argument("--check", action="store_true", help="print the diff of every file that differs; exit 1")
     a = ap.parse_args(argv)
     gen = generated_files()
-    which = {"config/alignment_node.yaml": a.write_yaml, "docs/nodes.md": a.write_docs}
+    which = {rel: (a.write_docs if rel.endswith(".md") else a.write_yaml) for rel in gen}
     rc = 0
     for rel, (new, old) in gen.items():
         if which[rel]:
