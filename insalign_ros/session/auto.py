@@ -146,7 +146,8 @@ class AutoConfig(ConfigDict):
     def grade_params(self, core: str) -> dict:
         """The parameters of ``core`` (the static or the in-motion one) that the IMU grade sets (only the fields its
         config has): noise, bias priors, bias random walks, consider floors."""
-        grade = {k: getattr(self, k) for k in imu_grade.GRADE_FIELDS}  # the same names in every core config
+        values = self.to_dict()
+        grade = {k: values[k] for k in imu_grade.GRADE_FIELDS}  # the same names in every core config
         grade["gnss_sigma_floor_m"] = self.gnss_sigma_floor_m
         known = {f.name for f in fields(registry.CORES[core][1])}
         if any(self.gnss_lever_arm_b_m):

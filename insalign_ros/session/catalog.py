@@ -6,7 +6,7 @@ filters/ (.importlinter); this module is its one door.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import asdict, dataclass, fields
 
 from ..filters import registry
 from ..filters.imu_grade import (DEFAULT_IMU_GRADE, DEPRECATED_ALIASES, GRADE_FIELDS, GRADES, apply_aliases,
@@ -61,7 +61,8 @@ def resolve_core_params(config, core_params: dict | None = None) -> dict:
     session's shared fields (:data:`SHARED_WITH_CORES`), then the explicit ``core_params`` (deprecated names mapped,
     filters/imu_grade.DEPRECATED_ALIASES)."""
     names = {f.name for f in fields(_config_class(config.core))}
-    shared = {n: getattr(config, n) for n in SHARED_WITH_CORES if n in names}
+    values = config.to_dict()
+    shared = {n: values[n] for n in SHARED_WITH_CORES if n in names}
     return registry.resolve_core_params(config.imu_grade, config.core, {**shared, **apply_aliases(dict(core_params or {}))})
 
 
@@ -127,16 +128,16 @@ def node_parameter_specs() -> list[ParamSpec]:
     from .config import NodeConfig, SessionConfig
     from .flag import AlignedCriteria
 
-    s, n = SessionConfig(), NodeConfig()
+    s, n = SessionConfig().to_dict(), asdict(NodeConfig())
     sf = {f.name: f for f in fields(SessionConfig)}
-    out = [_spec(sf[k], getattr(s, k), "node") for k in ("core", "imu_grade")]
-    out += [_spec(f, getattr(n, f.name), "node") for f in fields(NodeConfig)]
-    out += [_spec(f, getattr(s, f.name), "session") for f in fields(SessionConfig)
+    out = [_spec(sf[k], s[k], "node") for k in ("core", "imu_grade")]
+    out += [_spec(f, n[f.name], "node") for f in fields(NodeConfig)]
+    out += [_spec(f, s[f.name], "session") for f in fields(SessionConfig)
             if f.metadata.get("node", True) and f.name not in ("core", "imu_grade")]
-    crit = AlignedCriteria()
+    crit = AlignedCriteria().to_dict()
     for f in fields(AlignedCriteria):
         doc, rng = CRITERIA_META[f.name]
-        v = getattr(crit, f.name)
+        v = crit[f.name]
         out.append(ParamSpec(f"aligned.{f.name}", v, doc, False, range_of(f.name, v, rng), "aligned"))
     return out
 
