@@ -102,7 +102,7 @@ def scheme_coarse_kf(d, zupt_hz=10.0):
                  init_sigma_rpy_deg=[0.01, 0.01, sig_az_deg], zupt_rate_hz=zupt_hz, zupt_sigma_m_s=0.001,
                  output_period_s=1.0, imu_grade="paper_two_position",
                  static_position_deg_m=[math.degrees(d.lat_rad[k1]), math.degrees(d.lon_rad[k1]), float(d.h_m[k1])],
-                 core_params={"aligned_yaw_3sigma_deg": 0.05, "vibration_vrw_m_s_sqrt_s": 0.0})
+                 core_params={"status_yaw_3sigma_deg": 0.05, "vibration_vrw_m_s_sqrt_s": 0.0})
     e, s1 = _last(r, fine)
     return e, s1, 0.0
 

@@ -47,7 +47,7 @@ def imu_matched_params(spec) -> dict:
     """Core noise parameters from the scenario's IMU spec (what a user sets from the data sheet). For `ship` they
     equal the defaults (PI-LIEKF Tables 1-2); for `car` the defaults would be 7x too noisy in ARW."""
     return {"gyro_arw_deg_sqrt_h": spec.arw_deg_sqrt_h, "acc_vrw_m_s_sqrt_h": spec.vrw_m_s_sqrt_h,
-            "init_sigma_gyro_bias_deg_h": spec.gyro_bias_deg_h, "init_sigma_acc_bias_mg": spec.acc_bias_mg}
+            "gyro_bias_deg_h": spec.gyro_bias_deg_h, "acc_bias_mg": spec.acc_bias_mg}
 
 
 def run_one(core_label, data, yaw, params=None, period=1.0):

@@ -26,6 +26,22 @@ TABLE = [
     ("a NaN IMU timeout", "liekf", {"imu_timeout_s": float("nan")}, {"imu_timeout_s": float("nan")}, "imu_timeout_s"),
     ("the defaults of auto", "auto", {}, {}, None),
     ("a grade under pkf", "pkf", {"imu_grade": "navigation"}, {"imu_grade": "navigation"}, None),
+    # deprecated names (filters/imu_grade.DEPRECATED_ALIASES, one table): accepted with a warning by both doors
+    ("a deprecated gyro-bias name", "iekf", {"init_sigma_gyro_bias_deg_h": 3.0},
+     {"core_params": {"init_sigma_gyro_bias_deg_h": 3.0}}, None),
+    ("a deprecated consider-bias name", "pkf", {"consider_acc_bias_mg": 0.5},
+     {"core_params": {"consider_acc_bias_mg": 0.5}}, None),
+    ("a deprecated unit (ug for mg)", "earth_iekf", {"init_sigma_acc_bias_ug": 30.0},
+     {"core_params": {"init_sigma_acc_bias_ug": 30.0}}, None),
+    ("the core's old status-threshold name", "liekf", {"aligned_yaw_3sigma_deg": 2.0},
+     {"core_params": {"aligned_yaw_3sigma_deg": 2.0}}, None),
+    ("an old and a new name that disagree", "iekf", {"init_sigma_gyro_bias_deg_h": 3.0, "gyro_bias_deg_h": 7.0},
+     {"core_params": {"init_sigma_gyro_bias_deg_h": 3.0, "gyro_bias_deg_h": 7.0}}, "init_sigma_gyro_bias_deg_h"),
+    # one range per field (its metadata): the node's descriptor and the offline validation refuse alike
+    ("a hypothesis count outside its range", "liekf", {"unknown_heading_hypotheses": 40},
+     {"unknown_heading_hypotheses": 40}, "unknown_heading_hypotheses"),
+    ("a core parameter outside its range", "liekf", {"init_sigma_roll_deg": 200.0},
+     {"core_params": {"init_sigma_roll_deg": 200.0}}, "init_sigma_roll_deg"),
 ]
 
 

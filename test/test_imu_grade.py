@@ -48,17 +48,18 @@ def test_every_core_takes_its_noise_and_bias_priors_from_the_grade(core):
     # closed form, field by field
     assert cfg.gyro_arw_deg_sqrt_h == g.gyro_arw_deg_sqrt_h and cfg.acc_vrw_m_s_sqrt_h == g.acc_vrw_m_s_sqrt_h
     expect = {"gyro_arw_deg_sqrt_h": g.gyro_arw_deg_sqrt_h, "acc_vrw_m_s_sqrt_h": g.acc_vrw_m_s_sqrt_h,
-              "init_sigma_gyro_bias_deg_h": g.gyro_bias_deg_h, "init_sigma_acc_bias_mg": g.acc_bias_mg,
-              "init_sigma_acc_bias_ug": 1000.0 * g.acc_bias_mg,
+              "gyro_bias_deg_h": g.gyro_bias_deg_h, "acc_bias_mg": g.acc_bias_mg,
               "gyro_bias_rw_deg_h_sqrt_h": g.gyro_bias_instability_deg_h,
-              "acc_bias_rw_mg_sqrt_h": g.acc_bias_instability_mg,
-              "consider_gyro_bias_deg_h": g.gyro_bias_deg_h, "consider_acc_bias_mg": g.acc_bias_mg,
-              "gyro_bias_deg_h": g.gyro_bias_deg_h, "acc_bias_mg": g.acc_bias_mg}
+              "acc_bias_rw_mg_sqrt_h": g.acc_bias_instability_mg}
     for n in noise:
         assert getattr(cfg, n) == pytest.approx(expect[n]), n
     # an explicit core parameter overrides the preset, the other fields keep it
     over = registry.make_config(core, resolve_core_params("tactical", core, {"gyro_arw_deg_sqrt_h": 0.7}))
     assert over.gyro_arw_deg_sqrt_h == 0.7 and over.acc_vrw_m_s_sqrt_h == g.acc_vrw_m_s_sqrt_h
+    # the typed grade the core receives (its configuration's fields, the grade's names) is the preset's
+    held = cfg.imu_grade()
+    for n in noise:
+        assert getattr(held, n) == pytest.approx(expect[n]), n
     # the dataclass defaults are the papers' IMUs, named presets (the cores' own tests run with them)
     default = cls().to_dict()
     for n, v in grade_params(CORE_DEFAULT_GRADE[core], cls).items():
@@ -68,19 +69,19 @@ def test_every_core_takes_its_noise_and_bias_priors_from_the_grade(core):
 def test_session_resolves_the_grade_under_explicit_core_parameters():
     s = AlignmentSession(SessionConfig(core="iekf"))  # the default: unknown MEMS
     u = GRADES["unknown_mems"]
-    assert s.core_params["init_sigma_gyro_bias_deg_h"] == u.gyro_bias_deg_h == 360.0
-    assert s.core_params["init_sigma_acc_bias_mg"] == u.acc_bias_mg
-    s = AlignmentSession(SessionConfig(core="iekf", imu_grade="paper_ship"), {"init_sigma_acc_bias_mg": 3.0})
-    assert s.core_params["init_sigma_gyro_bias_deg_h"] == 25.2 and s.core_params["init_sigma_acc_bias_mg"] == 3.0
+    assert s.core_params["gyro_bias_deg_h"] == u.gyro_bias_deg_h == 360.0
+    assert s.core_params["acc_bias_mg"] == u.acc_bias_mg
+    s = AlignmentSession(SessionConfig(core="iekf", imu_grade="paper_ship"), {"acc_bias_mg": 3.0})
+    assert s.core_params["gyro_bias_deg_h"] == 25.2 and s.core_params["acc_bias_mg"] == 3.0
     # a static core under the default grade: the consider floor is a MEMS bias (no gyrocompassing claimed)
     p = AlignmentSession(SessionConfig(core="pkf")).core_params
-    assert p["consider_gyro_bias_deg_h"] == 360.0 and p["gyro_arw_deg_sqrt_h"] == u.gyro_arw_deg_sqrt_h
+    assert p["gyro_bias_deg_h"] == 360.0 and p["gyro_arw_deg_sqrt_h"] == u.gyro_arw_deg_sqrt_h
     # reconfigure with another grade: new priors, the alignment restarts
     cfg = SessionConfig(core="iekf", imu_grade="navigation")
     from insalign_ros.session.flag import AlignedCriteria
 
     assert s.reconfigure(cfg, {}, AlignedCriteria())
-    assert s.core_params["init_sigma_gyro_bias_deg_h"] == GRADES["navigation"].gyro_bias_deg_h
+    assert s.core_params["gyro_bias_deg_h"] == GRADES["navigation"].gyro_bias_deg_h
 
 
 def test_use_imu_covariance_noise_overrides_the_grade():
@@ -100,7 +101,7 @@ def test_use_imu_covariance_noise_overrides_the_grade():
     s.core_params.update(imu_noise_from_msg(msg, dt))
     cfg = registry.make_config("iekf", s.core_params)
     assert cfg.gyro_arw_deg_sqrt_h == pytest.approx(0.3) and cfg.acc_vrw_m_s_sqrt_h == pytest.approx(0.05)
-    assert cfg.init_sigma_gyro_bias_deg_h == GRADES["unknown_mems"].gyro_bias_deg_h
+    assert cfg.gyro_bias_deg_h == GRADES["unknown_mems"].gyro_bias_deg_h
 
 
 def test_unknown_grade_is_one_line(capsys):
@@ -180,18 +181,23 @@ def test_node_imu_grade_parameter(node_factory):
     values used), an explicit -p wins, the descriptor lists the choices and is read-only; an unknown grade at
     start-up is a one-line error."""
     g = GRADES["tactical"]
-    node = node_factory(["-p", "core:=iekf", "-p", "imu_grade:=tactical", "-p", "init_sigma_acc_bias_mg:=3"])
-    assert node.get_parameter("init_sigma_gyro_bias_deg_h").value == g.gyro_bias_deg_h
+    node = node_factory(["-p", "core:=iekf", "-p", "imu_grade:=tactical", "-p", "acc_bias_mg:=3"])
+    assert node.get_parameter("gyro_bias_deg_h").value == g.gyro_bias_deg_h
     assert node.get_parameter("gyro_arw_deg_sqrt_h").value == g.gyro_arw_deg_sqrt_h
-    assert node.get_parameter("init_sigma_acc_bias_mg").value == 3.0  # explicit (an int for a double) wins
-    assert node.session.core_params["init_sigma_gyro_bias_deg_h"] == g.gyro_bias_deg_h
-    assert node.session.core_params["init_sigma_acc_bias_mg"] == 3.0 and node.session.cfg.imu_grade == "tactical"
+    assert node.get_parameter("acc_bias_mg").value == 3.0  # explicit (an int for a double) wins
+    assert node.session.core_params["gyro_bias_deg_h"] == g.gyro_bias_deg_h
+    assert node.session.core_params["acc_bias_mg"] == 3.0 and node.session.cfg.imu_grade == "tactical"
     d = node.describe_parameter("imu_grade")
     assert d.read_only and all(name in d.description for name in GRADES)
     assert "imu_grade" in node.describe_parameter("gyro_arw_deg_sqrt_h").description
     with pytest.raises(ValueError) as e:
         node_factory(["-p", "imu_grade:=mems"])
     assert "\n" not in str(e.value) and "unknown IMU grade 'mems'" in str(e.value)
+    # a deprecated name at start (a file or -p): taken under the new name, value scaled by the one alias table
+    node = node_factory(["-p", "core:=earth_iekf", "-p", "init_sigma_acc_bias_ug:=30"])
+    assert node.get_parameter("acc_bias_mg").value == pytest.approx(0.03)
+    assert node.session.core_params["acc_bias_mg"] == pytest.approx(0.03)
+    assert not node.has_parameter("init_sigma_acc_bias_ug")
 
 
 def test_status_says_when_the_conservative_default_grade_holds_the_flag_down():
@@ -202,3 +208,25 @@ def test_status_says_when_the_conservative_default_grade_holds_the_flag_down():
     assert not r.aligned[-1] and "imu_grade is the conservative default 'unknown_mems'" in r.diagnostics["message"]
     r = ia.align("car", duration_s=30.0, seed=4, imu_grade="industrial_mems")
     assert "imu_grade" not in r.diagnostics["message"]
+
+
+def test_deprecated_names_are_aliases_mapped_in_one_table():
+    """One datasheet number, one name: the old names still work for one release, with a warning, through the one
+    table (filters/imu_grade.DEPRECATED_ALIASES); given with the new name and another value they are refused."""
+    from insalign_ros.filters.imu_grade import DEPRECATED_ALIASES
+
+    every_field = {f.name for core in registry.core_names() for f in fields(registry.CORES[core][1])}
+    assert not set(DEPRECATED_ALIASES) & every_field  # no config keeps an old name
+    for old, (new, factor) in DEPRECATED_ALIASES.items():
+        cores = [c for c in registry.core_names() if new in {f.name for f in fields(registry.CORES[c][1])}]
+        assert cores, old
+        for core in cores:
+            with pytest.warns(FutureWarning, match=old):
+                cfg = registry.make_config(core, {old: 2.0})
+            assert getattr(cfg, new) == pytest.approx(2.0 * factor)
+            with pytest.warns(FutureWarning), pytest.raises(ValueError, match=old):
+                registry.make_config(core, {old: 2.0, new: 7.0})
+    # through the session (ia.align's core_params): the old name wins over the grade as the new one does
+    with pytest.warns(FutureWarning, match="init_sigma_gyro_bias_deg_h"):
+        s = AlignmentSession(SessionConfig(core="iekf"), {"init_sigma_gyro_bias_deg_h": 3.0})
+    assert s.core_params["gyro_bias_deg_h"] == 3.0 and "init_sigma_gyro_bias_deg_h" not in s.core_params

@@ -60,4 +60,4 @@ def test_yaml_per_imu_grade_is_config_for_imu(name, cls):
         assert p.pop("core") == name
         assert cls.from_dict(p) == config_for_imu(cls, spec), suffix
     nav = config_for_imu(cls, NAVGRADE)
-    assert nav.gyro_arw_deg_sqrt_h == pytest.approx(0.002) and nav.consider_gyro_bias_deg_h == pytest.approx(0.01)
+    assert nav.gyro_arw_deg_sqrt_h == pytest.approx(0.002) and nav.gyro_bias_deg_h == pytest.approx(0.01)

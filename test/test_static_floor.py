@@ -38,8 +38,8 @@ def _cores():
     quiet = dict(gyro_arw_deg_sqrt_h=0.002, acc_vrw_m_s_sqrt_h=0.001, vibration_vrw_m_s_sqrt_s=1e-3)
     return {
         "pkf": Pkf(PkfConfig.from_dict(quiet)),
-        "ekf10": Ekf10(Ekf10Config.from_dict({**quiet, "init_sigma_gyro_bias_deg_h": 0.01,
-                                              "init_sigma_acc_bias_mg": 0.025})),
+        "ekf10": Ekf10(Ekf10Config.from_dict({**quiet, "gyro_bias_deg_h": 0.01,
+                                              "acc_bias_mg": 0.025})),
         "coarse": CoarseAlignment(CoarseConfig.from_dict({**quiet, "gyro_bias_deg_h": 0.01, "acc_bias_mg": 0.025})),
     }
 

@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.units import G0_M_S2
+
 PROG = "insalign-characterise"
 
 
@@ -172,7 +174,7 @@ def plot(res, path, title: str = "") -> None:
 
     fig, axs = plt.subplots(1, 2, figsize=(12, 5))
     for ax, group, unit in ((axs[0], res.gyro, "deg/h"), (axs[1], res.acc, "mg")):
-        k = math.degrees(1.0) * 3600.0 if unit == "deg/h" else 1.0 / 9.80665e-3
+        k = math.degrees(1.0) * 3600.0 if unit == "deg/h" else 1.0 / (G0_M_S2 * 1e-3)
         for a, c in zip(group, ("C0", "C1", "C2")):
             ax.loglog(a.taus_s, a.adev * k, "-", color=c, lw=1.2, label=a.axis)
             if a.n_fit < len(a.taus_s):

@@ -50,6 +50,7 @@ from scipy.spatial.transform import Rotation
 from ..core import earth, lie
 from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, ImuSample
 from .static_model import DEG_H, MG, StaticConfig, usable_step
+from .config import param
 
 NO_HEADING = "gyro noise/bias too large for Earth rate at this latitude: cannot give heading"
 #: added to the reason when the measured disturbance, not the datasheet noise, dominates the horizontal-rate error
@@ -66,12 +67,10 @@ class CoarseConfig(StaticConfig):
     """Coarse alignment: averaging window and the sensor errors that set its covariance (ADIS16488A defaults)."""
 
     min_window_s: float = 10.0
-    gyro_bias_deg_h: float = 5.1
-    acc_bias_mg: float = 0.07
     #: beyond this azimuth 1-sigma the core reports no heading [deg]
-    max_azimuth_sigma_deg: float = 30.0
+    max_azimuth_sigma_deg: float = param(30.0, range=(0.0, 360.0))
     #: "inertial" (vibration-immune, default) or "average" (TRIAD on averaged outputs); see the module docstring
-    method: str = "inertial"
+    method: str = param("inertial", 'inertial (vibration-immune heading) or average (TRIAD on means)')
 
     def validate(self) -> None:
         super().validate()

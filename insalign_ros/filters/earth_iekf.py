@@ -64,20 +64,20 @@ class EarthIekfConfig(InMotionConfig):
     init_sigma_yaw_deg: float = 10.0
     init_sigma_v_m_s: float = 0.01
     init_sigma_p_m: float = 1.0
-    #: initial 1-sigma gyro drift [deg/h] and accelerometer bias [ug] (P0 of the bias states)
-    init_sigma_gyro_bias_deg_h: float = 0.002
-    init_sigma_acc_bias_ug: float = 20.0
+    #: initial 1-sigma gyro drift [deg/h] and accelerometer bias [mg] (P0 of the bias states; 0.020 mg = 20 ug)
+    gyro_bias_deg_h: float = 0.002
+    acc_bias_mg: float = 0.020
     #: initial 1-sigma of each lever-arm component [m] (eq. (47))
     init_sigma_lever_arm_m: float = 0.05
     #: zero-velocity observation: period [s] of the automatic update (0: only on update_zero_velocity) and std [m/s]
     auto_zupt_period_s: float = 0.5
     auto_zupt_sigma_m_s: float = 0.001
-    aligned_yaw_3sigma_deg: float = 0.05
+    status_yaw_3sigma_deg: float = 0.05
     fading_nis_threshold: float = 0.0
 
     def validate(self) -> None:
         super().validate()
-        for name in ("init_sigma_gyro_bias_deg_h", "init_sigma_acc_bias_ug", "init_sigma_lever_arm_m",
+        for name in ("gyro_bias_deg_h", "acc_bias_mg", "init_sigma_lever_arm_m",
                      "auto_zupt_sigma_m_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}: must be > 0, got {getattr(self, name)}")
@@ -177,8 +177,8 @@ class EarthIekf(AlignmentCore):
         T[6:9, 6:9] = Cnb
         P = np.zeros((N_STATES, N_STATES))
         P[0:9, 0:9] = T @ P0 @ T.T
-        P[9:12, 9:12] = deg_h_to_rad_s(self.cfg.init_sigma_gyro_bias_deg_h) ** 2 * _I3
-        P[12:15, 12:15] = ug_to_m_s2(self.cfg.init_sigma_acc_bias_ug) ** 2 * _I3
+        P[9:12, 9:12] = deg_h_to_rad_s(self.cfg.gyro_bias_deg_h) ** 2 * _I3
+        P[12:15, 12:15] = ug_to_m_s2(1000.0 * self.cfg.acc_bias_mg) ** 2 * _I3
         P[15:18, 15:18] = self.cfg.init_sigma_lever_arm_m**2 * _I3
         self.P = P
         self._buf: list[tuple[float, np.ndarray, np.ndarray]] = []
@@ -375,7 +375,7 @@ class EarthIekf(AlignmentCore):
         P_att = C_b_n @ self.P[0:3, 0:3] @ C_b_n.T
         P_att = 0.5 * (P_att + P_att.T)
         sig3 = 3.0 * math.degrees(math.sqrt(max(P_att[2, 2], 0.0)))
-        status = AlignmentStatus.ALIGNED if sig3 < self.cfg.aligned_yaw_3sigma_deg else AlignmentStatus.CONVERGING
+        status = AlignmentStatus.ALIGNED if sig3 < self.cfg.status_yaw_3sigma_deg else AlignmentStatus.CONVERGING
         return AlignmentEstimate(
             stamp_s=self.t_s, C_b_n=C_b_n, v_n=C_e_n @ v_e_from_vbar(self.v, self.p), lat_rad=lat, lon_rad=lon,
             h_m=h, P_att_n=P_att, P=self.P.copy(), state_names=self.state_names, bias_gyro_b=self.b_g.copy(),

@@ -51,8 +51,8 @@ class ConventionalEkf(BatchedEciCore):
         P[0:3, 0:3] = C_n_i @ P_att_n @ C_n_i.T
         P[3:6, 3:6] = sigma_v * sigma_v * _I3
         P[6:9, 6:9] = sigma_p * sigma_p * _I3
-        P[9:12, 9:12] = deg_h_to_rad_s(self.cfg.init_sigma_gyro_bias_deg_h) ** 2 * _I3
-        P[12:15, 12:15] = mg_to_m_s2(self.cfg.init_sigma_acc_bias_mg) ** 2 * _I3
+        P[9:12, 9:12] = deg_h_to_rad_s(self.cfg.gyro_bias_deg_h) ** 2 * _I3
+        P[12:15, 12:15] = mg_to_m_s2(self.cfg.acc_bias_mg) ** 2 * _I3
         return P
 
     _fused_kernel_transitions = False  # its own (multiplicative-error) transitions: the batched products

@@ -17,16 +17,15 @@ from .static_model import DEG_H, MG, StaticConfig, StaticZuptCore  # noqa: F401
 
 @dataclass
 class Ekf10Config(StaticConfig):
-    """10-state EKF: initial bias sigmas (PKF Table 1 bias stability) and bias random walks."""
+    """10-state EKF: bias random walks; the initial bias sigmas are StaticConfig's gyro_bias_deg_h, acc_bias_mg
+    (PKF Table 1 bias stability)."""
 
-    init_sigma_gyro_bias_deg_h: float = 5.1
-    init_sigma_acc_bias_mg: float = 0.07
     gyro_bias_rw_deg_h_sqrt_h: float = 0.0
     acc_bias_rw_mg_sqrt_h: float = 0.0
 
     def validate(self) -> None:
         super().validate()
-        for name in ("init_sigma_gyro_bias_deg_h", "init_sigma_acc_bias_mg"):
+        for name in ("gyro_bias_deg_h", "acc_bias_mg"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}: must be > 0, got {getattr(self, name)}")
 
@@ -38,8 +37,8 @@ class Ekf10(StaticZuptCore):
     n_bias = 5
 
     def _init_bias_cov(self) -> None:
-        sa = self.cfg.init_sigma_acc_bias_mg * MG
-        sg = self.cfg.init_sigma_gyro_bias_deg_h * DEG_H
+        sa = self.cfg.acc_bias_mg * MG
+        sg = self.cfg.gyro_bias_deg_h * DEG_H
         self.P[5:7, 5:7] = np.eye(2) * sa**2
         self.P[7:10, 7:10] = np.eye(3) * sg**2
 
@@ -55,7 +54,7 @@ class Ekf10(StaticZuptCore):
     def _bootstrap_azimuth_cov(self, s_noise_rad: float, w_h: float) -> None:
         """The bootstrap azimuth a = atan2(rE, wN - rN) carries the horizontal gyro error: its error is
         (sin a epsN + cos a epsE) / wN, correlated with the gyro-error states (covariance below)."""
-        sg2 = (self.cfg.init_sigma_gyro_bias_deg_h * DEG_H) ** 2
+        sg2 = (self.cfg.gyro_bias_deg_h * DEG_H) ** 2
         a = self.x[4]
         self.P[4, 4] = s_noise_rad**2 + sg2 / w_h**2
         self.P[4, 7] = self.P[7, 4] = math.sin(a) * sg2 / w_h

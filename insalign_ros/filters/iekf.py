@@ -53,8 +53,8 @@ class ImperfectIekf(BatchedEciCore):
 
     def _P0(self, C_b_n, P_att_n, sigma_v, sigma_p):
         P = super()._P0(C_b_n, P_att_n, sigma_v, sigma_p)
-        P[9:12, 9:12] = deg_h_to_rad_s(self.cfg.init_sigma_gyro_bias_deg_h) ** 2 * _I3
-        P[12:15, 12:15] = mg_to_m_s2(self.cfg.init_sigma_acc_bias_mg) ** 2 * _I3
+        P[9:12, 9:12] = deg_h_to_rad_s(self.cfg.gyro_bias_deg_h) ** 2 * _I3
+        P[12:15, 12:15] = mg_to_m_s2(self.cfg.acc_bias_mg) ** 2 * _I3
         return P
 
     # ---- bias initialisation and zero-rate API (core: auto's hand-over and stops, session/auto.py) ----
@@ -62,7 +62,7 @@ class ImperfectIekf(BatchedEciCore):
 
     def set_gyro_bias_prior(self, b_g_b, P_b_g_b) -> None:
         """Right after ``initialize`` (nothing propagated yet): gyro bias estimate [rad/s] and its 3x3 covariance
-        [rad^2/s^2] instead of zero and the grade's ``init_sigma_gyro_bias_deg_h`` (cross-covariances zero)."""
+        [rad^2/s^2] instead of zero and the grade's ``gyro_bias_deg_h`` (cross-covariances zero)."""
         if not self._init or self._buf.n or self.t_s != self.t0_s:
             raise RuntimeError("set_gyro_bias_prior: only right after initialize()")
         P_b_g_b = np.asarray(P_b_g_b, float)

@@ -10,6 +10,10 @@ An :class:`ImuGrade` holds what a datasheet gives (units in the names):
 * ``acc_vrw_m_s_sqrt_h`` velocity random walk [m/s/sqrt(h)] (= 60 g0 x the noise density in g/sqrt(Hz));
 * ``acc_bias_mg``, ``acc_bias_instability_mg`` [mg] likewise for the accelerometers.
 
+Every core's config class names these numbers the same way (``gyro_arw_deg_sqrt_h``, ``acc_vrw_m_s_sqrt_h``,
+``gyro_bias_deg_h``, ``acc_bias_mg``, ``gyro_bias_rw_deg_h_sqrt_h``, ``acc_bias_rw_mg_sqrt_h``): one name per
+datasheet number. The old names are deprecated aliases, mapped in :data:`DEPRECATED_ALIASES` (one table).
+
 :func:`grade_params` maps a grade onto the fields of any core's config dataclass (the fields the class has; the
 others are left alone), :func:`filters.registry.resolve_core_params` puts the explicit per-core parameters on top of it. The
 presets, their numbers and their sources are in docs/imu_grades.md. The core dataclasses keep the papers'
@@ -54,6 +58,15 @@ class ImuGrade:
         """A simulator ImuSpec (sim/types.py: constant-in-run biases) as a grade (no bias instability)."""
         return cls(spec.name, spec.arw_deg_sqrt_h, spec.gyro_bias_deg_h, 0.0, spec.vrw_m_s_sqrt_h, spec.acc_bias_mg,
                    0.0, source=f"simulator ImuSpec {spec.name!r}")
+
+    @classmethod
+    def from_fields(cls, name: str, values: dict) -> "ImuGrade":
+        """The grade held by a core configuration's fields (:data:`GRADE_FIELDS`; a missing one is 0)."""
+        h = math.sqrt(BIAS_RW_HORIZON_H)
+        v = {k: float(values.get(k, 0.0)) for k in GRADE_FIELDS}
+        return cls(name, v["gyro_arw_deg_sqrt_h"], v["gyro_bias_deg_h"], v["gyro_bias_rw_deg_h_sqrt_h"] * h,
+                   v["acc_vrw_m_s_sqrt_h"], v["acc_bias_mg"], v["acc_bias_rw_mg_sqrt_h"] * h,
+                   source="core configuration fields")
 
     @property
     def gyro_bias_rw_deg_h_sqrt_h(self) -> float:
@@ -121,24 +134,65 @@ SCENARIO_IMU_GRADE = {"ship": "paper_ship", "car": "industrial_mems", "static": 
                       "park_drive": "industrial_mems", "park_drive_navgrade": "navigation",
                       "drive_stop_drive": "industrial_mems"}
 
-#: config field -> its value from a grade (every core's config class has a subset of these fields)
+#: config field -> its value from a grade. The cores' config classes name each datasheet number as the grade does
+#: (each class has a subset of these fields): the noise densities, the 1-sigma biases (the initial bias sigma of a
+#: core with bias states, the consider floor of one without, the covariance terms of coarse alignment) and the bias
+#: random walks
 _FIELD_FROM_GRADE = {
     "gyro_arw_deg_sqrt_h": lambda g: g.gyro_arw_deg_sqrt_h,
     "acc_vrw_m_s_sqrt_h": lambda g: g.acc_vrw_m_s_sqrt_h,
-    # in-motion cores with bias states (iekf, ekf) and the static 10-state EKF: the initial bias sigmas
-    "init_sigma_gyro_bias_deg_h": lambda g: g.gyro_bias_deg_h,
-    "init_sigma_acc_bias_mg": lambda g: g.acc_bias_mg,
-    "init_sigma_acc_bias_ug": lambda g: 1000.0 * g.acc_bias_mg,  # earth_iekf
-    "gyro_bias_rw_deg_h_sqrt_h": lambda g: g.gyro_bias_rw_deg_h_sqrt_h,
-    "acc_bias_rw_mg_sqrt_h": lambda g: g.acc_bias_rw_mg_sqrt_h,
-    # the 5-state static cores: the unestimated biases as the consider floor of the reported covariance
-    "consider_gyro_bias_deg_h": lambda g: g.gyro_bias_deg_h,
-    "consider_acc_bias_mg": lambda g: g.acc_bias_mg,
-    # coarse alignment: the bias terms of its covariance
     "gyro_bias_deg_h": lambda g: g.gyro_bias_deg_h,
     "acc_bias_mg": lambda g: g.acc_bias_mg,
+    "gyro_bias_rw_deg_h_sqrt_h": lambda g: g.gyro_bias_rw_deg_h_sqrt_h,
+    "acc_bias_rw_mg_sqrt_h": lambda g: g.acc_bias_rw_mg_sqrt_h,
 }
 GRADE_FIELDS = tuple(_FIELD_FROM_GRADE)
+
+#: THE table of deprecated parameter names (accepted for one release, with a warning, at every input boundary:
+#: node parameters, ``ia.align``/``insalign-align`` keyword arguments and core parameters, YAML files):
+#: old name -> (new name, factor: new value = factor x old value). docs/imu_grades.md lists them.
+DEPRECATED_ALIASES = {
+    "init_sigma_gyro_bias_deg_h": ("gyro_bias_deg_h", 1.0),
+    "consider_gyro_bias_deg_h": ("gyro_bias_deg_h", 1.0),
+    "init_sigma_acc_bias_mg": ("acc_bias_mg", 1.0),
+    "consider_acc_bias_mg": ("acc_bias_mg", 1.0),
+    "init_sigma_acc_bias_ug": ("acc_bias_mg", 1e-3),
+    # not an IMU number, the same one table: a core's own status ALIGNED (AlignmentEstimate.status), not the aligned
+    # flag, whose bounds are the flag criteria aligned.yaw_3sigma_deg / aligned.roll_pitch_3sigma_deg
+    "aligned_yaw_3sigma_deg": ("status_yaw_3sigma_deg", 1.0),
+}
+
+
+def deprecation_message(old: str) -> str:
+    new, factor = DEPRECATED_ALIASES[old]
+    scale = "" if factor == 1.0 else f" (x {factor:g}: the unit changed)"
+    return f"parameter {old!r} is deprecated: use {new!r}{scale}; the old name goes in the next release"
+
+
+def apply_aliases(params: dict, warn=None) -> dict:
+    """``params`` with every deprecated name (:data:`DEPRECATED_ALIASES`) replaced by its new name and value; one
+    warning per old name (``warn(message)``; default: a FutureWarning, shown to users by default). An old and a new name given together
+    with different values: ValueError. A dict without old names is returned as is."""
+    if not any(k in DEPRECATED_ALIASES for k in params):
+        return params
+    out = {k: v for k, v in params.items() if k not in DEPRECATED_ALIASES}
+    for old, value in params.items():
+        if old not in DEPRECATED_ALIASES:
+            continue
+        new, factor = DEPRECATED_ALIASES[old]
+        msg = deprecation_message(old)
+        if warn is None:
+            import warnings
+
+            warnings.warn(msg, FutureWarning, stacklevel=3)
+        else:
+            warn(msg)
+        v = value * factor if factor != 1.0 and isinstance(value, (int, float)) and not isinstance(value, bool) else value
+        if new in out and out[new] != v:
+            raise ValueError(f"{old}: deprecated name of {new!r}, given both with different values ({value!r}, "
+                             f"{out[new]!r})")
+        out[new] = v
+    return out
 
 
 def get_grade(grade) -> ImuGrade:

@@ -417,7 +417,7 @@ class BatchedEciCore(AlignmentCore):
         P_att = self._P_att_n(C_b_n)
         P_att = 0.5 * (P_att + P_att.T)
         sig_yaw3 = 3.0 * math.degrees(math.sqrt(max(P_att[2, 2], 0.0)))
-        if sig_yaw3 < self.cfg.aligned_yaw_3sigma_deg:
+        if sig_yaw3 < self.cfg.status_yaw_3sigma_deg:
             status, reason = AlignmentStatus.ALIGNED, f"3-sigma yaw {sig_yaw3:.2f} deg"
         else:
             status, reason = AlignmentStatus.CONVERGING, f"3-sigma yaw {sig_yaw3:.2f} deg"

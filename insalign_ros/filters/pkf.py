@@ -21,13 +21,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from .static_model import H_ZUPT, expm_taylor, StaticConfig, StaticZuptCore
+from .config import param
 
 
 @dataclass
 class PkfConfig(StaticConfig):
     """PKF tuning: horizon p (paper: 10), weights R_e (per output) and Q_m (per model-error increment)."""
 
-    horizon_p: int = 10
+    horizon_p: int = param(10, range=(1, 10000))
     #: R_e weight of every predicted velocity output [1/(m/s)^2]
     re_weight_per_m2_s2: float = 1.0
     #: Q_m weights of the velocity-channel increments [1/(m/s)^2] and attitude-channel increments [1/rad^2];

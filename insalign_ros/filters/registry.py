@@ -11,7 +11,7 @@ from typing import Callable
 
 from .base import AlignmentCore
 from .config import EkfConfig, IekfConfig, LiekfConfig, PiLiekfConfig
-from .imu_grade import grade_params
+from .imu_grade import apply_aliases, grade_params
 
 
 def _liekf(cfg):
@@ -118,4 +118,4 @@ def resolve_core_params(grade, core: str, core_params: dict | None = None) -> di
     explicit ``core_params`` (a per-core parameter always wins over the preset)."""
     if core not in CORES:
         raise ValueError(f"core: unknown core {core!r}; choose one of {sorted(core_names())}")
-    return {**grade_params(grade, CORES[core][1]), **dict(core_params or {})}
+    return {**grade_params(grade, CORES[core][1]), **apply_aliases(dict(core_params or {}))}

@@ -28,8 +28,9 @@ import numpy as np
 from ..core import earth, lie
 from ..core import mechanization_numba as nb
 from ..core.mechanization_n import LocalLevelMechanization
+from ..core.units import G0_M_S2
 from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, ImuSample, UpdateResult
-from .config import ConfigDict
+from .config import ConfigDict, param
 from .static_kernels import _corrected_attitude_nb, _f_model_nb, _jacobian_nb, _M0, _zupt_step_nb
 from .checks import ImuBuffer, usable_imu_arrays
 
@@ -38,7 +39,7 @@ T_NED_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 H_ZUPT = np.hstack([np.eye(2), np.zeros((2, 3))])  #: eq. (32)
 D2R = math.pi / 180.0
 DEG_H = D2R / 3600.0
-MG = 9.80665e-3
+MG = G0_M_S2 * 1e-3  # [m/s^2] per mg (== 9.80665e-3 to the bit)
 
 
 def ned_from_enu(v_enu: np.ndarray) -> np.ndarray:
@@ -140,19 +141,24 @@ class StaticConfig(ConfigDict):
     #: in the state the honest 10-state EKF, whose sigma never drops below the ~24 deg MEMS bias floor, would
     #: carry a large phiD for ever and its velocity rows then depend to first order on the horizontal specific
     #: force; see docs/static_alignment.md, "Feedback and rates")
-    azimuth_feedback_sigma_deg: float = 180.0
+    azimuth_feedback_sigma_deg: float = param(180.0, range=(0.0, 360.0))
     #: status ALIGNED once the 3-sigma azimuth uncertainty is below this [deg]
-    aligned_yaw_3sigma_deg: float = 1.0
-    #: 1-sigma sensor biases the 5-state cores do not estimate: added to the reported attitude covariance as the
-    #: physical floor ((b_acc/g)^2 level, (eps/(omega_ie cos lat))^2 azimuth) so P_att_n stays honest
-    consider_gyro_bias_deg_h: float = 5.1
-    consider_acc_bias_mg: float = 0.07
+    status_yaw_3sigma_deg: float = param(
+        1.0,
+        "the core's own status ALIGNED below this 3-sigma yaw [deg] (not the aligned flag: "
+        'aligned.yaw_3sigma_deg)',
+        range=(0.0, 360.0))
+    #: 1-sigma sensor biases (the IMU grade's): the 5-state cores do not estimate them and add them to the reported
+    #: attitude covariance as the physical floor ((b_acc/g)^2 level, (eps/(omega_ie cos lat))^2 azimuth) so P_att_n
+    #: stays honest; the 10-state EKF starts its bias states with them; coarse alignment puts them in its covariance
+    gyro_bias_deg_h: float = 5.1
+    acc_bias_mg: float = 0.07
     #: azimuth bootstrap (docs/static_alignment.md, "Large initial azimuth"): when the initial yaw 1-sigma exceeds
     #: ``azimuth_bootstrap_above_sigma_deg``, the first ``azimuth_bootstrap_s`` seconds run the mechanization open
     #: loop, fit the drift of its velocity (quadratic in time: the level error grows at the residual horizontal
     #: rate), and start the filter at the azimuth of the horizontal Earth rate seen in the computed frame. 0 = off.
     azimuth_bootstrap_s: float = 20.0
-    azimuth_bootstrap_above_sigma_deg: float = 10.0
+    azimuth_bootstrap_above_sigma_deg: float = param(10.0, range=(0.0, 360.0))
     #: time constant of the low-pass on the interval-mean specific force that enters the error model [s]: the
     #: engine vibration (25 Hz) leaves ~5e-3 m/s^2 in a 0.1 s mean; its velocity is not a motion the zero-velocity
     #: update can see, and with the raw value the phiD column of the velocity rows turns it into false azimuth
@@ -161,7 +167,7 @@ class StaticConfig(ConfigDict):
 
     def validate(self) -> None:
         self.check_field_types(non_negative=True)
-        for name in ("init_sigma_v_m_s", "aligned_yaw_3sigma_deg", "azimuth_feedback_sigma_deg"):
+        for name in ("init_sigma_v_m_s", "status_yaw_3sigma_deg", "azimuth_feedback_sigma_deg"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}: must be > 0, got {getattr(self, name)}")
 
@@ -425,7 +431,7 @@ class StaticZuptCore(AlignmentCore):
         s_r_arw = self.cfg.gyro_arw_deg_sqrt_h * D2R / 60.0 * math.sqrt(12.0 / (5.0 * T))
         s_noise_rad = math.hypot(s_r_fit, s_r_arw) / w_h
         s_lvl = float(np.linalg.norm([sigma_v_m_s * math.sqrt(12.0 / n) / (g * T),
-                                      self.cfg.consider_acc_bias_mg * MG / g,
+                                      self.cfg.acc_bias_mg * MG / g,
                                       self.cfg.gyro_arw_deg_sqrt_h * D2R / 60.0 * math.sqrt(T)]))
         self.x[:] = 0.0
         self.x[0:2] = V[-1]
@@ -501,10 +507,10 @@ class StaticZuptCore(AlignmentCore):
         if self.n_bias == 0:
             g = float(np.linalg.norm(self.mech.g_n))
             w_h = earth.OMEGA_IE_RAD_S * math.cos(self.mech.lat_rad)
-            lvl = (self.cfg.consider_acc_bias_mg * MG / g) ** 2
-            P_att = P_att + np.diag([lvl, lvl, (self.cfg.consider_gyro_bias_deg_h * DEG_H / w_h) ** 2])
+            lvl = (self.cfg.acc_bias_mg * MG / g) ** 2
+            P_att = P_att + np.diag([lvl, lvl, (self.cfg.gyro_bias_deg_h * DEG_H / w_h) ** 2])
         yaw3 = 3.0 * math.sqrt(max(P_att[2, 2], 0.0))
-        status = AlignmentStatus.ALIGNED if yaw3 < self.cfg.aligned_yaw_3sigma_deg * D2R else AlignmentStatus.CONVERGING
+        status = AlignmentStatus.ALIGNED if yaw3 < self.cfg.status_yaw_3sigma_deg * D2R else AlignmentStatus.CONVERGING
         reason = ("3-sigma azimuth %.3g deg" % (yaw3 / D2R))
         if self._boot:
             status, reason = AlignmentStatus.CONVERGING, "azimuth bootstrap (open-loop drift fit) running"
@@ -521,7 +527,7 @@ class StaticZuptCore(AlignmentCore):
 
 # ---------------------------------------------------------------------------------------------- runner helpers
 def physical_floor(C_b_n_true: np.ndarray, bias_gyro_b: np.ndarray, bias_acc_b: np.ndarray, lat_rad: float,
-                   g_m_s2: float = 9.80665) -> dict:
+                   g_m_s2: float = G0_M_S2) -> dict:
     """The static-alignment floor from the biases actually present (papers README):
     level ~ b_acc_horizontal / g (per ENU axis), azimuth ~ eps_east / (omega_ie cos(lat)); 'azimuth_rad' is the exact
     form atan2(|eps_E|, omega_ie cos(lat) + eps_N), 'azimuth_linear_rad' the first-order one.

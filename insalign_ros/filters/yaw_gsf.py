@@ -21,7 +21,7 @@ import numpy as np
 from ..core import earth
 from ..core.types import ImuSample
 
-G0_M_S2 = 9.80665
+from ..core.units import G0_M_S2  # the one standard gravity
 _J = np.array([[0.0, -1.0], [1.0, 0.0]])  # d/dyaw of Rz2(yaw) = J Rz2(yaw)
 
 

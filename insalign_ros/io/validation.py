@@ -16,8 +16,10 @@ import math
 
 import numpy as np
 
+from ..core.units import G0_M_S2
+
 MAX_RATE_RAD_S = math.radians(2000.0)
-MAX_SPECIFIC_FORCE_M_S2 = 50.0 * 9.80665
+MAX_SPECIFIC_FORCE_M_S2 = 50.0 * G0_M_S2
 MAX_GNSS_SIGMA_M = 1.0e4  #: a fix with a larger 1-sigma is useless for alignment
 
 

@@ -58,7 +58,8 @@ from ..session import catalog
 from ..session.config import SessionConfig
 from ..session.session import AlignmentSession, Ring, TruthSample
 from . import conversions as cv
-from .params import CORE_DOC, NODE_PARAMS, SESSION_DOC, check_value, coerce, descriptor, unknown_parameters
+from .params import (NODE_PARAMS, SESSION_DOC, SPECS, check_value, coerce, descriptor, rename_deprecated,
+                     unknown_parameters)
 from .publishing import OutputPublisher, quantiles as _quantiles  # noqa: F401  (re-exported for tests)
 from .qos import QOS_CHOICES, imu_qos
 
@@ -72,25 +73,18 @@ class AlignmentNode(Node):
     def __init__(self, warm_up: bool = True, **node_kwargs) -> None:
         super().__init__("alignment_node", **node_kwargs)
         self.defaults: dict = {}
-        for name, (default, text, ro) in NODE_PARAMS.items():
-            self._declare(name, default, text, ro)
-        for name, default in SessionConfig().to_dict().items():
-            if name in SESSION_DOC:
-                self._declare(name, default, SESSION_DOC[name], False)
-        for name, default in AlignedCriteria().to_dict().items():
-            self._declare(f"aligned.{name}", default, f"aligned flag criterion {name} (session/flag.py)", False)
+        for spec in SPECS.values():  # node, session and flag parameters (descriptions and ranges: field metadata)
+            self._declare(spec.name, spec.default, spec.doc, spec.read_only)
         core = self.get_parameter("core").value
         core_defaults = catalog.core_defaults(core)  # ValueError: unknown core, exit 2
         self.core_name = core
         self.core_param_names = list(core_defaults)
         grade = self.get_parameter("imu_grade").value
-        from_grade = catalog.grade_defaults(grade, core)  # ValueError: unknown grade, exit 2
-        for name, default in core_defaults.items():
-            if name in from_grade:
-                self._declare(name, from_grade[name], f"{core} core parameter, default from imu_grade {grade} "
-                                                      "(docs/imu_grades.md)", False)
-            elif name not in self.defaults:
-                self._declare(name, default, CORE_DOC.get(name, f"{core} core parameter (config/{core}.yaml)"), False)
+        for line in rename_deprecated(self._parameter_overrides, core_defaults):
+            self.get_logger().warning(line)
+        for spec in catalog.core_parameter_specs(core, grade):  # ValueError: unknown grade, exit 2
+            if spec.name not in self.defaults:
+                self._declare(spec.name, spec.default, spec.doc, spec.read_only)
         for line in unknown_parameters(self._parameter_overrides, self.defaults, core):
             self.get_logger().warning(line)
         p = {n: self._coerced(n) for n in self.defaults}

@@ -31,8 +31,7 @@ import traceback
 from collections import OrderedDict
 
 from ..filters.base import AlignmentCore, AlignmentStatus
-from ..filters.registry import resolve_core_params
-from .catalog import check_core_config
+from .catalog import check_core_config, resolve_core_params
 from .buffers import Pending, Ring  # noqa: F401  (Ring re-exported: the node's diagnostics windows)
 from .config import SessionConfig
 from .flag import AlignedCriteria, AlignedFlag
@@ -78,7 +77,7 @@ class AlignmentSession:
         self.cfg = config if isinstance(config, SessionConfig) else SessionConfig.from_dict(config)
         self.cfg.validate()
         # the IMU grade's noise and bias fields under the explicit core parameters (filters/imu_grade.py)
-        self.core_params = resolve_core_params(self.cfg.imu_grade, self.cfg.core, core_params)
+        self.core_params = resolve_core_params(self.cfg, core_params)
         check_core_config(self.cfg, self.core_params)  # validate now (ValueError with the reason)
         self.flag = AlignedFlag(criteria or AlignedCriteria())
         self.log = log or (lambda level, key, text: None)
@@ -135,7 +134,7 @@ class AlignmentSession:
     def reconfigure(self, config: SessionConfig, core_params: dict, criteria: AlignedCriteria) -> bool:
         """Apply new parameters. Returns True when the alignment was restarted (core or core parameters changed)."""
         config.validate()
-        core_params = resolve_core_params(config.imu_grade, config.core, core_params)
+        core_params = resolve_core_params(config, core_params)
         check_core_config(config, core_params)
         restart = (config.core != self.cfg.core or core_params != self.core_params
                    or config.init_mode != self.cfg.init_mode or config.backtrack_passes != self.cfg.backtrack_passes)
