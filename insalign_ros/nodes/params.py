@@ -16,6 +16,8 @@ from ..session.config import SessionConfig
 SESSION_DOC = {  # session parameters the node exposes under the same names (SessionConfig has the meaning)
     "init_mode": "sensors (no guess: position/velocity from the fixes, level from the accelerometers, unknown heading "
                  "-> yaw bank), guess (initial_rpy_deg) or truth (ground_truth/pose; init_from_ground_truth)",
+    "vehicle": "car | wheeled_robot | boat | aircraft | unknown (safe for every platform): what the yaw from GNSS "
+               "velocity may assume (cars and wheeled robots drive along their x axis)",
     "init_level_window_s": "sensors: accelerometer averaging window for roll and pitch [s]",
     "unknown_heading_hypotheses": "sensors: yaw hypotheses when the heading is unknown (GNSS cores)",
     "init_accel_m_s2": "sensors: vehicle acceleration assumed when the fixes cannot tell it [m/s^2]",

@@ -27,6 +27,10 @@ class SessionConfig:
     #: (``initial_rpy_deg``, ``initial_velocity_enu_m_s``) or "truth" (a ground-truth pose at an IMU stamp plus
     #: ``init_rpy_error_deg``: simulations and tests)
     init_mode: str = "sensors"
+    #: the platform (car | wheeled_robot | boat | aircraft | unknown): what the yaw from GNSS velocity may assume
+    #: (session/yaw_seed.py): cars and wheeled robots drive along their x axis up to a side-slip; the default
+    #: ``unknown`` assumes nothing about the motion (safe for every platform)
+    vehicle: str = "unknown"
     #: sensors: accelerometer averaging window for roll and pitch before the initialisation stamp [s]
     init_level_window_s: float = 1.0
     #: sensors: yaw hypotheses of the bank when the heading is unknown (GNSS cores whose yaw_hypotheses is 1)
@@ -143,6 +147,9 @@ class SessionConfig:
         get_grade(self.imu_grade)  # ValueError "imu_grade: unknown IMU grade ..."
         if self.init_mode not in ("sensors", "guess", "truth"):
             raise ValueError(f"init_mode: must be 'sensors', 'guess' or 'truth', got {self.init_mode!r}")
+        if self.vehicle not in ("car", "wheeled_robot", "boat", "aircraft", "unknown"):
+            raise ValueError(f"vehicle: must be 'car', 'wheeled_robot', 'boat', 'aircraft' or 'unknown', got "
+                             f"{self.vehicle!r}")
         if not (isinstance(self.unknown_heading_hypotheses, int) and 1 <= self.unknown_heading_hypotheses <= 36):
             raise ValueError(f"unknown_heading_hypotheses: must be an integer in [1, 36], got "
                              f"{self.unknown_heading_hypotheses!r}")
