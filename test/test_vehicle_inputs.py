@@ -112,3 +112,63 @@ def test_gsf_seeds_the_in_motion_core_of_a_car_and_assumes_nothing_by_default():
     unknown = align("car", seed=0, duration_s=40.0)
     assert unknown.diagnostics["gsf_seeds"] == "0"
     assert unknown.diagnostics["yaw_seeded_by"] != d["yaw_seeded_by"]
+
+
+def test_a_message_the_node_refuses_is_counted_under_its_own_topic():
+    s = AlignmentSession(SessionConfig())
+    s.reject_input("wheel_speed", "wheel_speed_invalid", "NaN/Inf in the twist's linear.x or its covariance")
+    s.reject_input("gnss_heading", "gnss_heading_invalid", "orientation_covariance[0] is -1 (no orientation)")
+    c = s.counters
+    assert (c["wheel_speed_received"], c["wheel_speed_invalid"], c["wheel_speed_rejected"]) == (1, 1, 1)
+    assert (c["gnss_heading_received"], c["gnss_heading_invalid"], c["gnss_heading_rejected"]) == (1, 1, 1)
+    assert c["gnss_rejected"] == 0
+
+
+@pytest.mark.ros
+@pytest.mark.timeout(90)
+def test_node_takes_wheel_odometry_and_gnss_heading_over_dds(monkeypatch):
+    """alignment_node subscribes wheel/odom (nav_msgs/Odometry) and gps/heading (sensor_msgs/Imu, ublox-style): every
+    message reaches the session's counters, a bad one under its own reason (waits on the counters, not on time)."""
+    import time
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+
+    from insalign_ros.cli.bringup import isolated_ros_env
+    from insalign_ros.nodes.alignment_node import AlignmentNode
+
+    for k, v in isolated_ros_env(base={}).items():
+        monkeypatch.setenv(k, v)
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    node = AlignmentNode(context=ctx, parameter_overrides=[Parameter("core", value="iekf"),
+                                                           Parameter("poll_inputs", value=False)])
+    pub = Node("vehicle_inputs_pub", context=ctx)
+    po, ph = pub.create_publisher(Odometry, "wheel/odom", 10), pub.create_publisher(Imu, "gps/heading", 10)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node), ex.add_node(pub)
+    try:
+        end = time.monotonic() + 30.0
+        while (po.get_subscription_count() == 0 or ph.get_subscription_count() == 0) and time.monotonic() < end:
+            ex.spin_once(timeout_sec=0.05)
+        for k in range(4):
+            o, h = Odometry(), Imu()
+            for m in (o, h):
+                m.header.stamp.sec, m.header.stamp.nanosec = 1000 + k, 0
+            o.twist.twist.linear.x = float("nan") if k == 3 else 5.0
+            h.orientation.z, h.orientation.w = math.sin(0.25), math.cos(0.25)
+            h.orientation_covariance[8] = 0.0 if k == 3 else 1e-4
+            po.publish(o), ph.publish(h)
+        c = node.session.counters
+        while (c["wheel_speed_received"] < 4 or c["gnss_heading_received"] < 4) and time.monotonic() < end:
+            ex.spin_once(timeout_sec=0.05)
+        got = {k: v for k, v in c.items() if k.startswith(("wheel_speed", "gnss_heading"))}
+        assert got["wheel_speed_received"] == 4 and got["wheel_speed_invalid"] == 1, got
+        assert got["gnss_heading_received"] == 4 and got["gnss_heading_invalid"] == 1, got
+    finally:
+        ex.shutdown()
+        node.destroy_node()
+        pub.destroy_node()
+        rclpy.shutdown(context=ctx)

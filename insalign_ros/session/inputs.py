@@ -244,7 +244,10 @@ class InputStage:
         sess = self.s
         sess.counters[f"{topic}_received"] += 1
         self.touch(wall_s)
-        (self.reject_imu if topic == "imu" else self.reject_fix)(counter, reason)
+        if topic in ("imu", "gnss"):
+            (self.reject_imu if topic == "imu" else self.reject_fix)(counter, reason)
+        else:  # wheel_speed, gnss_heading
+            self.reject(topic, "sample", counter, reason)
 
     def touch(self, wall_s: float | None) -> None:
         sess = self.s
