@@ -172,3 +172,36 @@ def test_node_takes_wheel_odometry_and_gnss_heading_over_dds(monkeypatch):
         node.destroy_node()
         pub.destroy_node()
         rclpy.shutdown(context=ctx)
+
+
+@pytest.mark.parametrize("kind", ["enu", "ned", "course"])
+def test_import_reads_gnss_velocity_wheel_speed_and_heading_columns(tmp_path, kind):
+    """insalign-import: a GNSS velocity of (E, N, U) = (3, 4, 0) m/s given as ENU or NED components or as speed 5 m/s
+    on a course of 36.87 deg from North; a wheel speed; a heading 30 deg from North (ENU yaw 60 deg); the rows
+    without a value have none; ia.align hands them to the session (counted)."""
+    from insalign_ros.io.importer import import_table, write_csv
+    from insalign_ros.session.offline import align
+
+    n = 400
+    t = 0.01 * np.arange(n)
+    nan = np.full(n, np.nan)
+    cols = {"t_s": t, "wx_rad_s": np.zeros(n), "wy_rad_s": np.zeros(n), "wz_rad_s": np.zeros(n),
+            "fx_m_s2": np.zeros(n), "fy_m_s2": np.zeros(n), "fz_m_s2": np.full(n, 9.81),
+            "lat_deg": nan.copy(), "lon_deg": nan.copy(), "h_m": nan.copy(), "sigma_h_m": nan.copy()}
+    every = np.arange(0, n, 100)
+    cols["lat_deg"][every], cols["lon_deg"][every], cols["h_m"][every], cols["sigma_h_m"][every] = 49.0, 8.4, 115.0, 1.0
+    vel = {"enu": {"vel_e_m_s": 3.0, "vel_n_m_s": 4.0, "vel_u_m_s": 0.0},
+           "ned": {"vel_north_m_s": 4.0, "vel_east_m_s": 3.0, "vel_down_m_s": 0.0},
+           "course": {"speed_m_s": 5.0, "course_deg": math.degrees(math.atan2(3.0, 4.0))}}[kind]
+    for name, v in {**vel, "sigma_vel_m_s": 0.1, "wheel_speed_m_s": 5.0, "gnss_heading_deg": 30.0,
+                    "sigma_heading_deg": 0.5}.items():
+        cols[name] = nan.copy()
+        cols[name][every] = v
+    data, report = import_table(write_csv(tmp_path / "log.csv", cols))
+    assert report["gnss_velocities"] == 4 and report["wheel_speeds"] == 4 and report["gnss_headings"] == 4
+    assert np.allclose(data.gnss_vel_n, [3.0, 4.0, 0.0], atol=1e-9)
+    assert np.allclose(data.gnss_vel_R_n[0], 0.01 * np.eye(3))
+    assert np.allclose(np.degrees(data.heading_yaw_rad), 60.0) and np.allclose(data.wheel_speed_m_s, 5.0)
+    assert np.allclose(data.wheel_var_m2_s2, 0.01)  # the default 1-sigma 0.1 m/s
+    c = align(data, core="iekf", init_mode="guess").counters
+    assert c["wheel_speed_received"] == 4 and c["gnss_heading_received"] == 4 and c["gnss_vel_received"] == 4
