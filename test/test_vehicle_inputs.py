@@ -205,3 +205,29 @@ def test_import_reads_gnss_velocity_wheel_speed_and_heading_columns(tmp_path, ki
     assert np.allclose(data.wheel_var_m2_s2, 0.01)  # the default 1-sigma 0.1 m/s
     c = align(data, core="iekf", init_mode="guess").counters
     assert c["wheel_speed_received"] == 4 and c["gnss_heading_received"] == 4 and c["gnss_vel_received"] == 4
+
+
+def test_wheel_speed_and_heading_are_written_to_the_bag_as_drivers_publish_them(tmp_path):
+    """write_bag: /wheel/odom nav_msgs/Odometry (twist.linear.x, covariance[0]) and /gps/heading sensor_msgs/Imu
+    (ENU yaw in the orientation, orientation_covariance[8]); read back with the node's conversions."""
+    from rosbags.highlevel import AnyReader
+
+    from insalign_ros.io.bag import typestore, write_bag
+    from insalign_ros.sim.scenarios import make_scenario
+
+    d = make_scenario("car", seed=1, duration_s=3.0)
+    d.wheel_t_s, d.wheel_speed_m_s, d.wheel_var_m2_s2 = np.array([1.0, 2.0]), np.array([4.0, -1.0]), np.full(2, 0.01)
+    d.heading_t_s, d.heading_yaw_rad, d.heading_var_rad2 = np.array([1.5]), np.array([2.5]), np.array([1e-4])
+    bag = write_bag(d, tmp_path / "b")
+    got = {}
+    with AnyReader([bag], default_typestore=typestore()) as r:
+        types = {c.topic: c.msgtype for c in r.connections}
+        assert types["/wheel/odom"] == "nav_msgs/msg/Odometry" and types["/gps/heading"] == "sensor_msgs/msg/Imu"
+        conns = [c for c in r.connections if c.topic in ("/wheel/odom", "/gps/heading")]
+        for c, _, raw in r.messages(connections=conns):
+            got.setdefault(c.topic, []).append(r.deserialize(raw, c.msgtype))
+    ws = [cv.wheel_speed_from_odometry(m)[0] for m in got["/wheel/odom"]]
+    assert [w.speed_m_s for w in ws] == [4.0, -1.0] and [w.stamp_s for w in ws] == [1.0, 2.0]
+    assert ws[0].var_m2_s2 == 0.01
+    h, reason = cv.gnss_heading_from_imu_msg(got["/gps/heading"][0])
+    assert reason == "" and abs(h.yaw_rad - 2.5) < 1e-12 and h.var_rad2 == 1e-4
