@@ -231,3 +231,26 @@ def test_wheel_speed_and_heading_are_written_to_the_bag_as_drivers_publish_them(
     assert ws[0].var_m2_s2 == 0.01
     h, reason = cv.gnss_heading_from_imu_msg(got["/gps/heading"][0])
     assert reason == "" and abs(h.yaw_rad - 2.5) < 1e-12 and h.var_rad2 == 1e-4
+
+
+def test_simulated_wheel_speed_and_dual_antenna_heading():
+    """make_scenario: wheel speed = the body-x velocity times (1 + scale error) plus noise, at wheel_rate_hz; heading =
+    the ENU yaw of the body baseline plus noise at the fix stamps; off by default (the other signals unchanged)."""
+    from insalign_ros.core import earth
+    from insalign_ros.sim.scenarios import make_scenario
+
+    kw = dict(seed=3, duration_s=30.0)
+    base = make_scenario("car", **kw)
+    assert base.wheel_t_s is None and base.heading_t_s is None
+    d = make_scenario("car", wheel_speed_sigma_m_s=0.05, wheel_scale_error=0.02, gnss_heading_sigma_deg=0.2,
+                      gnss_heading_baseline_yaw_deg=90.0, **kw)
+    assert np.array_equal(d.omega_ib_b, base.omega_ib_b) and np.array_equal(d.gnss_p_e, base.gnss_p_e)
+    assert len(d.wheel_t_s) == 301 and np.allclose(np.diff(d.wheel_t_s), 0.1)
+    k = np.searchsorted(d.t_s, d.wheel_t_s)
+    v_x = np.einsum("nj,nj->n", d.C_b_n[k][:, :, 0], d.v_n[k])
+    err = d.wheel_speed_m_s - 1.02 * v_x
+    assert abs(np.std(err) - 0.05) < 0.01 and abs(np.mean(err)) < 0.01
+    kh = np.searchsorted(d.t_s, d.heading_t_s)
+    yaw_x = earth.rpy_from_C_b_n(d.C_b_n[kh])[:, 2]
+    e = np.degrees(np.remainder(d.heading_yaw_rad - yaw_x - np.pi / 2 + np.pi, 2 * np.pi) - np.pi)
+    assert np.max(np.abs(e)) < 1.0 and abs(np.std(e) - 0.2) < 0.08  # baseline 90 deg left of x (small roll/pitch)
