@@ -254,3 +254,17 @@ def test_simulated_wheel_speed_and_dual_antenna_heading():
     yaw_x = earth.rpy_from_C_b_n(d.C_b_n[kh])[:, 2]
     e = np.degrees(np.remainder(d.heading_yaw_rad - yaw_x - np.pi / 2 + np.pi, 2 * np.pi) - np.pi)
     assert np.max(np.abs(e)) < 1.0 and abs(np.std(e) - 0.2) < 0.08  # baseline 90 deg left of x (small roll/pitch)
+
+
+def test_the_benchmark_shortened():
+    """benchmarks/vehicle_yaw_seed.py on one 40-s car run: seeded by the GSF, no flag up with abs(yaw err) > 2 deg,
+    coverage 1 (the full benchmark: docs/yaw_gsf.md, "In the session")."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "vehicle_yaw_seed.py"
+    spec = importlib.util.spec_from_file_location("vehicle_yaw_seed", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    row = bench.run("car", 0, "car", 40.0)
+    assert row["seeded_by"].startswith("GNSS velocity") and row["max_err_up_deg"] <= 2.0 and row["coverage"] == 1.0
