@@ -231,6 +231,15 @@ def test_wheel_speed_and_heading_are_written_to_the_bag_as_drivers_publish_them(
     assert ws[0].var_m2_s2 == 0.01
     h, reason = cv.gnss_heading_from_imu_msg(got["/gps/heading"][0])
     assert reason == "" and abs(h.yaw_rad - 2.5) < 1e-12 and h.var_rad2 == 1e-4
+    # read_bag reads them back; ia.align on the bag hands them to the session
+    from insalign_ros.io.bag import read_bag
+    from insalign_ros.session.offline import align
+
+    back = read_bag(bag)
+    assert back.wheel_t_s.tolist() == [1.0, 2.0] and back.wheel_speed_m_s.tolist() == [4.0, -1.0]
+    assert abs(back.heading_yaw_rad[0] - 2.5) < 1e-12 and back.heading_var_rad2.tolist() == [1e-4]
+    c = align(str(bag), core="iekf", init_mode="truth").counters
+    assert c["wheel_speed_received"] == 2 and c["gnss_heading_received"] == 1
 
 
 def test_simulated_wheel_speed_and_dual_antenna_heading():

@@ -33,6 +33,7 @@ import pymap3d
 from scipy.spatial.transform import Rotation
 
 from ..core import units
+from .bag_vehicle import read_vehicle_topics, vehicle_events  # /wheel/odom, /gps/heading
 from ..core.recording import ImuSpec, ScenarioData
 from . import validation
 from .topics import INVALID_SUFFIX, VEL_TYPE, listing, resolve_topics
@@ -150,7 +151,6 @@ def write_bag(data: ScenarioData, path, storage: str = "sqlite3", write_truth: b
         events.append((ns, 1, GPS_TOPIC if gnss_ok[j] else GPS_INVALID_TOPIC, msg))
     if data.has_gnss_velocity:
         events += _velocity_events(ts, data, off_ns)
-    from .bag_vehicle import vehicle_events  # /wheel/odom, /gps/heading
 
     aux_events, aux_types = vehicle_events(ts, data, off_ns, _stamp)
     events += aux_events
@@ -532,7 +532,8 @@ def read_bag(path, imu_topic: str | None = IMU_TOPIC, gps_topic: str | None = GP
         bias_gyro_b=arr(meta.get("bias_gyro_b_rad_s")), bias_acc_b=arr(meta.get("bias_acc_b_m_s2")),
         params=params, imu_valid=np.array(imu["ok"], bool), gnss_valid=np.array(gps["ok"], bool),
         gnss_vel_t_s=rel(vel["t"]) if vel["t"] else None, gnss_vel_n=np.array(vel["v"]) if vel["t"] else None,
-        gnss_vel_R_n=np.array(vel["R"]) if vel["t"] else None, **truth)
+        gnss_vel_R_n=np.array(vel["R"]) if vel["t"] else None, **truth,
+        **read_vehicle_topics(path, off, rep["warnings"], typestore()))  # /wheel/odom, /gps/heading (io/bag_vehicle.py)
 
 
 def _truth_at_imu(t_s, tr_t_s, tr_p_n, tr_q, ref, warnings: list) -> dict:

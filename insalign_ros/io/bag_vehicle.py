@@ -10,8 +10,9 @@
                                           measured (variance -1 would mean no orientation: 1e6 rad^2 instead), no
                                           rate or acceleration (covariance element 0 = -1, REP 145)
 
-Written by io/bag.write_bag when a ScenarioData carries them; not read back yet (``ia.align`` on a ScenarioData or
-an imported table passes them to the session).
+Written by io/bag.write_bag when a ScenarioData carries them; read back by io/bag.read_bag
+(:func:`read_vehicle_topics`: these names, these types; a message without a usable value or variance is skipped and
+counted in the warnings).
 """
 
 from __future__ import annotations
@@ -65,3 +66,43 @@ def vehicle_events(ts, data: ScenarioData, off_ns: int, stamp) -> tuple[list, di
                 linear_acceleration=zero3(), linear_acceleration_covariance=none.copy())
             out.append((ns, 1, HEADING_TOPIC, msg))
     return out, types
+
+
+def read_vehicle_topics(path, off_ns: int, warnings: list, ts) -> dict:
+    """The ScenarioData fields of ``/wheel/odom`` (nav_msgs/Odometry) and ``/gps/heading`` (sensor_msgs/Imu) when
+    the bag has them with these types (stamps relative to ``off_ns``; ``ts`` the bag's typestore); {} otherwise."""
+    from pathlib import Path
+
+    from rosbags.highlevel import AnyReader
+
+    want = {WHEEL_TOPIC: WHEEL_TYPE, HEADING_TOPIC: HEADING_TYPE}
+    got = {WHEEL_TOPIC: ([], [], []), HEADING_TOPIC: ([], [], [])}
+    skipped = {WHEEL_TOPIC: 0, HEADING_TOPIC: 0}
+    with AnyReader([Path(path)], default_typestore=ts) as r:
+        conns = [c for c in r.connections if want.get(c.topic) == c.msgtype]
+        if not conns:
+            return {}
+        for c, _, raw in r.messages(connections=conns):
+            m = r.deserialize(raw, c.msgtype)
+            t = (int(m.header.stamp.sec) * 1_000_000_000 + int(m.header.stamp.nanosec) - off_ns) * 1e-9
+            if c.topic == WHEEL_TOPIC:
+                value, var = float(m.twist.twist.linear.x), float(m.twist.covariance[0])
+            else:
+                q = m.orientation
+                value = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+                var = float(m.orientation_covariance[8]) if float(m.orientation_covariance[0]) != -1.0 else math.nan
+            if not (math.isfinite(value) and math.isfinite(var) and var > 0.0):
+                skipped[c.topic] += 1
+                continue
+            for lst, x in zip(got[c.topic], (t, value, var)):
+                lst.append(x)
+    for topic, n in skipped.items():
+        if n:
+            warnings.append(f"{topic}: {n} message(s) without a finite value and a variance > 0: skipped")
+    out: dict = {}
+    (wt, ws, wv), (ht, hy, hv) = got[WHEEL_TOPIC], got[HEADING_TOPIC]
+    if wt:
+        out.update(wheel_t_s=np.array(wt), wheel_speed_m_s=np.array(ws), wheel_var_m2_s2=np.array(wv))
+    if ht:
+        out.update(heading_t_s=np.array(ht), heading_yaw_rad=np.array(hy), heading_var_rad2=np.array(hv))
+    return out
