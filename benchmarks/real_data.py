@@ -177,9 +177,10 @@ class Run:
     cpu_s: float = 0.0
 
 
-def run(data, core: str) -> Run:
-    """``offline.align(data, core=core)`` with the defaults, plus the re-initialisations the session logs."""
-    cfg = SessionConfig.from_dict({"core": core})
+def run(data, core: str, vehicle: str = "unknown") -> Run:
+    """``offline.align(data, core=core)`` with the defaults (and ``vehicle``), plus the re-initialisations the
+    session logs."""
+    cfg = SessionConfig.from_dict({"core": core, "vehicle": vehicle})
     events: list = []
     session = None
 
@@ -269,6 +270,7 @@ def main(argv=None) -> int:
     ap.add_argument("--cores", nargs="+", default=list(CORES))
     ap.add_argument("--full-rate", action="store_true", help="rover_canada at 200 Hz IMU and 20 Hz fixes")
     ap.add_argument("--no-sigma-floor", action="store_true", help="KITTI: skip the 0.5-m fix-sigma variant")
+    ap.add_argument("--vehicle", default="unknown", help="SessionConfig.vehicle (default: unknown)")
     args = ap.parse_args(argv)
     root = Path(args.data) if args.data else shared_data_dir()
     if root is None or not root.is_dir():
@@ -284,7 +286,7 @@ def main(argv=None) -> int:
         if args.no_sigma_floor:
             recs = recs[:1]
         for rec in recs:
-            runs = [run(rec.data, c) for c in args.cores]
+            runs = [run(rec.data, c, args.vehicle) for c in args.cores]
             for ref in rec.refs:
                 print(table(rec, runs, ref), "\n", flush=True)
     print(f"total: {time.time() - t_all:.0f} s wall, {time.process_time() - c_all:.0f} s CPU")

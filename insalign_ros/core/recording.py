@@ -67,6 +67,14 @@ class ScenarioData:
     gnss_vel_t_s: np.ndarray | None = None  # (K,)
     gnss_vel_n: np.ndarray | None = None  # (K, 3)
     gnss_vel_R_n: np.ndarray | None = None  # (K, 3, 3)
+    # wheel speed along the vehicle's x axis [m/s] and its variance [m^2/s^2]; dual-antenna GNSS heading: the
+    # baseline's ENU yaw [rad] and its variance [rad^2] (None: the source has none)
+    wheel_t_s: np.ndarray | None = None  # (W,)
+    wheel_speed_m_s: np.ndarray | None = None  # (W,)
+    wheel_var_m2_s2: np.ndarray | None = None  # (W,)
+    heading_t_s: np.ndarray | None = None  # (H,)
+    heading_yaw_rad: np.ndarray | None = None  # (H,)
+    heading_var_rad2: np.ndarray | None = None  # (H,)
 
     @property
     def n(self) -> int:

@@ -26,6 +26,27 @@ class GnssFix:
 
 
 @dataclass(frozen=True)
+class WheelSpeed:
+    """Wheel odometry: stamp [s], the vehicle's speed along its x axis speed_m_s [m/s] (negative when reversing, as
+    nav_msgs/Odometry's twist.linear.x in the child frame) and its variance var_m2_s2 [m^2/s^2]."""
+
+    stamp_s: float
+    speed_m_s: float
+    var_m2_s2: float
+
+
+@dataclass(frozen=True)
+class GnssHeading:
+    """Dual-antenna (moving-base) GNSS heading: stamp [s], the yaw of the antenna baseline yaw_rad [rad] (ENU, from
+    East counter-clockwise, REP 103; nodes/conversions.py converts a receiver's NED heading) and its variance
+    var_rad2 [rad^2]."""
+
+    stamp_s: float
+    yaw_rad: float
+    var_rad2: float
+
+
+@dataclass(frozen=True)
 class GnssVelocity:
     """A GNSS velocity: stamp [s], the antenna's velocity relative to Earth in local ENU v_n [m/s] (ENU at the
     antenna: REP 103, what u-blox, NovAtel and MicroStrain drivers publish as TwistWithCovarianceStamped) and its

@@ -225,9 +225,12 @@ class YawGsf:
         """Fusion started, moved >= valid_motion_s at >= valid_speed_m_s, yaw sigma <= valid_yaw_sigma_deg, and the
         AHRS tilt sigma <= valid_tilt_sigma_deg (a tilt error biases the yaw by g dtilt / a; the course constraint
         measures the yaw without the tilt)."""
+        return self.confident(self.cfg.valid_yaw_sigma_deg)
+
+    def confident(self, max_sigma_deg: float) -> bool:
+        """``valid`` with the yaw 1-sigma bound ``max_sigma_deg`` (session/yaw_seed.py seeds with a looser one)."""
         c = self.cfg
-        return bool(self._started and self._motion_s >= c.valid_motion_s
-                    and self._var <= math.radians(c.valid_yaw_sigma_deg) ** 2
+        return bool(self._started and self._motion_s >= c.valid_motion_s and self._var <= math.radians(max_sigma_deg) ** 2
                     and (self._tilt_var <= math.radians(c.valid_tilt_sigma_deg) ** 2 or c.side_slip_sigma_deg > 0))
 
     @property

@@ -13,6 +13,7 @@ Topics (names configurable in read_bag for bags from other sources):
   /imu/data_invalid   sensor_msgs/msg/Imu          samples the source flags as not measured (e.g. KITTI fill rows);
                                                     only when there are any: /imu/data then has a gap there
   /gps/fix_invalid    sensor_msgs/msg/NavSatFix    likewise for fixes (status STATUS_NO_FIX)
+  /wheel/odom, /gps/heading                         wheel speed and dual-antenna heading (io/bag_vehicle.py)
 
 Stamps: header.stamp = bag timestamp = stamp_offset_ns + round(t_s * 1e9) ns (``stamp_offset_ns`` in the
 metadata: 0 for the simulators, the first absolute stamp for converted drives; integer, so no float rounding). The IMU covariances follow REP 145: white-noise variance of one sample = noise density^2 * rate
@@ -32,6 +33,7 @@ import pymap3d
 from scipy.spatial.transform import Rotation
 
 from ..core import units
+from .bag_vehicle import read_vehicle_topics, vehicle_events  # /wheel/odom, /gps/heading
 from ..core.recording import ImuSpec, ScenarioData
 from . import validation
 from .topics import INVALID_SUFFIX, VEL_TYPE, listing, resolve_topics
@@ -149,6 +151,9 @@ def write_bag(data: ScenarioData, path, storage: str = "sqlite3", write_truth: b
         events.append((ns, 1, GPS_TOPIC if gnss_ok[j] else GPS_INVALID_TOPIC, msg))
     if data.has_gnss_velocity:
         events += _velocity_events(ts, data, off_ns)
+
+    aux_events, aux_types = vehicle_events(ts, data, off_ns, _stamp)
+    events += aux_events
     if write_truth and data.has_truth:
         e, n_, u = pymap3d.geodetic2enu(data.lat_rad, data.lon_rad, data.h_m, math.radians(lat0),
                                         math.radians(lon0), h0, deg=False)
@@ -180,6 +185,8 @@ def write_bag(data: ScenarioData, path, storage: str = "sqlite3", write_truth: b
             conns[GPS_INVALID_TOPIC] = w.add_connection(GPS_INVALID_TOPIC, "sensor_msgs/msg/NavSatFix", typestore=ts)
         if data.has_gnss_velocity:
             conns[VEL_TOPIC] = w.add_connection(VEL_TOPIC, VEL_TYPE, typestore=ts)
+        for topic, msgtype in aux_types.items():
+            conns[topic] = w.add_connection(topic, msgtype, typestore=ts)
         if write_truth and data.has_truth:
             conns[TRUTH_TOPIC] = w.add_connection(TRUTH_TOPIC, "geometry_msgs/msg/PoseStamped", typestore=ts)
         first_ns = events[0][0] if events else 0
@@ -525,7 +532,8 @@ def read_bag(path, imu_topic: str | None = IMU_TOPIC, gps_topic: str | None = GP
         bias_gyro_b=arr(meta.get("bias_gyro_b_rad_s")), bias_acc_b=arr(meta.get("bias_acc_b_m_s2")),
         params=params, imu_valid=np.array(imu["ok"], bool), gnss_valid=np.array(gps["ok"], bool),
         gnss_vel_t_s=rel(vel["t"]) if vel["t"] else None, gnss_vel_n=np.array(vel["v"]) if vel["t"] else None,
-        gnss_vel_R_n=np.array(vel["R"]) if vel["t"] else None, **truth)
+        gnss_vel_R_n=np.array(vel["R"]) if vel["t"] else None, **truth,
+        **read_vehicle_topics(path, off, rep["warnings"], typestore()))  # /wheel/odom, /gps/heading (io/bag_vehicle.py)
 
 
 def _truth_at_imu(t_s, tr_t_s, tr_p_n, tr_q, ref, warnings: list) -> dict:

@@ -12,6 +12,13 @@ A table with one row per IMU sample; the column names carry the units (docs/bag_
                                                and vertical, default vertical = 2 x horizontal); empty = no fix
   roll_deg pitch_deg yaw_deg                   optional reference attitude in ``euler`` convention; empty = none
   ref_lat_deg ref_lon_deg ref_h_m              optional reference position (e.g. a GNSS/INS solution); empty = none
+  vel_e_m_s vel_n_m_s vel_u_m_s sigma_vel_m_s  optional GNSS velocity, ENU components (or vel_north_m_s
+                                               vel_east_m_s vel_down_m_s: NED, or speed_m_s course_deg: the
+                                               horizontal speed and its course from North clockwise), per-axis
+                                               1-sigma [m/s]; empty = none
+  wheel_speed_m_s [sigma_wheel_m_s]            optional wheel speed along the vehicle's x axis (default 1-sigma 0.1)
+  gnss_heading_deg sigma_heading_deg           optional dual-antenna heading of the baseline, from North clockwise
+                                               (as receivers report it; converted to the ENU yaw 90 deg - heading)
 
 Conventions are converted once, here: the IMU axes (``axes``, e.g. "RFU", "FRD") to body FLU by
 ``imu_axes_to_flu``; the reference Euler angles ("enu": ROS/REP 103, body FLU -> ENU, yaw from East CCW; "ned":
@@ -191,11 +198,54 @@ def import_table(path, imu: str = "rates", axes: str = "FLU", euler: str = "enu"
         params.update(ref_lat_deg=math.degrees(truth["lat_rad"][0]), ref_lon_deg=math.degrees(truth["lon_rad"][0]),
                       ref_h_m=float(truth["h_m"][0]))
     g_t, g_p, g_R = gnss["t"], gnss["p_e"], gnss["R_e"]
+    aux = _vehicle_inputs(cols, keep, t_s, report)
     data = ScenarioData(
         name=Path(path).stem, seed=-1, t0_s=0.0, t_s=t_s, omega_ib_b=w_all[keep], f_ib_b=f_all[keep],
         gnss_t_s=g_t, gnss_p_e=g_p, gnss_R_e=g_R, imu_spec=None,
-        gnss_sigma_m=float(np.median(gnss["sigma_h"])) if g_t.size else float("nan"), params=params, **truth)
+        gnss_sigma_m=float(np.median(gnss["sigma_h"])) if g_t.size else float("nan"), params=params, **truth, **aux)
     return data, report
+
+
+VEL_COLUMNS = {"enu": ("vel_e_m_s", "vel_n_m_s", "vel_u_m_s"), "ned": ("vel_north_m_s", "vel_east_m_s", "vel_down_m_s"),
+               "course": ("speed_m_s", "course_deg")}
+#: wheel speed 1-sigma [m/s] when the table has no sigma_wheel_m_s
+WHEEL_DEFAULT_SIGMA_M_S = 0.1
+
+
+def _vehicle_inputs(cols: dict, keep: np.ndarray, t_s: np.ndarray, report: dict) -> dict:
+    """GNSS velocity (ENU, NED or speed + course), wheel speed and dual-antenna heading columns -> the ScenarioData
+    fields; a row whose value or sigma is empty or not finite (or a sigma <= 0) has none; counted in the report."""
+    out: dict = {}
+    kinds = [k for k, names in VEL_COLUMNS.items() if all(n in cols for n in names)]
+    if len(kinds) > 1:
+        raise ImportDataError(f"GNSS velocity given twice ({' and '.join(kinds)} columns): keep one")
+    if kinds:
+        a = np.column_stack([cols[n][keep] for n in VEL_COLUMNS[kinds[0]]])
+        if kinds[0] == "ned":
+            v = a @ C_NED_ENU.T
+        elif kinds[0] == "course":  # course from North clockwise -> ENU; no vertical (0 with the horizontal sigma)
+            c = np.radians(a[:, 1])
+            v = np.column_stack([a[:, 0] * np.sin(c), a[:, 0] * np.cos(c), np.zeros(len(c))])
+        else:
+            v = a
+        s = cols.get("sigma_vel_m_s", np.full(len(keep), np.nan))[keep]
+        ok = np.all(np.isfinite(v), 1) & np.isfinite(s) & (s > 0) & (np.linalg.norm(v, axis=1) < 600.0)
+        out.update(gnss_vel_t_s=t_s[ok], gnss_vel_n=v[ok], gnss_vel_R_n=s[ok, None, None] ** 2 * np.eye(3))
+        report["gnss_velocities"], report["gnss_velocity_columns"] = int(ok.sum()), kinds[0]
+    if "wheel_speed_m_s" in cols:
+        w = cols["wheel_speed_m_s"][keep]
+        s = cols.get("sigma_wheel_m_s", np.full(len(keep), WHEEL_DEFAULT_SIGMA_M_S))[keep]
+        ok = np.isfinite(w) & np.isfinite(s) & (s > 0) & (np.abs(w) < 140.0)
+        out.update(wheel_t_s=t_s[ok], wheel_speed_m_s=w[ok], wheel_var_m2_s2=s[ok] ** 2)
+        report["wheel_speeds"] = int(ok.sum())
+    if "gnss_heading_deg" in cols:
+        h = cols["gnss_heading_deg"][keep]
+        s = cols.get("sigma_heading_deg", np.full(len(keep), np.nan))[keep]
+        ok = np.isfinite(h) & np.isfinite(s) & (s > 0) & (s < 180.0)
+        yaw = np.remainder(np.radians(90.0 - h[ok]) + np.pi, 2.0 * np.pi) - np.pi
+        out.update(heading_t_s=t_s[ok], heading_yaw_rad=yaw, heading_var_rad2=np.radians(s[ok]) ** 2)
+        report["gnss_headings"] = int(ok.sum())
+    return out
 
 
 def _gnss(cols: dict, keep: np.ndarray, t_s: np.ndarray, path, report: dict) -> dict:

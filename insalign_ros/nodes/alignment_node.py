@@ -7,7 +7,10 @@ Topics (relative names, remappable as usual):
   geometry_msgs/PoseStamped (optional: initialisation in tests and the Euler errors), ``gps/vel``
   geometry_msgs/TwistWithCovarianceStamped (optional: the GNSS antenna's ENU velocity relative to Earth, as u-blox,
   NovAtel and MicroStrain drivers publish it; QoS ``gnss_qos``; fused at its stamp like a fix by the cores that
-  declare ``supports_gnss_velocity``; the antenna offset is the core parameter ``gnss_lever_arm_b_m``). The Imu's rates and specific
+  declare ``supports_gnss_velocity``; the antenna offset is the core parameter ``gnss_lever_arm_b_m``), ``wheel/odom``
+  nav_msgs/Odometry (optional: wheel speed, twist.linear.x in the child frame) and ``gps/heading`` sensor_msgs/Imu
+  (optional: a dual-antenna heading as ublox_gps publishes it, the orientation's ENU yaw), QoS ``gnss_qos``, counted
+  and queued by the session (conversions.wheel_speed_from_odometry, gnss_heading_from_imu_msg). The Imu's rates and specific
   forces are turned into the vehicle FLU frame once, in the callback (``imu_axes``, ``imu_mount_rpy_deg``:
   conversions.imu_to_vehicle_matrix; the convention is written there and in docs/nodes.md);
 - out ``~/pose`` PoseWithCovarianceStamped (frame ``world_frame``, REP 105: local ENU anchored at the initial position;
@@ -45,6 +48,7 @@ from collections import OrderedDict, deque
 import numpy as np
 import rclpy
 from geometry_msgs.msg import PoseStamped, TwistWithCovarianceStamped
+from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -127,6 +131,10 @@ class AlignmentNode(Node):
                                                 imu_qos(p["gnss_qos"], p["gnss_qos_depth"]))
         self.vel_sub = self.create_subscription(TwistWithCovarianceStamped, "gps/vel", self._on_vel,
                                                 imu_qos(p["gnss_qos"], p["gnss_qos_depth"]))
+        self.odom_sub = self.create_subscription(Odometry, "wheel/odom", self._on_odom,
+                                                 imu_qos(p["gnss_qos"], p["gnss_qos_depth"]))
+        self.heading_sub = self.create_subscription(Imu, "gps/heading", self._on_heading,
+                                                    imu_qos(p["gnss_qos"], p["gnss_qos_depth"]))
         self.truth_sub = self.create_subscription(PoseStamped, "ground_truth/pose", self._on_truth, qi)
         self.create_timer(1.0 / p["process_rate_hz"], self._process)
         self.create_timer(p["diagnostics_period_s"], self._publish_diagnostics)
@@ -237,7 +245,7 @@ class AlignmentNode(Node):
         message. For the EventsExecutor (``main``): with rclpy's SingleThreadedExecutor the polled subscriptions'
         QoS-event waitables kept its wait set busy (69 % of a core, measured), so there the executor dispatches every
         message to its callback as before."""
-        for sub in (self.imu_sub, self.fix_sub, self.vel_sub, self.truth_sub):
+        for sub in (self.imu_sub, self.fix_sub, self.vel_sub, self.odom_sub, self.heading_sub, self.truth_sub):
             if sub not in self._polled:
                 self._poll_only(sub)
 
@@ -266,7 +274,8 @@ class AlignmentNode(Node):
                 recv.append(info["received_timestamp"])
             self.imu_messages_taken += len(raws)
         others = []
-        for sub, on_msg in ((self.fix_sub, self._on_fix), (self.vel_sub, self._on_vel)):
+        for sub, on_msg in ((self.fix_sub, self._on_fix), (self.vel_sub, self._on_vel), (self.odom_sub, self._on_odom),
+                            (self.heading_sub, self._on_heading)):
             if sub in self._polled:
                 others += [(got[1]["received_timestamp"], on_msg, got[0]) for got in _take_all(sub)]
         others.sort(key=lambda e: e[0])
@@ -387,6 +396,18 @@ class AlignmentNode(Node):
         R = np.asarray(msg.twist.covariance, float).reshape(6, 6)[:3, :3]
         self.session.push_velocity(GnssVelocity(cv.stamp_s(msg, self._epoch(msg)), np.array([lin.x, lin.y, lin.z]), R),
                                    time.monotonic())
+
+    def _on_odom(self, msg: Odometry) -> None:
+        ws, reason = cv.wheel_speed_from_odometry(msg, self._epoch(msg))
+        if ws is None:
+            return self.session.reject_input("wheel_speed", "wheel_speed_invalid", reason, time.monotonic())
+        self.session.push_wheel_speed(ws, time.monotonic())
+
+    def _on_heading(self, msg: Imu) -> None:
+        hd, reason = cv.gnss_heading_from_imu_msg(msg, self._epoch(msg))
+        if hd is None:
+            return self.session.reject_input("gnss_heading", "gnss_heading_invalid", reason, time.monotonic())
+        self.session.push_gnss_heading(hd, time.monotonic())
 
     def _on_truth(self, msg: PoseStamped) -> None:
         val, reason = cv.truth_from_msg(msg, self._epoch(msg))

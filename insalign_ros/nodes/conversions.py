@@ -31,7 +31,7 @@ from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import Imu, NavSatFix, NavSatStatus
 
 from ..core import earth
-from ..core.types import GnssFix, ImuSample
+from ..core.types import GnssFix, GnssHeading, ImuSample, WheelSpeed
 from ..io import validation
 
 
@@ -238,6 +238,62 @@ def fix_from_msg(msg: NavSatFix, default_sigma_m: float, frame_id: str = "",
     lat_r, lon_r = math.radians(lat), math.radians(lon)
     C = earth.C_n_e(lat_r, lon_r)
     return GnssFix(t, earth.geodetic_to_ecef(lat_r, lon_r, h), C @ R_n @ C.T), ""
+
+
+#: wheel speed 1-sigma [m/s] when an Odometry's twist covariance leaves the x-speed variance unset (0 or negative)
+WHEEL_SPEED_DEFAULT_SIGMA_M_S = 0.1
+
+
+def yaw_enu_from_heading_ned(heading_ned_rad: float) -> float:
+    """A heading in NED (from North, clockwise: what receivers and NMEA report) as the ENU yaw (from East,
+    counter-clockwise, REP 103) [rad] in [-pi, pi]: ``pi/2 - heading``."""
+    return math.remainder(math.pi / 2.0 - float(heading_ned_rad), 2.0 * math.pi)
+
+
+def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
+    """The yaw [rad] of a quaternion (ZYX Euler angles: the direction of the rotated x axis in the horizontal plane)."""
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def gnss_heading_from_imu_msg(msg: Imu, epoch_s: int = 0) -> tuple[GnssHeading | None, str]:
+    """A dual-antenna heading published as sensor_msgs/Imu (ublox_gps ``navheading``: the orientation's yaw is the
+    baseline's ENU yaw, ``orientation_covariance[8]`` its variance [rad^2]) -> GnssHeading or (None, reason).
+    An orientation covariance of -1 (unknown orientation) or a yaw variance <= 0 is refused."""
+    q = msg.orientation
+    var = float(msg.orientation_covariance[8])
+    if float(msg.orientation_covariance[0]) == -1.0:
+        return None, "orientation_covariance[0] is -1 (no orientation)"
+    if not _finite(q.x, q.y, q.z, q.w, var):
+        return None, "NaN/Inf in the heading orientation or its covariance"
+    if not var > 0.0:
+        return None, f"heading variance orientation_covariance[8] = {var!r} (unset)"
+    if abs(math.sqrt(q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w) - 1.0) > 1e-3:
+        return None, "heading quaternion norm is not 1"
+    return GnssHeading(stamp_s(msg, epoch_s), yaw_from_quaternion(q.x, q.y, q.z, q.w), var), ""
+
+
+def gnss_heading_from_quaternion_msg(msg, sigma_rad: float, epoch_s: int = 0) -> tuple[GnssHeading | None, str]:
+    """A dual-antenna heading as geometry_msgs/QuaternionStamped (the baseline's orientation in ENU; the message has
+    no covariance: ``sigma_rad`` is the heading 1-sigma) -> GnssHeading or (None, reason)."""
+    q = msg.quaternion
+    if not _finite(q.x, q.y, q.z, q.w) or abs(math.sqrt(q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w) - 1.0) > 1e-3:
+        return None, "heading quaternion is not finite or its norm is not 1"
+    return GnssHeading(stamp_s(msg, epoch_s), yaw_from_quaternion(q.x, q.y, q.z, q.w), float(sigma_rad) ** 2), ""
+
+
+def wheel_speed_from_odometry(msg, epoch_s: int = 0,
+                              default_sigma_m_s: float = WHEEL_SPEED_DEFAULT_SIGMA_M_S) -> tuple[WheelSpeed | None, str]:
+    """nav_msgs/Odometry -> WheelSpeed: ``twist.twist.linear.x``, the speed along the vehicle's x axis in the child
+    frame (REP 105: the twist of an Odometry is in ``child_frame_id``, i.e. the vehicle frame; negative reversing),
+    its variance ``twist.covariance[0]`` (unset, 0 or negative: ``default_sigma_m_s``). The lateral and vertical
+    speeds of wheel odometry are the constraint, not a measurement: not taken."""
+    vx = float(msg.twist.twist.linear.x)
+    var = float(msg.twist.covariance[0])
+    if not _finite(vx, var):
+        return None, "NaN/Inf in the twist's linear.x or its covariance"
+    if not var > 0.0:
+        var = float(default_sigma_m_s) ** 2
+    return WheelSpeed(stamp_s(msg, epoch_s), vx, var), ""
 
 
 def truth_from_msg(msg: PoseStamped, epoch_s: int = 0) -> tuple[tuple[float, np.ndarray, np.ndarray] | None, str]:

@@ -446,6 +446,12 @@ class AutoCore(AlignmentCore):
         self._set_state(t, "in motion", f"motion since {since_s:.2f} s: {cfg.motion_core} from the static solution at "
                                         f"{t0:.2f} s ({how})")
 
+    def replace_motion_core(self, core: AlignmentCore, how: str) -> None:
+        """The session's yaw seed (session/yaw_seed.py): ``core`` replaces the in-motion core (yaw bank)."""
+        self.motion.close()
+        self.motion = core
+        self._set_state(self._t, self.state, f"{self.reason}; yaw seeded: {how}")
+
     def observe_gnss(self, fix: GnssFix) -> None:
         """Static: the GNSS speed over >= ``GNSS_SPEED_BASE_S`` from the fixes (position difference, per-axis sigma
         from both fixes' covariances) goes to the motion detector: a car cruising at constant speed on a smooth road

@@ -22,6 +22,11 @@ class Pending:
     truth_t: list = field(default_factory=list)  # sorted stamps of ``truth``
     vel_t: list = field(default_factory=list)  # GNSS velocities in stamp order (push_velocity)
     vel: list = field(default_factory=list)
+    #: wheel speeds and GNSS headings in stamp order (push_wheel_speed, push_gnss_heading; session/fusion.py)
+    wheel_t: list = field(default_factory=list)
+    wheel: list = field(default_factory=list)
+    heading_t: list = field(default_factory=list)
+    heading: list = field(default_factory=list)
 
     def __post_init__(self) -> None:
         if isinstance(self.truth, TruthDict):

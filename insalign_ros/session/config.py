@@ -41,6 +41,13 @@ class SessionConfig:
         "sensors",
         'sensors (no guess: position/velocity from the fixes, level from the accelerometers, unknown heading '
         '-> yaw bank), guess (initial_rpy_deg) or truth (ground_truth/pose; init_from_ground_truth)')
+    #: the platform (car | wheeled_robot | boat | aircraft | unknown): what the yaw from GNSS velocity may assume
+    #: (session/yaw_seed.py): cars and wheeled robots drive along their x axis up to a side-slip; the default
+    #: ``unknown`` assumes nothing about the motion (safe for every platform)
+    vehicle: str = param(
+        "unknown",
+        'car | wheeled_robot | boat | aircraft | unknown (safe for every platform): what the yaw from GNSS velocity '
+        'may assume (cars and wheeled robots drive along their x axis)')
     #: sensors: accelerometer averaging window for roll and pitch before the initialisation stamp [s]
     init_level_window_s: float = param(
         1.0,
@@ -235,6 +242,9 @@ class SessionConfig:
         get_grade(self.imu_grade)  # ValueError "imu_grade: unknown IMU grade ..."
         if self.init_mode not in ("sensors", "guess", "truth"):
             raise ValueError(f"init_mode: must be 'sensors', 'guess' or 'truth', got {self.init_mode!r}")
+        if self.vehicle not in ("car", "wheeled_robot", "boat", "aircraft", "unknown"):
+            raise ValueError(f"vehicle: must be 'car', 'wheeled_robot', 'boat', 'aircraft' or 'unknown', got "
+                             f"{self.vehicle!r}")
         if not (isinstance(self.unknown_heading_hypotheses, int) and 1 <= self.unknown_heading_hypotheses <= 36):
             raise ValueError(f"unknown_heading_hypotheses: must be an integer in [1, 36], got "
                              f"{self.unknown_heading_hypotheses!r}")

@@ -44,6 +44,7 @@ class Fusion:
         while b.fix_t and b.fix_t[0] <= t and sess.core is not None:
             b.fix_t.pop(0)
             fix = b.fix.pop(0)
+            sess.yaw_seed.fix(fix)
             if fix.stamp_s == sess._used_fix_stamp:
                 sess.guard._fix_seq.append(fix_point(fix))  # divergence guard: the jump test goes on from the init's fixes
                 continue  # gave the initial position: not fused twice
@@ -54,6 +55,30 @@ class Fusion:
             sess._est_memo = None
             self._fuse_fix(fix)
         self._apply_velocities_until(t)
+        self._apply_aux_until(t)
+
+    def _apply_aux_until(self, t: float) -> None:
+        """Wheel speeds and GNSS headings at their stamps (after the fixes and velocities up to ``t``)."""
+        sess = self.s
+        b = sess.buf
+        while b.wheel_t and b.wheel_t[0] <= t and sess.core is not None:
+            b.wheel_t.pop(0)
+            self.fuse_wheel_speed(b.wheel.pop(0))
+        while b.heading_t and b.heading_t[0] <= t and sess.core is not None:
+            b.heading_t.pop(0)
+            self.fuse_heading(b.heading.pop(0))
+
+    # -- the fusion of the vehicle's own sensors: the one place that connects them to the core's measurement
+    # models (``core.update(WheelSpeed model)`` / ``core.update(GnssHeading model)``). Until the cores take them, they
+    # are counted as received and unused (the diagnostics say so); nothing else in the session depends on them.
+    def fuse_wheel_speed(self, ws) -> None:
+        """One wheel speed (core.types.WheelSpeed) at its stamp: not fused yet (wheel_speed_unused)."""
+        self.s.counters["wheel_speed_unused"] += 1
+
+    def fuse_heading(self, heading) -> None:
+        """One dual-antenna GNSS heading (core.types.GnssHeading) at its stamp: not fused yet (gnss_heading_unused)."""
+        self.s.counters["gnss_heading_unused"] += 1
+    # -- end of the vehicle sensors' fusion
 
     def _fuse_fix(self, fix: GnssFix) -> None:
         sess = self.s
@@ -125,6 +150,7 @@ class Fusion:
         while b.vel_t and b.vel_t[0] <= t and sess.core is not None:
             b.vel_t.pop(0)
             vel = b.vel.pop(0)
+            sess.yaw_seed.velocity(vel)
             if vel.stamp_s < sess.init_t:
                 sess.counters["gnss_vel_before_init"] += 1
                 continue

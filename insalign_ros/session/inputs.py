@@ -11,7 +11,7 @@ from collections import deque
 
 import numpy as np
 
-from ..core.types import GnssFix, GnssVelocity, ImuSample
+from ..core.types import GnssFix, GnssHeading, GnssVelocity, ImuSample, WheelSpeed
 from ..filters.checks import check_velocity
 from ..io.validation import check_covariance
 from .buffers import RecentStamps, row_norms
@@ -244,7 +244,10 @@ class InputStage:
         sess = self.s
         sess.counters[f"{topic}_received"] += 1
         self.touch(wall_s)
-        (self.reject_imu if topic == "imu" else self.reject_fix)(counter, reason)
+        if topic in ("imu", "gnss"):
+            (self.reject_imu if topic == "imu" else self.reject_fix)(counter, reason)
+        else:  # wheel_speed, gnss_heading
+            self.reject(topic, "sample", counter, reason)
 
     def touch(self, wall_s: float | None) -> None:
         sess = self.s
@@ -322,6 +325,64 @@ class InputStage:
             del sess.buf.vel_t[0], sess.buf.vel[0]
             c["inputs_dropped"] += 1
         return True
+
+    def push_wheel_speed(self, ws: WheelSpeed, wall_s: float | None = None) -> bool:
+        """Validate and buffer one wheel speed (along the vehicle's x axis [m/s], its variance [m^2/s^2])."""
+        t, speed, var = float(ws.stamp_s), float(ws.speed_m_s), float(ws.var_m2_s2)
+        reason = check_scalar_input(t, speed, var, MAX_WHEEL_SPEED_M_S, "speed_m_s", "m/s")
+        b = self.s.buf
+        return self._push_scalar("wheel_speed", reason, t, WheelSpeed(t, speed, var), b.wheel_t, b.wheel, wall_s)
+
+    def push_gnss_heading(self, hd: GnssHeading, wall_s: float | None = None) -> bool:
+        """Validate and buffer one dual-antenna GNSS heading (baseline yaw, ENU [rad], its variance [rad^2])."""
+        t, yaw, var = float(hd.stamp_s), float(hd.yaw_rad), float(hd.var_rad2)
+        reason = check_scalar_input(t, yaw, var, 4.0 * math.pi, "yaw_rad", "rad")
+        if not reason and not var < math.pi ** 2:
+            reason = f"var_rad2: {var:.3g} rad^2 (1-sigma above 180 deg: no heading)"
+        b = self.s.buf
+        return self._push_scalar("gnss_heading", reason, t, GnssHeading(t, math.remainder(yaw, 2.0 * math.pi), var),
+                                 b.heading_t, b.heading, wall_s)
+
+    def _push_scalar(self, topic: str, reason: str, t: float, item, ts: list, items: list, wall_s) -> bool:
+        """The stamp rules of the velocities for a wheel speed or a GNSS heading, then the stamp-ordered buffer."""
+        sess = self.s
+        c = sess.counters
+        c[f"{topic}_received"] += 1
+        self.touch(wall_s)
+        if reason:
+            return self.reject(topic, "sample", f"{topic}_invalid", reason)
+        if sess.processed_t is not None and t < sess.processed_t:
+            return self.reject(topic, "sample", f"{topic}_stale", f"stamp {t + sess.stamp_offset_s:.6f} is "
+                               f"{sess.processed_t - t:.3f} s behind the filter time")
+        if t in ts:
+            return self.reject(topic, "sample", f"{topic}_duplicate", f"duplicate stamp {t + sess.stamp_offset_s:.6f}")
+        if sess.newest_imu_t is not None and t > sess.newest_imu_t + sess.cfg.max_fix_ahead_s:
+            return self.reject(topic, "sample", f"{topic}_future", f"stamp {t + sess.stamp_offset_s:.6f} is "
+                               f"{t - sess.newest_imu_t:.3f} s ahead of the IMU")
+        i = bisect.bisect(ts, t)
+        ts.insert(i, t)
+        items.insert(i, item)
+        if len(ts) > 1000:  # no IMU to reach them: keep the newest
+            del ts[0], items[0]
+            c["inputs_dropped"] += 1
+        return True
+
+
+#: a wheel speed above this [m/s] is not a vehicle's (500 km/h)
+MAX_WHEEL_SPEED_M_S = 140.0
+
+
+def check_scalar_input(t: float, value: float, var: float, max_abs: float, name: str, unit: str) -> str:
+    """Checks of one scalar measurement: finite stamp >= 0, a finite value within +-max_abs, a finite variance > 0."""
+    if not math.isfinite(t) or t < 0.0:
+        return f"stamp {t!r} is not a finite number >= 0"
+    if not math.isfinite(value):
+        return f"{name}: not a finite number ({value!r})"
+    if abs(value) > max_abs:
+        return f"{name}: {value:.4g} {unit} beyond +-{max_abs:.4g} {unit}"
+    if not (math.isfinite(var) and var > 0.0):
+        return f"variance {var!r}: not a finite number > 0"
+    return ""
 
 
 def check_fix_input(t: float, p_e, R_e) -> str:

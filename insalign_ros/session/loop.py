@@ -169,6 +169,7 @@ class Loop:
         self.hist_f.extend(F)
         sess._est_memo = None
         try:
+            sess.yaw_seed.imu_arrays(T, W, F)
             if core.propagate_arrays_matches_propagate:
                 core.propagate_arrays(T, W, F)
             else:
@@ -218,6 +219,7 @@ class Loop:
         dt = None if prev is None else t - prev
         if dt is not None:
             self._track_period(dt)
+        sess.yaw_seed.imu(t, w, f)
         if sess.core is None:
             sess.counters["imu_before_init"] += 1
             sess.initialiser.pre_init.append((t, w, f))

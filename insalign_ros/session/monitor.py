@@ -117,6 +117,7 @@ class Monitor:
             d["gnss_age_s"] = f"{sess.processed_t - sess.last_accepted_fix_t:.2f}"
         if sess.loop._median_dt is not None:
             d["imu_period_median_ms"] = f"{sess.loop._median_dt * 1e3:.3f}"
+        d.update(sess.yaw_seed.diagnostics())  # vehicle, what it assumes, what seeded the yaw (session/yaw_seed.py)
         d["buffered_imu"] = str(len(sess.buf.imu))
         d["buffered_fixes"] = str(len(sess.buf.fix_t))
         if sess.watchdog_reason:

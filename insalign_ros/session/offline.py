@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core import earth
-from ..core.types import GnssFix, GnssVelocity, ImuSample
+from ..core.types import GnssFix, GnssHeading, GnssVelocity, ImuSample, WheelSpeed
 from .flag import AlignedCriteria
 from ..core.recording import ScenarioData
 from .config import SessionConfig
@@ -92,12 +92,31 @@ def truth_samples(data: ScenarioData):
     return [] if table is None else [table.sample(k) for k in range(data.n)]
 
 
+def vehicle_inputs(data: ScenarioData) -> tuple[np.ndarray, list]:
+    """The source's wheel speeds and dual-antenna headings in stamp order: (stamps (n,) [s], [(kind, item)])."""
+    ev = []
+    if data.wheel_t_s is not None:
+        ev += [(float(t), "wheel", WheelSpeed(float(t), float(s), float(v)))
+               for t, s, v in zip(data.wheel_t_s, data.wheel_speed_m_s, data.wheel_var_m2_s2)]
+    if data.heading_t_s is not None:
+        ev += [(float(t), "heading", GnssHeading(float(t), float(y), float(v)))
+               for t, y, v in zip(data.heading_t_s, data.heading_yaw_rad, data.heading_var_rad2)]
+    ev.sort(key=lambda e: e[0])
+    return np.array([e[0] for e in ev], float), [(e[1], e[2]) for e in ev]
+
+
+def _push_vehicle_input(session: AlignmentSession, kind: str, item) -> None:
+    (session.push_wheel_speed if kind == "wheel" else session.push_gnss_heading)(item)
+
+
 def events_in_arrival_order(data: ScenarioData, fix_delay_s: float = 0.0):
     """(kind, item) in the order a live system would receive them: IMU in stamp order, a fix (and a GNSS velocity,
     kind "vel", where the source has them) once the IMU has reached ``stamp + fix_delay_s``, truth with its IMU
-    sample. Samples and fixes the source flags invalid are left out (the session sees a gap)."""
+    sample, wheel speeds and headings (kinds "wheel", "heading") like the velocities. Samples and fixes the source
+    flags invalid are left out (the session sees a gap)."""
     truth = truth_samples(data)
-    j = jv = 0
+    j = jv = ja = 0
+    a_t, aux = vehicle_inputs(data)
     v_t = data.gnss_vel_t_s if data.gnss_vel_t_s is not None else np.zeros(0)
     g_t = data.gnss_t_s
     imu_ok, gnss_ok = data.imu_valid_mask, data.gnss_valid_mask
@@ -114,6 +133,10 @@ def events_in_arrival_order(data: ScenarioData, fix_delay_s: float = 0.0):
         while jv < v_t.shape[0] and v_t[jv] + fix_delay_s <= t:
             yield "vel", GnssVelocity(float(v_t[jv]), data.gnss_vel_n[jv], data.gnss_vel_R_n[jv])
             jv += 1
+        while ja < a_t.shape[0] and a_t[ja] + fix_delay_s <= t:
+            yield aux[ja]
+            ja += 1
+    yield from aux[ja:]
     for jv in range(jv, v_t.shape[0]):
         yield "vel", GnssVelocity(float(v_t[jv]), data.gnss_vel_n[jv], data.gnss_vel_R_n[jv])
     for j in range(j, g_t.shape[0]):  # delayed fixes still on their way when the IMU stream ended
@@ -148,6 +171,8 @@ def run_session(session: AlignmentSession, data: ScenarioData, fix_delay_s: floa
             session.push_fix(item)
         elif kind == "vel":
             session.push_velocity(item)
+        elif kind in ("wheel", "heading"):
+            _push_vehicle_input(session, kind, item)
         else:
             session.push_truth(item)
     out += session.finish()
@@ -172,7 +197,11 @@ def _run_session_arrays(session: AlignmentSession, data: ScenarioData, fix_delay
     arrive_v = np.maximum.accumulate(np.searchsorted(t, gv + fix_delay_s, side="left")) if gv.size \
         else np.zeros(0, int)
     stops.update(arrive_v[arrive_v < data.n].tolist())
-    jv = 0
+    jv = ja = 0
+    a_t, aux = vehicle_inputs(data)
+    arrive_a = np.maximum.accumulate(np.searchsorted(t, a_t + fix_delay_s, side="left")) if a_t.size \
+        else np.zeros(0, int)
+    stops.update(arrive_a[arrive_a < data.n].tolist())
     stops.update(np.flatnonzero(imu_ok & (n_valid % chunk == 0)).tolist())
     stops.add(data.n - 1)
     # the valid rows, checked once (the checks are row-wise: a push's are the slice of these)
@@ -201,9 +230,14 @@ def _run_session_arrays(session: AlignmentSession, data: ScenarioData, fix_delay
         while jv < gv.shape[0] and arrive_v[jv] == b:
             session.push_velocity(GnssVelocity(float(gv[jv]), data.gnss_vel_n[jv], data.gnss_vel_R_n[jv]))
             jv += 1
+        while ja < a_t.shape[0] and arrive_a[ja] == b:
+            _push_vehicle_input(session, *aux[ja])
+            ja += 1
         a = b + 1
     for jv in range(jv, gv.shape[0]):
         session.push_velocity(GnssVelocity(float(gv[jv]), data.gnss_vel_n[jv], data.gnss_vel_R_n[jv]))
+    for kind, item in aux[ja:]:
+        _push_vehicle_input(session, kind, item)
     for j in range(j, g.shape[0]):  # delayed fixes still on their way when the IMU stream ended
         if gnss_ok[j]:
             session.push_fix(GnssFix(float(g[j]), data.gnss_p_e[j], data.gnss_R_e[j]))

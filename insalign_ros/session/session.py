@@ -42,6 +42,7 @@ from .inputs import InputStage
 from .loop import Loop
 from .monitor import Monitor
 from .outputs import Output, Outputs
+from .yaw_seed import YawSeed
 from .truth import TruthSample, TruthTable, truth_table_valid  # noqa: F401  (re-exported)
 
 COUNTERS = (
@@ -58,6 +59,11 @@ VEL_COUNTERS = ("gnss_vel_received", "gnss_vel_accepted", "gnss_vel_rejected", "
                 "gnss_vel_duplicate", "gnss_vel_stale", "gnss_vel_future", "gnss_vel_before_init", "gnss_vel_gated",
                 "gnss_vel_filter_rejected", "gnss_vel_unused")
 COUNTERS = COUNTERS + VEL_COUNTERS
+#: wheel speed (push_wheel_speed) and dual-antenna GNSS heading (push_gnss_heading): received, rejected (total) and
+#: per reason, fused, and unused (taken out of the buffer at their stamps but not fused: session/fusion.py)
+AUX_COUNTERS = tuple(f"{topic}_{what}" for topic in ("wheel_speed", "gnss_heading")
+                     for what in ("received", "rejected", "invalid", "duplicate", "stale", "future", "fused", "unused"))
+COUNTERS = COUNTERS + AUX_COUNTERS
 
 
 class AlignmentSession:
@@ -97,6 +103,7 @@ class AlignmentSession:
         self.guard = DivergenceGuard(self)
         self.monitor = Monitor(self)
         self.outputs = Outputs(self)
+        self.yaw_seed = YawSeed(self)
         self._reset_state("start")
 
     # ------------------------------------------------------------------ inputs (the input stage)
@@ -116,6 +123,16 @@ class AlignmentSession:
     def push_velocity(self, vel, wall_s: float | None = None) -> bool:
         """Validate and buffer one GNSS velocity (ENU antenna velocity v_n [m/s], R_n [m^2/s^2]). False if rejected."""
         return self.inputs.push_velocity(vel, wall_s)
+
+    def push_wheel_speed(self, ws, wall_s: float | None = None) -> bool:
+        """Validate and buffer one wheel speed (core.types.WheelSpeed: along the vehicle's x axis [m/s], variance
+        [m^2/s^2]); taken at its stamp by the fusion (session/fusion.py). False if rejected."""
+        return self.inputs.push_wheel_speed(ws, wall_s)
+
+    def push_gnss_heading(self, heading, wall_s: float | None = None) -> bool:
+        """Validate and buffer one dual-antenna GNSS heading (core.types.GnssHeading: baseline yaw ENU [rad],
+        variance [rad^2]); taken at its stamp by the fusion (session/fusion.py). False if rejected."""
+        return self.inputs.push_gnss_heading(heading, wall_s)
 
     def push_truth(self, truth: TruthSample) -> None:
         """A reference pose (initialisation in init_mode 'truth', and the Euler errors of the outputs)."""
@@ -166,7 +183,8 @@ class AlignmentSession:
         self.fault_reason = ""
         self.newest_imu_t: float | None = None
         self.processed_t: float | None = None  # stamp of the last processed IMU sample (= the core's time)
-        for stage in (self.inputs, self.loop, self.initialiser, self.fusion, self.guard, self.monitor, self.outputs):
+        for stage in (self.inputs, self.loop, self.initialiser, self.fusion, self.guard, self.monitor, self.outputs,
+                      self.yaw_seed):
             stage.reset()
         self.initialiser.after_restart = why != "start"  # the vehicle may be moving: start from what the data say
         self.init_t: float | None = None

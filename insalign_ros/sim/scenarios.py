@@ -45,6 +45,12 @@ _COMMON = {
     "gnss_lever_x_m": (0.0, "m", "antenna forward of the IMU (0: at the IMU, as in the paper)"),
     "gnss_lever_y_m": (0.0, "m", "antenna left of the IMU"),
     "gnss_lever_z_m": (0.0, "m", "antenna above the IMU"),
+    # the vehicle's own sensors (drawn after everything else, only when on: a seed's other signals do not change)
+    "wheel_speed_sigma_m_s": (0.0, "m/s", "wheel speed (along the body x axis) 1-sigma; 0: none"),
+    "wheel_rate_hz": (10.0, "Hz", "wheel odometry rate (must divide the IMU rate)"),
+    "wheel_scale_error": (0.0, "-", "wheel speed scale-factor error (0.02: reads 2 % high)"),
+    "gnss_heading_sigma_deg": (0.0, "deg", "dual-antenna heading 1-sigma, at the fix stamps; 0: none (0.2: survey)"),
+    "gnss_heading_baseline_yaw_deg": (0.0, "deg", "yaw of the antenna baseline in the body frame (0: along x)"),
 }
 
 SCENARIOS: dict[str, Preset] = {
@@ -516,6 +522,7 @@ def make_scenario(name: str, seed: int = 0, duration_s: float | None = None, noi
         raise ValueError(f"gnss_vel_sigma_m_s must be >= 0 (0: no GNSS velocity), got {sig_v}")
     vel_idx = idx if sig_v > 0 else idx[:0]
     vel_n = v_ant_n[sl][vel_idx] + (rng.normal(0.0, sig_v, (len(vel_idx), 3)) if noise else 0.0)
+    aux = _vehicle_signals(params, traj, sl, t_s, idx, spec.rate_hz, rng, noise)
     return ScenarioData(
         name=name, seed=int(seed), t0_s=0.0, t_s=t_s, omega_ib_b=omega, f_ib_b=f,
         C_b_n=traj.C_b_n[sl], lat_rad=traj.lat_rad[sl], lon_rad=traj.lon_rad[sl], h_m=traj.h_m[sl],
@@ -525,5 +532,30 @@ def make_scenario(name: str, seed: int = 0, duration_s: float | None = None, noi
         gnss_vel_t_s=t_s[vel_idx].copy() if sig_v > 0 else None, gnss_vel_n=vel_n if sig_v > 0 else None,
         gnss_vel_R_n=np.broadcast_to(sig_v**2 * np.eye(3), (len(vel_idx), 3, 3)).copy() if sig_v > 0 else None,
         params={**params, **segments, "noise": bool(noise), "ref_lat_deg": params["lat_deg"], "ref_lon_deg": params["lon_deg"],
-                "ref_h_m": params["h_m"]},
+                "ref_h_m": params["h_m"]}, **aux,
     )
+
+
+def _vehicle_signals(params, traj, sl, t_s, idx, rate_hz, rng, noise) -> dict:
+    """Wheel speed (the body x component of the true velocity, times 1 + wheel_scale_error, plus noise) at
+    wheel_rate_hz and the dual-antenna heading (the ENU yaw of the body baseline, plus noise) at the fix stamps, when
+    their sigmas are > 0 -> the ScenarioData fields."""
+    out: dict = {}
+    C, v = traj.C_b_n[sl], traj.v_n[sl]
+    s_w = params.get("wheel_speed_sigma_m_s", 0.0)
+    if s_w > 0:
+        step = int(round(rate_hz / params["wheel_rate_hz"]))
+        if step < 1 or abs(rate_hz / params["wheel_rate_hz"] - step) > 1e-9:
+            raise ValueError("wheel_rate_hz must divide the IMU rate")
+        k = np.arange(0, len(t_s), step)
+        v_x = np.einsum("nj,nj->n", C[k][:, :, 0], v[k]) * (1.0 + params["wheel_scale_error"])
+        out.update(wheel_t_s=t_s[k].copy(), wheel_speed_m_s=v_x + (rng.normal(0.0, s_w, len(k)) if noise else 0.0),
+                   wheel_var_m2_s2=np.full(len(k), s_w**2))
+    s_h = params.get("gnss_heading_sigma_deg", 0.0) * D2R
+    if s_h > 0:
+        b = params["gnss_heading_baseline_yaw_deg"] * D2R
+        base_n = C[idx] @ np.array([math.cos(b), math.sin(b), 0.0])
+        yaw = np.arctan2(base_n[:, 1], base_n[:, 0]) + (rng.normal(0.0, s_h, len(idx)) if noise else 0.0)
+        out.update(heading_t_s=t_s[idx].copy(), heading_yaw_rad=np.remainder(yaw + np.pi, 2 * np.pi) - np.pi,
+                   heading_var_rad2=np.full(len(idx), s_h**2))
+    return out
