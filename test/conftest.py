@@ -12,32 +12,54 @@ import insalign_ros.session  # noqa: F401  registers the session-level core 'aut
 
 
 _WARMUP: dict = {}
+#: the cores, in two halves of similar compile time (in-motion ECI cores; the static and Earth-frame ones with `auto`)
+_WARMUP_HALVES = ("liekf,pi_liekf,iekf,ekf,liekf_backtrack", "auto,pkf,ekf10,coarse,earth_iekf")
+
+
+def _kernel_index_files() -> int:
+    """numba cache index files (``*.nbi``) where this tree's kernels are cached: ``$NUMBA_CACHE_DIR`` when set, else
+    next to the sources (core/mechanization_numba.py ``_jit``), else the user cache directory."""
+    import glob
+
+    import insalign_ros
+    from insalign_ros.core.mechanization_numba import user_cache_dir
+
+    roots = [os.environ["NUMBA_CACHE_DIR"]] if os.environ.get("NUMBA_CACHE_DIR") else \
+        [os.path.dirname(insalign_ros.__file__), user_cache_dir()]
+    return sum(len(glob.glob(os.path.join(r, "**", "*.nbi"), recursive=True)) for r in roots)
 
 
 def pytest_configure(config):
-    """Under pytest-xdist (scripts/test): compile every core's numba kernels once, in the controller, before the
-    workers start (``python -m insalign_ros.session.warmup --cores all``): with a cold cache (a fresh clone on an
-    installed virtualenv) each worker would otherwise compile the same kernels inside its first tests, both at once
-    (60-100 s each); with a warm cache this loads them in a few seconds. ``INSALIGN_TEST_WARMUP=0`` skips it.
-    Tests of the cold start itself (test_first_run) use their own cache directories."""
-    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None) \
-            or os.environ.get("INSALIGN_TEST_WARMUP", "1") == "0":
+    """Under pytest-xdist (scripts/test) with a cold kernel cache (a fresh clone on an installed virtualenv: no
+    ``*.nbi`` file yet), compile every core's numba kernels in the controller before the workers start, in two
+    processes at once (``python -m insalign_ros.session.warmup --cores ...``, half the cores each): otherwise both
+    workers compile the same kernels inside their first tests (60-100 s each, DDS tests waiting on a node that is not
+    ready). With a warm cache (scripts/env.sh compiled them after installing) nothing is done.
+    ``INSALIGN_TEST_WARMUP=1`` forces it, ``0`` skips it. The cold-start tests (test_first_run, test_node_ready) use
+    their own cache directories."""
+    want = os.environ.get("INSALIGN_TEST_WARMUP", "")
+    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None) or want == "0":
         return
+    n_index = _kernel_index_files()
+    if n_index and want != "1":
+        _WARMUP["skipped"] = n_index
+        return
+    import subprocess
+    import sys
     import time
 
-    from insalign_ros.session.warmup import warm_up
-
     t0 = time.perf_counter()
-    try:
-        warm_up(("all",))
-        _WARMUP["s"] = time.perf_counter() - t0
-    except Exception as exc:  # noqa: BLE001 - the kernels then compile on first use, as without the warm-up
-        _WARMUP["error"] = f"{type(exc).__name__}: {exc}"
+    procs = [subprocess.Popen([sys.executable, "-m", "insalign_ros.session.warmup", "--cores", half, "--quiet"])
+             for half in _WARMUP_HALVES]
+    rcs = [p.wait(timeout=1200) for p in procs]
+    _WARMUP["s" if not any(rcs) else "error"] = time.perf_counter() - t0 if not any(rcs) else f"exit codes {rcs}"
 
 
 def pytest_report_header(config):
     if "s" in _WARMUP:
-        return f"numba kernels of every core warmed up before the workers started: {_WARMUP['s']:.1f} s"
+        return f"numba kernels compiled before the workers started (cold cache): {_WARMUP['s']:.1f} s"
+    if "skipped" in _WARMUP:
+        return f"numba kernel cache warm ({_WARMUP['skipped']} index files): no warm-up"
     if "error" in _WARMUP:
         return f"numba warm-up failed ({_WARMUP['error']}): kernels compile on first use"
     return None
