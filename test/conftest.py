@@ -11,6 +11,60 @@ import insalign_ros.session  # noqa: F401  registers the session-level core 'aut
 #                              tests parametrised over the registry see the same cores whatever is imported first
 
 
+_WARMUP: dict = {}
+#: the cores, in two halves of similar compile time (in-motion ECI cores; the static and Earth-frame ones with `auto`)
+_WARMUP_HALVES = ("liekf,pi_liekf,iekf,ekf,liekf_backtrack", "auto,pkf,ekf10,coarse,earth_iekf")
+
+
+def _kernel_index_files() -> int:
+    """numba cache index files (``*.nbi``) where this tree's kernels are cached: ``$NUMBA_CACHE_DIR`` when set, else
+    next to the sources (core/mechanization_numba.py ``_jit``), else the user cache directory."""
+    import glob
+
+    import insalign_ros
+    from insalign_ros.core.mechanization_numba import user_cache_dir
+
+    roots = [os.environ["NUMBA_CACHE_DIR"]] if os.environ.get("NUMBA_CACHE_DIR") else \
+        [os.path.dirname(insalign_ros.__file__), user_cache_dir()]
+    return sum(len(glob.glob(os.path.join(r, "**", "*.nbi"), recursive=True)) for r in roots)
+
+
+def pytest_configure(config):
+    """Under pytest-xdist (scripts/test) with a cold kernel cache (a fresh clone on an installed virtualenv: no
+    ``*.nbi`` file yet), compile every core's numba kernels in the controller before the workers start, in two
+    processes at once (``python -m insalign_ros.session.warmup --cores ...``, half the cores each): otherwise both
+    workers compile the same kernels inside their first tests (60-100 s each, DDS tests waiting on a node that is not
+    ready). With a warm cache (scripts/env.sh compiled them after installing) nothing is done.
+    ``INSALIGN_TEST_WARMUP=1`` forces it, ``0`` skips it. The cold-start tests (test_first_run, test_node_ready) use
+    their own cache directories."""
+    want = os.environ.get("INSALIGN_TEST_WARMUP", "")
+    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None) or want == "0":
+        return
+    n_index = _kernel_index_files()
+    if n_index and want != "1":
+        _WARMUP["skipped"] = n_index
+        return
+    import subprocess
+    import sys
+    import time
+
+    t0 = time.perf_counter()
+    procs = [subprocess.Popen([sys.executable, "-m", "insalign_ros.session.warmup", "--cores", half, "--quiet"])
+             for half in _WARMUP_HALVES]
+    rcs = [p.wait(timeout=1200) for p in procs]
+    _WARMUP["s" if not any(rcs) else "error"] = time.perf_counter() - t0 if not any(rcs) else f"exit codes {rcs}"
+
+
+def pytest_report_header(config):
+    if "s" in _WARMUP:
+        return f"numba kernels compiled before the workers started (cold cache): {_WARMUP['s']:.1f} s"
+    if "skipped" in _WARMUP:
+        return f"numba kernel cache warm ({_WARMUP['skipped']} index files): no warm-up"
+    if "error" in _WARMUP:
+        return f"numba warm-up failed ({_WARMUP['error']}): kernels compile on first use"
+    return None
+
+
 @pytest.fixture
 def ros_env(monkeypatch):
     """A private ROS_DOMAIN_ID and localhost discovery for this test (and its in-process monitor)."""
@@ -20,6 +74,37 @@ def ros_env(monkeypatch):
     for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
         monkeypatch.setenv(k, env[k])
     return env
+
+
+@pytest.fixture
+def node_factory(monkeypatch):
+    """``make(args)``: an AlignmentNode in its own rclpy context, started with the ROS arguments ``args`` (after
+    ``--ros-args``), on a private ROS_DOMAIN_ID; every node and context made is destroyed after the test."""
+    import rclpy
+
+    from insalign_ros.cli.bringup import isolated_ros_env
+
+    for k, v in isolated_ros_env(base={}).items():
+        monkeypatch.setenv(k, v)
+    made = []
+
+    def make(args):
+        from insalign_ros.nodes.alignment_node import AlignmentNode
+
+        ctx = rclpy.Context()
+        rclpy.init(args=["--ros-args", *args], context=ctx)
+        made.append(ctx)
+        node = AlignmentNode(context=ctx)
+        made.append(node)
+        return node
+
+    make.made = made  # for fixtures built on this one (test_node_restart: a listener node in the same context)
+    yield make
+    for obj in reversed(made):
+        if isinstance(obj, rclpy.Context):
+            rclpy.shutdown(context=obj)
+        else:
+            obj.destroy_node()
 
 
 def sim_summary(node) -> dict:

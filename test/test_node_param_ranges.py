@@ -112,32 +112,6 @@ def test_unknown_and_other_core_parameters_are_named():
     assert "'yaw_hypotheses' is not a parameter of core 'auto'" in lines[1] and "iekf" in lines[1]
 
 
-@pytest.fixture
-def node_factory(monkeypatch):
-    import rclpy
-
-    for k, v in isolated_ros_env(base={}).items():
-        monkeypatch.setenv(k, v)
-    made = []
-
-    def make(args):
-        from insalign_ros.nodes.alignment_node import AlignmentNode
-
-        ctx = rclpy.Context()
-        rclpy.init(args=["--ros-args", *args], context=ctx)
-        made.append(ctx)
-        node = AlignmentNode(context=ctx)
-        made.append(node)
-        return node
-
-    yield make
-    for obj in reversed(made):
-        if isinstance(obj, rclpy.Context):
-            rclpy.shutdown(context=obj)
-        else:
-            obj.destroy_node()
-
-
 @pytest.mark.timeout(120)
 def test_a_started_node_warns_unknown_parameters_and_keeps_doubles(node_factory, capfd):
     from rclpy.parameter import Parameter

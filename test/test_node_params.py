@@ -6,39 +6,9 @@ from pathlib import Path
 import pytest
 import yaml
 
-from insalign_ros.cli.bringup import isolated_ros_env
 
 pytestmark = pytest.mark.ros
 ROOT = Path(__file__).resolve().parents[1]
-
-
-@pytest.fixture
-def node_factory(monkeypatch):
-    import rclpy
-
-    for k, v in isolated_ros_env(base={}).items():
-        monkeypatch.setenv(k, v)
-    made = []
-
-    def make(args):
-        from insalign_ros.nodes.alignment_node import AlignmentNode
-
-        ctx = rclpy.Context()
-        rclpy.init(args=["--ros-args", *args], context=ctx)
-        made.append(ctx)
-        try:
-            node = AlignmentNode(context=ctx)
-        except Exception:
-            raise
-        made.append(node)
-        return node
-
-    yield make
-    for obj in reversed(made):
-        if isinstance(obj, rclpy.Context):
-            rclpy.shutdown(context=obj)
-        else:
-            obj.destroy_node()
 
 
 @pytest.mark.timeout(60)

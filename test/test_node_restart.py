@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 
 import insalign_ros as ia
-from insalign_ros.cli.bringup import isolated_ros_env
 from insalign_ros.core import earth
 
 pytestmark = pytest.mark.ros
@@ -23,30 +22,19 @@ BASE_S = 1_700_000_000
 
 
 @pytest.fixture
-def make_node(monkeypatch):
-    import rclpy
-
-    for k, v in isolated_ros_env(base={}).items():
-        monkeypatch.setenv(k, v)
-    made = []
+def make_node(node_factory):
+    """An AlignmentNode (conftest.node_factory) with ``params`` and matched subscribers on ~/pose and ~/imu."""
 
     def make(params: dict):
         from rclpy.node import Node
 
-        from insalign_ros.nodes.alignment_node import AlignmentNode
-
-        ctx = rclpy.Context()
-        args = ["--ros-args"] + [a for k, v in params.items() for a in ("-p", f"{k}:={v}")]
-        rclpy.init(args=args, context=ctx)
-        made.append(ctx)
-        node = AlignmentNode(context=ctx)
-        made.append(node)
+        node = node_factory([a for k, v in params.items() for a in ("-p", f"{k}:={v}")])
         # matched subscribers: the node builds ~/pose and ~/imu only for a matched subscription
         from geometry_msgs.msg import PoseWithCovarianceStamped
         from sensor_msgs.msg import Imu
 
-        sub = Node("listener", context=ctx)
-        made.append(sub)
+        sub = Node("listener", context=node.context)
+        node_factory.made.append(sub)
         sub.create_subscription(PoseWithCovarianceStamped, "alignment_node/pose", lambda m: None, 10)
         sub.create_subscription(Imu, "alignment_node/imu", lambda m: None, 10)
         t_end = time.monotonic() + 10.0
@@ -56,12 +44,7 @@ def make_node(monkeypatch):
         assert node.pub_pose.get_subscription_count() >= 1 and node.pub_imu.get_subscription_count() >= 1
         return node
 
-    yield make
-    for obj in reversed(made):
-        if isinstance(obj, rclpy.Context):
-            rclpy.shutdown(context=obj)
-        else:
-            obj.destroy_node()
+    return make
 
 
 def record(node) -> list:

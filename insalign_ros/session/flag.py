@@ -88,8 +88,16 @@ def nis_band(window: int, dof: int, alpha: float) -> tuple[float, float]:
 
 def attitude_3sigma_deg(P_att_n: np.ndarray) -> np.ndarray:
     """3-sigma [deg] of the ENU attitude error about East, North, Up (roll, pitch, yaw near level)."""
-    d = np.clip(np.diag(np.asarray(P_att_n, float)), 0.0, None)
-    return 3.0 * np.degrees(np.sqrt(d))
+    return np.array(attitude_3sigma_list(P_att_n))
+
+
+def attitude_3sigma_list(P_att_n: np.ndarray) -> list[float]:
+    """:func:`attitude_3sigma_deg` as a list of floats, the same numbers (``np.clip``, ``np.sqrt`` and
+    ``np.degrees`` are the IEEE operations of ``max``, ``math.sqrt`` and ``math.degrees``), without numpy's per-call
+    overhead (once per output)."""
+    P = np.asarray(P_att_n, float)
+    d = (float(P[0, 0]), float(P[1, 1]), float(P[2, 2]))
+    return [3.0 * math.degrees(math.sqrt(0.0 if x < 0.0 else x)) if x == x else math.nan for x in d]
 
 
 class AlignedFlag:
@@ -103,6 +111,7 @@ class AlignedFlag:
     def reset(self) -> None:
         self.aligned = False
         self.nis: deque = deque(maxlen=max(self.criteria.nis_window, 1))
+        self._nis_total: float | None = None  # sum(self.nis), None: to compute (the window changed)
         self.nis_dof = 3
         self.last_update_s: float | None = None
         self.holding_since_s: float | None = None
@@ -118,6 +127,7 @@ class AlignedFlag:
         keep = list(self.nis)
         self.criteria = criteria
         self.nis = deque(keep, maxlen=max(criteria.nis_window, 1))
+        self._nis_total = None
         self.holding_since_s = None
 
     def on_update(self, stamp_s: float, accepted: bool, nis: float, dof: int = 3) -> None:
@@ -125,18 +135,20 @@ class AlignedFlag:
         if not accepted or not math.isfinite(nis):
             return
         self.nis.append(float(nis))
+        self._nis_total = None
         self.nis_dof = int(dof)
         self.last_update_s = float(stamp_s)
 
     def _failing(self, stamp_s: float, P_att_n: np.ndarray) -> str:
         c = self.criteria
-        s = self.sigma3_deg = attitude_3sigma_deg(P_att_n)
-        if not np.all(np.isfinite(s)):
+        sl = attitude_3sigma_list(P_att_n)
+        self.sigma3_deg = np.array(sl)
+        if not (math.isfinite(sl[0]) and math.isfinite(sl[1]) and math.isfinite(sl[2])):
             return "attitude covariance is not finite"
-        if max(s[0], s[1]) >= c.roll_pitch_3sigma_deg:
-            return f"3-sigma roll/pitch {max(s[0], s[1]):.2f} deg >= {c.roll_pitch_3sigma_deg:g} deg"
-        if s[2] >= c.yaw_3sigma_deg:
-            return f"3-sigma yaw {s[2]:.2f} deg >= {c.yaw_3sigma_deg:g} deg"
+        if max(sl[0], sl[1]) >= c.roll_pitch_3sigma_deg:
+            return f"3-sigma roll/pitch {max(sl[0], sl[1]):.2f} deg >= {c.roll_pitch_3sigma_deg:g} deg"
+        if sl[2] >= c.yaw_3sigma_deg:
+            return f"3-sigma yaw {sl[2]:.2f} deg >= {c.yaw_3sigma_deg:g} deg"
         if self.last_update_s is None:
             return "no accepted measurement update yet"
         age = stamp_s - self.last_update_s
@@ -147,7 +159,11 @@ class AlignedFlag:
                 return f"NIS window filling ({len(self.nis)}/{c.nis_window} updates)"
             alpha = c.nis_alpha_drop if self.aligned else c.nis_alpha  # hysteresis: a wider band to stay up
             self.band = lo, hi = nis_band(c.nis_window, self.nis_dof, alpha)
-            self.nis_sum = total = float(sum(self.nis))
+            # the window's sum, recomputed only when an update changed it (outputs outnumber updates): the same
+            # float as summing at every output (a running sum would round differently)
+            if self._nis_total is None:
+                self._nis_total = float(sum(self.nis))
+            self.nis_sum = total = self._nis_total
             if total > hi:
                 return f"NIS sum {total:.1f} above the chi-square band [{lo:.1f}, {hi:.1f}] (over-confident)"
             if c.nis_lower_check and total < lo:
@@ -207,3 +223,27 @@ def euler_3sigma_deg(C_b_n: np.ndarray, P_att_n: np.ndarray) -> np.ndarray:
         return ux * ux * a + uy * uy * d + uz * uz * f + 2.0 * (ux * uy * b + ux * uz * c + uy * uz * e)
     var = (quad(cy / cp, sy / cp, 0.0), quad(-sy, cy, 0.0), quad(cy * tp, sy * tp, 1.0))
     return np.array([3.0 * math.degrees(math.sqrt(v)) if v > 0.0 else 0.0 for v in var])
+
+
+def euler_3sigma_deg_many(C_b_n: np.ndarray, P_att_n: np.ndarray) -> np.ndarray:
+    """:func:`euler_3sigma_deg` of n attitudes (n, 3, 3) and covariances (n, 3, 3) at once: the same operations in
+    the same order, elementwise (test_speed_paths checks the numbers against one call per output)."""
+    C = np.asarray(C_b_n, float).reshape(-1, 3, 3)
+    P = np.asarray(P_att_n, float).reshape(-1, 3, 3)
+    sp = np.minimum(1.0, np.maximum(-1.0, C[:, 2, 0]))
+    cp = np.sqrt(1.0 - sp * sp)
+    singular = (np.abs(sp) > 1.0 - 1e-12) | (cp < 1e-12)
+    cp = np.where(singular, 1.0, cp)
+    yaw = np.arctan2(C[:, 1, 0], C[:, 0, 0])
+    cy, sy, tp = np.cos(yaw), np.sin(yaw), -sp / cp
+    a, b, c, d, e, f = P[:, 0, 0], P[:, 0, 1], P[:, 0, 2], P[:, 1, 1], P[:, 1, 2], P[:, 2, 2]
+
+    def quad(ux, uy, uz):
+        return ux * ux * a + uy * uy * d + uz * uz * f + 2.0 * (ux * uy * b + ux * uz * c + uy * uz * e)
+
+    zero = np.zeros_like(sp)
+    var = np.stack((quad(cy / cp, sy / cp, zero), quad(-sy, cy, zero), quad(cy * tp, sy * tp, zero + 1.0)), axis=1)
+    with np.errstate(invalid="ignore"):
+        out = np.where(var > 0.0, 3.0 * np.degrees(np.sqrt(np.where(var > 0.0, var, 0.0))), 0.0)
+    out[singular] = np.inf
+    return out

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..core import earth, lie
 from ..filters.base import AlignmentEstimate, AlignmentStatus
-from .flag import euler_3sigma_deg
+from .flag import euler_3sigma_deg, euler_3sigma_deg_many
 from .truth import TruthDict
 
 
@@ -34,6 +34,7 @@ class Outputs:
 
     def __init__(self, session) -> None:
         self.s = session
+        self._deferred_s3: list[Output] = []  # outputs whose 3-sigma is filled in by ``fill_deferred_errors``
 
     def reset(self) -> None:
         pass
@@ -68,9 +69,12 @@ class Outputs:
             sess.status = est.status
         sess.reason = sess.flag.reason if not est.reason else f"{sess.flag.reason}; {est.reason}"
         tr = self.truth_at(t)
-        o = Output(t, est, now, sess.status, sess.reason, euler_3sigma_deg(est.C_b_n, P), None, tr)
+        deferred = sess._deferred_errors is not None
+        o = Output(t, est, now, sess.status, sess.reason, None if deferred else euler_3sigma_deg(est.C_b_n, P), None, tr)
+        if deferred:
+            self._deferred_s3.append(o)
         if tr is not None:
-            if sess._deferred_errors is not None:
+            if deferred:
                 sess._deferred_errors.append(o)
             else:
                 o.euler_error_deg = np.degrees(earth.euler_error_rad(est.C_b_n, tr))
@@ -78,9 +82,15 @@ class Outputs:
         return o
 
     def fill_deferred_errors(self) -> None:
-        """The Euler errors of the outputs deferred by ``run_session``, in one vectorised call (numpy's elementwise
-        functions: the numbers of one call per output, test_speed_paths); deferring ends."""
+        """The Euler errors and 3-sigma of the outputs deferred by ``run_session``, in one vectorised call each
+        (numpy's elementwise functions: the numbers of one call per output, test_speed_paths); deferring ends."""
         sess = self.s
+        outs3, self._deferred_s3 = self._deferred_s3, []
+        if outs3:
+            S3 = euler_3sigma_deg_many(np.array([o.estimate.C_b_n for o in outs3], float),
+                                       np.array([o.estimate.P_att_n for o in outs3], float))
+            for o, s3 in zip(outs3, S3):
+                o.euler_3sigma_deg = s3
         outs, sess._deferred_errors = sess._deferred_errors, None
         if outs:
             E = np.degrees(earth.euler_error_rad(np.array([o.estimate.C_b_n for o in outs], float),
