@@ -7,7 +7,7 @@ Topics (relative names, remappable as usual):
   geometry_msgs/PoseStamped (optional: initialisation in tests and the Euler errors), ``gps/vel``
   geometry_msgs/TwistWithCovarianceStamped (optional: the GNSS antenna's ENU velocity relative to Earth, as u-blox,
   NovAtel and MicroStrain drivers publish it; QoS ``gnss_qos``; fused at its stamp like a fix by the cores that
-  declare ``supports_gnss_velocity``; the antenna offset is the core parameter ``gnss_lever_arm_b_m``). The Imu's rates and specific
+  accept the GNSS velocity model; the antenna offset is the core parameter ``gnss_lever_arm_b_m``). The Imu's rates and specific
   forces are turned into the vehicle FLU frame once, in the callback (``imu_axes``, ``imu_mount_rpy_deg``:
   conversions.imu_to_vehicle_matrix; the convention is written there and in docs/nodes.md);
 - out ``~/pose`` PoseWithCovarianceStamped (frame ``world_frame``, REP 105: local ENU anchored at the initial position;
