@@ -70,11 +70,12 @@ class AlignmentCore(ABC):
     name: str = "base"
     #: capabilities a caller may rely on (declared here, never probed with hasattr)
     needs_motion: bool = False
-    #: the measurement model types (filters/measurements.py) :meth:`update` fuses; a composite core (``auto``) may
-    #: change its set as it changes state
-    accepts: frozenset = frozenset()
     #: the error convention the models compute their Jacobians for (filters/measurements.py); "" for none
     convention: str = ""
+    #: the state blocks beyond the navigation states that a model may need ("gyro_bias", "acc_bias")
+    state_blocks: frozenset = frozenset()
+    #: models fused by the core's own hook (``_fuse``) rather than by a Jacobian of its convention
+    own_models: frozenset = frozenset()
     #: ``propagate_backward`` (and ``propagate_arrays(..., backward=True)``) work (filters/backtrack.py)
     supports_backtracking: bool = False
     #: ``propagate_arrays`` gives exactly the numbers of one ``propagate`` per sample (the session's fast path
@@ -120,6 +121,12 @@ class AlignmentCore(ABC):
     def propagate(self, imu: ImuSample) -> None:
         """Propagate state and covariance to ``imu.stamp_s`` with one IMU sample."""
 
+    @property
+    def accepts(self) -> frozenset:
+        """The measurement model types :meth:`update` fuses: the models with terms for ``convention`` whose state
+        blocks the core keeps, and ``own_models`` (a composite core, ``auto``, changes its set with its state)."""
+        return update_pipeline.models_for(self.convention, self.state_blocks, self.own_models)
+
     def update(self, meas) -> UpdateResult:
         """Fuse a measurement model (filters/measurements.py) at the core's current time (the caller propagates
         first). A model the core does not accept (``accepts``) changes nothing: the result says why (a core that
@@ -131,7 +138,7 @@ class AlignmentCore(ABC):
     def predict(self, meas) -> UpdateResult:
         """The innovation (``innovation``, ``S``, ``nis``) ``meas`` would have now, with nothing changed (the
         session's outlier gate); a result with an empty ``S`` (no gate) where the core has no prediction."""
-        if type(meas) not in self.accepts or self.convention == "":
+        if type(meas) not in self.accepts or type(meas) in self.own_models:  # own hooks: no prediction
             return UpdateResult(False, reason=f"{self.name} has no prediction of {meas.label}")
         return update_pipeline.predict(self, meas)
 

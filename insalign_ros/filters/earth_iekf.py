@@ -44,7 +44,7 @@ from .config import InMotionConfig
 from .checks import check_imu
 from .eci_batch import liekf_transition_batch, prefix_products, propagate_eci_batch, step_increments_batch
 from .kalman import joseph_update
-from .measurements import ZeroVelocity
+from . import measurements  # noqa: F401  (registers its zero-velocity model)
 
 _I3 = np.eye(3)
 N_STATES = 18
@@ -122,8 +122,7 @@ class EarthIekf(AlignmentCore):
     name = "earth_iekf"
     config_class = EarthIekfConfig
     needs_motion = False
-    accepts = frozenset({ZeroVelocity})
-    convention = "earth_left"
+    convention = "earth_left"  # its zero-velocity model (filters/measurements.py)
     supports_backtracking = True
     #: its propagate_arrays (for the backtracking driver) flushes and batches differently from propagate
     propagate_arrays_matches_propagate = False

@@ -57,6 +57,7 @@ class ConventionalEkf(BatchedEciCore):
 
     _fused_kernel_transitions = False  # its own (multiplicative-error) transitions: the batched products
     convention = "eci_ekf"  # its own measurement Jacobians (filters/measurements.py)
+    state_blocks = frozenset({"gyro_bias", "acc_bias"})
 
     def _noise_diag(self, dt):
         d = super()._noise_diag(dt)  # isotropic: C_hat Q C_hat^T = Q

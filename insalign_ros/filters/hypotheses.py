@@ -52,8 +52,7 @@ class YawHypothesisBank(AlignmentCore):
         proto = factory(cfg)
         self.name = proto.name
         self.needs_motion = proto.needs_motion
-        self.accepts = proto.accepts
-        self.convention = proto.convention
+        self.convention, self.state_blocks, self.own_models = proto.convention, proto.state_blocks, proto.own_models
         self.supports_gyro_bias_prior = proto.supports_gyro_bias_prior
         self.supports_backtracking = False
         self.att_index, self.vel_index, self.pos_index = proto.att_index, proto.vel_index, proto.pos_index

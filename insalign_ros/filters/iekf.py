@@ -23,7 +23,6 @@ from ..core.units import deg_h_to_rad_s, mg_to_m_s2
 from .config import IekfConfig
 from .eci_batch import liekf_transition_batch
 from .liekf import BatchedEciCore
-from .measurements import GnssPosition, GnssVelocity, ZeroAngularRate
 
 _I3 = np.eye(3)
 
@@ -70,8 +69,8 @@ class ImperfectIekf(BatchedEciCore):
         self.P[:, 9:12] = 0.0
         self.P[9:12, 9:12] = 0.5 * (P_b_g_b + P_b_g_b.T)
 
-    #: the gyro bias block makes a zero-angular-rate update useful (filters/measurements.py, ZeroAngularRate)
-    accepts = frozenset({GnssPosition, GnssVelocity, ZeroAngularRate})
+    #: the bias blocks (a zero-angular-rate update needs the gyro bias: filters/measurements.py, ZeroAngularRate)
+    state_blocks = frozenset({"gyro_bias", "acc_bias"})
     # ---- end of the bias initialisation / zero-rate API ----
 
     def _noise_diag(self, dt):

@@ -43,7 +43,7 @@ from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, ImuSample, 
 from .checks import ImuBuffer, check_imu, usable_imu_arrays
 from .config import LiekfConfig
 from .eci_batch import covariance_batch, liekf_transition_batch, orthonormalize, retract_se23
-from .measurements import GnssPosition, GnssVelocity
+from . import measurements  # noqa: F401  (registers the models of the cores' conventions)
 
 _I3 = np.eye(3)
 _NO_TOT = np.eye(1)  # the fused kernel's transition product when no correction reads it (not written)
@@ -59,8 +59,7 @@ class BatchedEciCore(AlignmentCore):
     """
 
     needs_motion = True
-    accepts = frozenset({GnssPosition, GnssVelocity})
-    convention = "eci_left"
+    convention = "eci_left"  # the models' Jacobians (filters/measurements.py): GNSS position and velocity, ...
     att_index = (0, 1, 2)
     vel_index = (3, 4, 5)
     pos_index = (6, 7, 8)

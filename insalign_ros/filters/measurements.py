@@ -26,14 +26,15 @@ Error conventions a core declares (``AlignmentCore.convention``), with the state
 The linearisation point of the ECI conventions is the core itself, flushed: ``C`` (C_b_i), ``v`` (v_i [m/s]),
 ``p`` (p_i [m]), ``omega_b`` (bias-corrected omega_ib_b of the newest sample [rad/s]), ``b_g`` [rad/s],
 ``lever_b`` (antenna lever arm, body [m]), ``t_s``, ``t0_s`` (ECI == ECEF at t0), ``_n_states``, ``cfg``.
-A new sensor is a new model: a class with ``check``, ``counter``/``label`` and one ``terms`` function per
-convention it supports (:func:`jacobian`); no core changes.
+A core accepts (``core.accepts``) every model with terms for its convention whose ``needs`` (state blocks beyond the
+navigation states, e.g. ``gyro_bias``) it keeps (``core.state_blocks``), plus the models of its own hook
+(``own_models``: the static cores' zero velocity). A new sensor is a new model: a class with ``check``,
+``counter``/``label`` and one ``terms`` function per convention it supports (:func:`jacobian`); no core changes.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Callable
 
 import numpy as np
 
@@ -43,20 +44,10 @@ from ..core.types import GnssVelocity as _GnssVelocityData
 from .checks import check_fix, check_velocity
 from .eci_batch import gnss_terms_eci
 from .kalman import spd3
+from .update import TERMS as _TERMS
+from .update import jacobian  # noqa: F401  (the models' registration, re-exported)
 
 _I3 = np.eye(3)
-
-#: (model class, convention) -> terms(model, core) -> (z, H, N)
-_TERMS: dict[tuple[type, str], Callable] = {}
-
-
-def jacobian(model: type, convention: str):
-    """Register ``terms(model, core) -> (z, H, N)`` of ``model`` for cores of ``convention``."""
-    def deco(fn):
-        _TERMS[(model, convention)] = fn
-        return fn
-    return deco
-
 
 def conventions(model: type) -> tuple[str, ...]:
     """The error conventions ``model`` has terms for."""
@@ -76,6 +67,8 @@ class Measurement:
     weighs_hypotheses = True
     #: a position update: PI-LIEKF's correction (eq. (30)) and its update clock (filters/pi_liekf.py)
     is_position = False
+    #: the state blocks (``AlignmentCore.state_blocks``) the model's Jacobian needs besides the navigation states
+    needs: frozenset = frozenset()
 
     def check(self) -> str:
         """Why the measurement is unusable, or ""."""
@@ -142,6 +135,7 @@ class ZeroAngularRate(Measurement):
 
     counter = "zero_rate"
     label = "zero rate"
+    needs = frozenset({"gyro_bias"})
     fading = False
     nis_gate = 25.9
     weighs_hypotheses = False

@@ -195,8 +195,8 @@ class StaticZuptCore(AlignmentCore):
     """
 
     name = "static"
-    accepts = frozenset({ZeroVelocity})
     convention = "static"
+    own_models = frozenset({ZeroVelocity})  # its own fused zero-velocity step (_fuse)
     _fused_zupt = True  #: this class's hooks are the ones :func:`_zupt_step_nb` implements (declared per class)
     vel_index = (0, 1)  # dvN dvE
     att_index = (2, 3, 4)  # phiN phiE phiD

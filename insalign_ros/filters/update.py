@@ -9,6 +9,7 @@ A core takes part through protected hooks declared on :class:`~insalign_ros.filt
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -24,6 +25,33 @@ class UpdateResult:
     S: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     nis: float = float("nan")
     reason: str = ""
+
+
+#: (model class, convention) -> terms(model, core) -> (z, H, N): filled by the models (filters/measurements.py)
+TERMS: dict[tuple[type, str], Callable] = {}
+
+
+def jacobian(model: type, convention: str):
+    """Register ``terms(model, core) -> (z, H, N)`` of ``model`` for cores of ``convention``."""
+    def deco(fn):
+        TERMS[(model, convention)] = fn
+        _accepts_cache.clear()
+        return fn
+    return deco
+
+
+_accepts_cache: dict = {}
+
+
+def models_for(convention: str, state_blocks: frozenset, own_models: frozenset = frozenset()) -> frozenset:
+    """The models with terms for ``convention`` whose state blocks (``model.needs``) the core keeps, and
+    ``own_models`` (cached: read per measurement)."""
+    key = (convention, state_blocks, own_models)
+    out = _accepts_cache.get(key)
+    if out is None:
+        out = _accepts_cache[key] = own_models | frozenset(
+            m for (m, c) in TERMS if c == convention and m.needs <= state_blocks)
+    return out
 
 
 def predict(core, m) -> UpdateResult:

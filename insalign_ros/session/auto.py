@@ -154,8 +154,6 @@ class AutoCore(AlignmentCore):
 
     def __init__(self, cfg: AutoConfig):
         self.cfg = cfg
-        #: the session reads it per call: zero velocity while static, the in-motion core's set from the hand-over on
-        self.accepts = frozenset({ZeroVelocity})
         self.static: AlignmentCore | None = None
         self.motion: AlignmentCore | None = None
         self.state = "waiting for data"
@@ -416,7 +414,6 @@ class AutoCore(AlignmentCore):
             core.close()
             raise
         self.motion = core
-        self.accepts = core.accepts
         self.counters["handovers"] += 1
         self.static.close()
         how = ("heading from gyrocompassing" if self.heading_trusted else
@@ -478,6 +475,11 @@ class AutoCore(AlignmentCore):
         sig = math.sqrt(max(np.trace(R1 + R0) / 3.0, 0.0)) / dt
         age = max(0.0, (self._t or t1) - t1) + dt
         return v_n, math.hypot(sig, NO_REST_ACC_M_S2 * age)
+
+    @property
+    def accepts(self) -> frozenset:
+        """The session reads it per call: zero velocity while static, the in-motion core's set from the hand-over on."""
+        return self.motion.accepts if self.motion is not None else frozenset({ZeroVelocity})
 
     def _fuse(self, meas) -> UpdateResult:
         if self.motion is None:
