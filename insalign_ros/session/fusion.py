@@ -164,8 +164,8 @@ class Fusion:
     def zupt_due(self, t: float) -> bool:
         sess = self.s
         c = sess.core
-        return (ZeroVelocity in c.accepts and GnssPosition not in c.accepts and not c.schedules_own_zero_velocity
-                and sess.cfg.zupt_rate_hz > 0 and t >= sess.next_zupt_t)
+        return (sess.cfg.zupt_rate_hz > 0 and t >= sess.next_zupt_t and not c.schedules_own_zero_velocity
+                and ZeroVelocity in c.accepts and GnssPosition not in c.accepts)
 
     def _zupt(self, t: float) -> None:
         sess = self.s
