@@ -38,6 +38,7 @@ sys.path.insert(0, str(ROOT))
 
 from insalign_ros.core import earth  # noqa: E402
 from insalign_ros.core.types import GnssFix  # noqa: E402
+from insalign_ros.filters.measurements import GnssPosition  # noqa: E402
 from insalign_ros.eval.metrics import evaluate  # noqa: E402
 from insalign_ros.filters.hypotheses import YawHypothesisBank  # noqa: E402
 from insalign_ros.filters.imu_grade import SCENARIO_IMU_GRADE  # noqa: E402
@@ -83,12 +84,12 @@ def yaw_kick(deg: float, record: dict | None = None):
 def claimed_nis_metric(core) -> np.ndarray | None:
     """The quadratic form M [1/m^2] (ENU) of the NIS a fix displaced by dp_n [m] from the core's own position would
     have now (NIS = dp_n^T M dp_n: the claimed position covariance plus the fix noise, 1 m per axis), by
-    polarisation of ``predict_gnss`` (exact for the linear measurement model); None without a prediction."""
+    polarisation of ``predict`` (exact for the linear measurement model); None without a prediction."""
     e = core.estimate()
     p0, C_ne = earth.geodetic_to_ecef(e.lat_rad, e.lon_rad, e.h_m), earth.C_n_e(e.lat_rad, e.lon_rad)
 
     def q(dp_n):
-        return core.predict_gnss(GnssFix(e.stamp_s, p0 + C_ne @ dp_n, np.eye(3))).nis
+        return core.predict(GnssPosition(e.stamp_s, p0 + C_ne @ dp_n, np.eye(3))).nis
 
     q0, E = q(np.zeros(3)), np.eye(3)
     if not math.isfinite(q0):

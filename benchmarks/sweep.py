@@ -215,7 +215,7 @@ class StageTimer:
             core.close()
         for klass in classes:
             for m, stage in (("propagate", "propagate"), ("flush", "propagate"), ("propagate_arrays", "propagate"),
-                             ("update_gnss", "update"), ("update_zero_velocity", "update"), ("estimate", "outputs")):
+                             ("update", "update"), ("estimate", "outputs")):
                 if m in getattr(klass, "__dict__", {}) and (klass, m) not in seen:
                     seen.add((klass, m))
                     self._wrap(klass, m, stage)

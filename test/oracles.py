@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from insalign_ros.core import earth, lie
 from insalign_ros.filters import (
-    checks, earth_iekf, ekf10, iekf, liekf, pi_liekf, pkf, static_model,
+    checks, earth_iekf, ekf10, liekf, measurements, pi_liekf, pkf, static_model, update,
 )
 from insalign_ros.filters.eci_batch import covariance_batch, propagate_eci_batch, step_increments_batch
 
@@ -111,11 +111,16 @@ def _propagate_block(self, t, w, f):
 
 
 def gnss_terms(core, fix):
-    """(z, H, N) of a fix by the core's own ``_gnss_model`` in numpy (ECEF -> ECI, then the model)."""
+    """(z, H, N) of a fix for a left-invariant ECI core in numpy (ECEF -> ECI, then PI-LIEKF eqs. (42), (43) with the
+    lever arm l: z = C^T (p_gps - p) - l, H = [-l_x, 0, I], N = C^T R_i C)."""
     core.flush()
     Cei = earth.C_e_i(core.t_s, core.t0_s)
     R_i = Cei @ np.asarray(fix.R_e, float) @ Cei.T
-    return core._gnss_model(Cei @ np.asarray(fix.p_e, float), R_i)
+    l = core.lever_b
+    H = np.zeros((3, core._n_states))
+    H[:, 0:3] = -np.array([[0.0, -l[2], l[1]], [l[2], 0.0, -l[0]], [-l[1], l[0], 0.0]])
+    H[:, 6:9] = np.eye(3)
+    return core.C.T @ (Cei @ np.asarray(fix.p_e, float) - core.p) - l, H, core.C.T @ R_i @ core.C
 
 
 # ------------------------------------------------------------------------------------------- static cores
@@ -171,19 +176,24 @@ def _static_propagate(self, imu):
     self._dt_acc += dt
 
 
+def _position_terms_floored(m, core):
+    """:func:`gnss_terms` with the core's covariance floor (the compiled model's reference)."""
+    R_e = measurements._floored(np.asarray(m.R_e, float), getattr(core.cfg, "gnss_sigma_floor_m", 0.0))
+    return gnss_terms(core, measurements.GnssPosition(m.stamp_s, m.p_e, R_e))
+
+
 def use_reference_paths(monkeypatch) -> None:
     """Run every core on the numpy formulas above instead of the compiled kernels (pytest's ``monkeypatch``)."""
-    for mod in (liekf, iekf, earth_iekf):
-        if hasattr(mod, "joseph_update"):
-            monkeypatch.setattr(mod, "joseph_update", joseph_update)
-    for mod in (liekf, pi_liekf):
+    for mod in (update, earth_iekf):
+        monkeypatch.setattr(mod, "joseph_update", joseph_update)
+    for mod in (update, pi_liekf):
         monkeypatch.setattr(mod, "nis", nis)
-    monkeypatch.setattr(liekf, "prediction", prediction)
-    monkeypatch.setattr(liekf, "check_fix", check_fix)
+    monkeypatch.setattr(update, "prediction", prediction)
+    monkeypatch.setattr(measurements, "check_fix", check_fix)
     monkeypatch.setattr(liekf, "retract_se23", retract_se23)
     monkeypatch.setattr(liekf, "orthonormalize", orthonormalize)
     monkeypatch.setattr(liekf.BatchedEciCore, "_propagate_block", _propagate_block)
-    monkeypatch.setattr(liekf.BatchedEciCore, "_invariant_position_model", False)
+    monkeypatch.setitem(measurements._TERMS, (measurements.GnssPosition, "eci_left"), _position_terms_floored)
     monkeypatch.setattr(checks, "spd3", spd3)
     monkeypatch.setattr(checks, "usable_imu_arrays", usable_imu_arrays)
     monkeypatch.setattr(liekf, "usable_imu_arrays", usable_imu_arrays)

@@ -48,3 +48,23 @@ def test_no_twin_paths_and_no_probing_of_cores():
     hits = [f"{p.relative_to(ROOT)}:{i}" for p in PKG.rglob("*.py")
             for i, line in enumerate(p.read_text().splitlines(), 1) if pattern.search(line)]
     assert not hits, hits
+
+
+def test_a_new_sensor_is_a_model_not_a_method_on_every_core():
+    """The core interface stays small (issue 23: measurement models as data, one update): ``update(model)`` and
+    ``predict(model)`` for every sensor; no core class defines a per-sensor ``update_*`` / ``predict_*`` /
+    ``observe_*`` method or a ``supports_<sensor>`` flag (``accepts`` is the set of models it fuses)."""
+    from insalign_ros.filters import registry
+    from insalign_ros.filters.base import AlignmentCore
+
+    methods = [n for n, v in vars(AlignmentCore).items() if not n.startswith("_") and callable(v)]
+    assert len(methods) <= 13, methods  # 18 before the measurement models (and the properties busy, initialized)
+    per_sensor = re.compile(r"^(update|predict|observe)_|^supports_(gnss|zero)")
+    classes = {AlignmentCore}
+    for name in registry.core_names():
+        core = registry.make_core(name)
+        classes.update(c for c in type(core).__mro__ if issubclass(c, AlignmentCore))
+        assert isinstance(core.accepts, frozenset), name
+        core.close()
+    hits = [f"{c.__name__}.{n}" for c in classes for n in vars(c) if per_sensor.match(n)]
+    assert not hits, hits

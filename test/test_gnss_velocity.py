@@ -5,6 +5,8 @@ import math
 import numpy as np
 import pytest
 
+from insalign_ros.filters.measurements import GnssPosition
+from insalign_ros.filters.measurements import GnssVelocity as GnssVelocityModel
 from insalign_ros.core import earth
 from insalign_ros.core.types import GnssFix, GnssVelocity, ImuSample
 from insalign_ros.filters import registry
@@ -27,9 +29,9 @@ def test_velocity_update_is_the_kalman_result_for_a_known_covariance(name):
     """At the initialisation stamp P is block diagonal with P_vv = 1 I (m/s)^2: a velocity y with R = r I moves the
     velocity to y / (1 + r) and leaves P_vv = r / (1 + r) I; attitude and position do not move (no lever arm)."""
     core = _core(name)
-    assert core.supports_gnss_velocity
+    assert GnssVelocityModel in core.accepts
     y, r = np.array([0.3, -0.2, 0.1]), 0.01
-    res = core.update_gnss_velocity(GnssVelocity(0.0, y, r * np.eye(3)))
+    res = core.update(GnssVelocityModel(0.0, y, r * np.eye(3)))
     assert res.accepted and res.nis == pytest.approx(float(y @ y) / (1 + r), rel=1e-9)
     est = core.estimate()
     np.testing.assert_allclose(est.v_n, y / (1 + r), atol=1e-9)
@@ -47,12 +49,12 @@ def test_lever_arm_position_model_and_bad_velocities(name):
     arm = np.array([1.5, -0.4, 0.8])
     p_ant = earth.geodetic_to_ecef(LAT, LON, H) + earth.C_n_e(LAT, LON) @ arm
     fix = GnssFix(0.0, p_ant, np.eye(3))
-    assert np.linalg.norm(_core(name, gnss_lever_arm_b_m=arm.tolist()).predict_gnss(fix).innovation) < 1e-6
-    z0 = _core(name).predict_gnss(fix).innovation
+    assert np.linalg.norm(_core(name, gnss_lever_arm_b_m=arm.tolist()).predict(GnssPosition.of(fix)).innovation) < 1e-6
+    z0 = _core(name).predict(GnssPosition.of(fix)).innovation
     assert np.linalg.norm(z0) == pytest.approx(np.linalg.norm(arm), abs=1e-6)
     core = _core(name)
     for bad in (GnssVelocity(0.0, np.array([np.nan, 0, 0]), np.eye(3)), GnssVelocity(0.0, np.zeros(3), np.zeros((3, 3)))):
-        assert not core.update_gnss_velocity(bad).accepted
+        assert not core.update(GnssVelocityModel.of(bad)).accepted
     assert core.counters["gnss_vel_rejected"] == 2 and core.counters["gnss_vel"] == 0
     assert np.all(core.estimate().v_n == 0.0)
 
@@ -89,7 +91,7 @@ def test_antenna_velocity_of_a_rotating_body_simulator_and_cores():
             core.initialize(0.0, LAT, LON, H, traj.C_b_n[1], np.zeros(3), 1e-6 * np.eye(3), 0.01, 0.1)
             for k in range(1, len(omega)):
                 core.propagate(ImuSample(float(traj.t_s[k + 1]), omega[k], f[k]))
-            innov[with_arm] = np.linalg.norm(core.predict_gnss_velocity(vel).innovation)
+            innov[with_arm] = np.linalg.norm(core.predict(GnssVelocityModel.of(vel)).innovation)
             core.close()
         assert innov[True] < 2e-3, (name, innov)
         assert innov[False] == pytest.approx(0.75, abs=0.01), (name, innov)
@@ -128,13 +130,13 @@ def test_bag_round_trip_and_yaw_bank_forwards_velocity(tmp_path):
     np.testing.assert_allclose(r.gnss_vel_R_n, d.gnss_vel_R_n, atol=0)
     assert read_bag(tmp_path / "b", vel_topic="/nope").gnss_vel_t_s is None
     bank = registry.make_core("liekf", {"yaw_hypotheses": 4})
-    assert isinstance(bank, YawHypothesisBank) and bank.supports_gnss_velocity
+    assert isinstance(bank, YawHypothesisBank) and GnssVelocityModel in bank.accepts
     bank.initialize(0.0, LAT, LON, H, np.eye(3), np.zeros(3), np.diag([1e-4, 1e-4, 10.0]), 0.1, 1.0)
     # 1 s of 2 m/s^2 forward (level, heading East): only the hypothesis at offset 0 predicts v = (2, 0, 0) ENU
     f_b = np.array([2.0, 0.0, 0.0]) - earth.gravity_n(LAT, H)
     for k in range(1, 101):
         bank.propagate(ImuSample(0.01 * k, earth.omega_ie_n(LAT), f_b))
-    bank.update_gnss_velocity(GnssVelocity(1.0, np.array([2.0, 0.0, 0.0]), 0.01 * np.eye(3)))
+    bank.update(GnssVelocityModel(1.0, np.array([2.0, 0.0, 0.0]), 0.01 * np.eye(3)))
     assert all(h.counters["gnss_vel"] == 1 for h in bank.hyps)
     w = bank.weights  # the innovation likelihoods weigh the hypotheses: offsets 90/180/270 deg are 2-4 m/s off
     assert bank.offsets_rad[int(np.argmax(w))] == 0.0 and w.max() > 0.999, w

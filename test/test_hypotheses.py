@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 
+from insalign_ros.filters.measurements import GnssPosition
 from insalign_ros.core.types import GnssFix
 from insalign_ros.filters.base import AlignmentStatus
 from insalign_ros.filters.hypotheses import YawHypothesisBank
@@ -87,11 +88,11 @@ def test_bad_fix_changes_no_weight_and_a_good_fix_moves_weights_by_bayes_rule():
         runner.feed(e)
     w0 = core.weights.copy()
     bad = GnssFix(fixes[0].stamp_s, np.array([np.nan, 0.0, 0.0]), np.eye(3))
-    core.update_gnss(bad)
+    core.update(GnssPosition.of(bad))
     assert np.array_equal(core.weights, w0)
     # Bayes: the weight ratio changes by the ratio of the innovation likelihoods N(z; 0, S)
-    res = [h.update_gnss(fixes[0]) for h in _clone_bank(core)]
-    core.update_gnss(fixes[0])
+    res = [h.update(GnssPosition.of(fixes[0])) for h in _clone_bank(core)]
+    core.update(GnssPosition.of(fixes[0]))
     ll = np.array([-0.5 * (r.nis + np.linalg.slogdet(r.S)[1]) for r in res])
     expect = np.log(w0) + ll
     expect = np.exp(expect - expect.max())

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from insalign_ros.filters.measurements import GnssPosition
 from insalign_ros.core import earth as E
 from insalign_ros.core import lie
 from insalign_ros.core import mechanization as M
@@ -200,9 +201,9 @@ def test_bad_inputs_are_rejected_and_do_not_corrupt():
     before = core.estimate()
     core.propagate(ImuSample(0.01, np.array([np.nan, 0, 0]), np.zeros(3)))
     core.propagate(ImuSample(0.0, np.zeros(3), np.zeros(3)))  # not after the current time
-    res = core.update_gnss(GnssFix(0.0, np.array([1.0, 2.0, 3.0]), np.eye(3)))
+    res = core.update(GnssPosition(0.0, np.array([1.0, 2.0, 3.0]), np.eye(3)))
     assert not res.accepted and "surface" in res.reason
-    res = core.update_gnss(GnssFix(0.0, E.geodetic_to_ecef(0.6, 0.2, 20.0), -np.eye(3)))
+    res = core.update(GnssPosition(0.0, E.geodetic_to_ecef(0.6, 0.2, 20.0), -np.eye(3)))
     assert not res.accepted and "positive definite" in res.reason
     after = core.estimate()
     assert core.counters["imu_rejected"] == 2 and core.counters["gnss_rejected"] == 2

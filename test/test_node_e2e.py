@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from conftest import sim_summary
 
+from insalign_ros.filters.measurements import GnssPosition
 from insalign_ros.cli.bringup import start_node, stop_nodes, wait_for_exit
 from insalign_ros.filters.imu_grade import SCENARIO_IMU_GRADE
 
@@ -155,7 +156,7 @@ def test_every_core_publishes_pose_with_spd_covariance(tmp_path, ros_env):
     the GNSS-aided cores on the ship, the others (static, zero-velocity or averaging) on the static scenario."""
     from insalign_ros.filters.registry import core_names, make_core
 
-    gnss = [c for c in core_names() if make_core(c, {}).supports_gnss]
+    gnss = [c for c in core_names() if GnssPosition in make_core(c, {}).accepts]
     other = [c for c in core_names() if c not in gnss]
     assert {"liekf", "pi_liekf", "iekf", "ekf"} <= set(gnss)
     _run_group(gnss, "ship", tmp_path, ros_env)

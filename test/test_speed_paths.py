@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 import insalign_ros as ia
+from insalign_ros.filters.measurements import GnssPosition, ZeroVelocity
 from insalign_ros.core import earth
 from insalign_ros.core import mechanization_numba as nb
 from insalign_ros.core.mechanization import propagate_eci
@@ -219,7 +220,7 @@ def test_static_propagate_arrays_equals_per_sample(data):
                     c.propagate(ImuSample(float(d.t_s[k]), d.omega_ib_b[k], d.f_ib_b[k]))
             else:
                 c.propagate_arrays(d.t_s[k0:k0 + 12], d.omega_ib_b[k0:k0 + 12], d.f_ib_b[k0:k0 + 12])
-            c.update_zero_velocity(float(d.t_s[k0 + 11]), 0.01)
+            c.update(ZeroVelocity(float(d.t_s[k0 + 11]), 0.01))
         cores.append(c.estimate())
     a, b = cores
     np.testing.assert_array_equal(a.C_b_n, b.C_b_n)
@@ -421,7 +422,7 @@ def test_fused_zero_velocity_step_matches_reference(monkeypatch, data, core, par
         for k0 in range(1, 1200, 12):
             c.propagate_arrays(d.t_s[k0:k0 + 12], d.omega_ib_b[k0:k0 + 12], d.f_ib_b[k0:k0 + 12])
             sig = np.sqrt(c.P[4, 4])
-            assert c.update_zero_velocity(float(d.t_s[k0 + 11]), 0.01).accepted
+            assert c.update(ZeroVelocity(float(d.t_s[k0 + 11]), 0.01)).accepted
             branches.add(bool(sig < c.cfg.azimuth_feedback_sigma_deg * np.pi / 180.0))
             e = c.estimate()
             seen.append((e.C_b_n, e.P))
@@ -435,7 +436,7 @@ def test_fused_zero_velocity_step_matches_reference(monkeypatch, data, core, par
 
 def test_compiled_gnss_checks_and_terms_match_numpy(monkeypatch):
     """The fix checks in floats take numpy's decisions (same reasons), and the compiled (z, H, N) of a fix equals the
-    numpy one to rounding (the invariant cores' ``_gnss_terms``, lever arm included)."""
+    numpy one to rounding (the invariant cores' GnssPosition terms, lever arm included)."""
     from insalign_ros.filters import checks
 
     rng = np.random.default_rng(11)
@@ -457,6 +458,6 @@ def test_compiled_gnss_checks_and_terms_match_numpy(monkeypatch):
             c.propagate_arrays(d.t_s[1:200], d.omega_ib_b[1:200], d.f_ib_b[1:200])
             A = rng.normal(size=(3, 3)) if not terms else A
             fix = GnssFix(float(d.t_s[199]), d.gnss_p_e[1] + 3.0, A @ A.T + np.eye(3))
-            terms.append(c._gnss_terms(fix) if compiled else oracles.gnss_terms(c, fix))
+            terms.append(c._terms(GnssPosition.of(fix)) if compiled else oracles.gnss_terms(c, fix))
         for a, b in zip(*terms):
             assert a.shape == b.shape and np.abs(a - b).max() <= 1e-12 * max(np.abs(a).max(), 1.0)

@@ -28,6 +28,7 @@ from ..core.types import GnssFix, ImuSample
 from .base import AlignmentCore
 from .eci_batch import covariance_batch, propagate_eci_batch, step_increments_batch
 from .liekf import Liekf
+from .measurements import GnssPosition
 from .runner import EventRunner, initial_guess
 
 
@@ -181,7 +182,7 @@ class BacktrackingAligner:
                 t_now = t_prev[k0]
                 for fx in self._fixes:
                     if abs(fx.stamp_s - t_now) < 1e-6 and fx.stamp_s < t_end - 1e-9:
-                        core.update_gnss(fx)
+                        core.update(GnssPosition.of(fx))
                 k = k0
                 yield
             # forward over the window
@@ -213,7 +214,7 @@ class BacktrackingAligner:
             _propagate(core, t_all[i:j], w_all[i:j], f_all[i:j], backward=False)
             for fx in self._fixes:
                 if abs(fx.stamp_s - t_all[j - 1]) < 1e-6:
-                    core.update_gnss(fx)
+                    core.update(GnssPosition.of(fx))
             i = j
             yield
 

@@ -18,11 +18,13 @@ import enum
 from collections.abc import Mapping
 from types import MappingProxyType
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..core.types import GnssFix, GnssVelocity, ImuSample  # noqa: F401  (re-exported: the interface speaks these)
+from . import update as update_pipeline
+from .update import UpdateResult  # noqa: F401  (re-exported)
 
 
 class AlignmentStatus(enum.Enum):
@@ -34,17 +36,6 @@ class AlignmentStatus(enum.Enum):
     CONVERGING = "aligning"
     ALIGNED = "aligned"
     FAULT = "fault"
-
-
-@dataclass
-class UpdateResult:
-    """Outcome of a measurement update: accepted or not, innovation [m or m/s], its covariance, NIS."""
-
-    accepted: bool
-    innovation: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    S: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
-    nis: float = float("nan")
-    reason: str = ""
 
 
 @dataclass
@@ -70,18 +61,21 @@ class AlignmentCore(ABC):
     """Base class of every alignment estimator.
 
     Life cycle: construct with a config dataclass, ``initialize(...)`` with an initial guess, then any
-    interleaving of ``propagate`` (one IMU sample) and ``update_gnss`` / ``update_zero_velocity``, reading
+    interleaving of ``propagate`` (one IMU sample) and ``update(model)`` with the measurement models it
+    ``accepts`` (filters/measurements.py: GNSS position and velocity, zero velocity, zero angular rate, ...), reading
     ``estimate()`` whenever needed. Cores that need motion (GNSS-aided in-motion cores) say so with
-    ``needs_motion``; static cores use ``update_zero_velocity``.
+    ``needs_motion``; static cores accept ``ZeroVelocity``.
     """
 
     name: str = "base"
     #: capabilities a caller may rely on (declared here, never probed with hasattr)
     needs_motion: bool = False
-    supports_gnss: bool = False
-    #: ``update_gnss_velocity`` / ``predict_gnss_velocity`` fuse a GNSS velocity (ENU, at the antenna)
-    supports_gnss_velocity: bool = False
-    supports_zero_velocity: bool = False
+    #: the error convention the models compute their Jacobians for (filters/measurements.py); "" for none
+    convention: str = ""
+    #: the state blocks beyond the navigation states that a model may need ("gyro_bias", "acc_bias")
+    state_blocks: frozenset = frozenset()
+    #: models fused by the core's own hook (``_fuse``) rather than by a Jacobian of its convention
+    own_models: frozenset = frozenset()
     #: ``propagate_backward`` (and ``propagate_arrays(..., backward=True)``) work (filters/backtrack.py)
     supports_backtracking: bool = False
     #: ``propagate_arrays`` gives exactly the numbers of one ``propagate`` per sample (the session's fast path
@@ -90,8 +84,6 @@ class AlignmentCore(ABC):
     #: ``set_gyro_bias_prior`` works (cores with gyro bias states: the hand-over of ``core: auto`` starts them from
     #: the bias measured at rest instead of the grade prior)
     supports_gyro_bias_prior: bool = False
-    #: ``update_zero_rate`` works (a zero-angular-rate update at a stop: the gyros read bias + Earth rate)
-    supports_zero_rate: bool = False
     #: the core runs its own zero-velocity updates (earth_iekf's ``auto_zupt_period_s``: its backward passes need
     #: them inside the passes); the session then schedules none for it
     schedules_own_zero_velocity: bool = False
@@ -103,6 +95,8 @@ class AlignmentCore(ABC):
     #: per-core counters (imu, rejected, ...) merged into the session's diagnostics; cores that count assign
     #: their own dict in __init__
     counters: Mapping[str, int] = MappingProxyType({})
+    last_reject_reason: str = ""
+    last_fading_factor: float = 1.0
 
     #: covariance [state order]; cores without one leave it None
     P: np.ndarray | None = None
@@ -127,42 +121,66 @@ class AlignmentCore(ABC):
     def propagate(self, imu: ImuSample) -> None:
         """Propagate state and covariance to ``imu.stamp_s`` with one IMU sample."""
 
-    def update_gnss(self, fix: GnssFix) -> UpdateResult:
-        """Fuse a GNSS position fix (at the core's current time; the caller propagates first)."""
-        return UpdateResult(False, reason=f"{self.name} does not use GNSS")
+    @property
+    def accepts(self) -> frozenset:
+        """The measurement model types :meth:`update` fuses: the models with terms for ``convention`` whose state
+        blocks the core keeps, and ``own_models`` (a composite core, ``auto``, changes its set with its state)."""
+        return update_pipeline.models_for(self.convention, self.state_blocks, self.own_models)
 
-    def observe_gnss(self, fix: GnssFix) -> None:
-        """A fix the core does not fuse (``supports_gnss`` False now), at its stamp in the session's order: cores that
-        use it otherwise (``core: auto``'s motion detector takes the GNSS speed) override this; default: ignore."""
+    def update(self, meas) -> UpdateResult:
+        """Fuse a measurement model (filters/measurements.py) at the core's current time (the caller propagates
+        first). A model the core does not accept (``accepts``) changes nothing: the result says why (a core that
+        uses it otherwise, ``core: auto``'s motion detector taking the GNSS speed, observes it: ``_observe``)."""
+        if type(meas) not in self.accepts:
+            return self._observe(meas)
+        return self._fuse(meas)
 
-    def predict_gnss(self, fix: GnssFix) -> UpdateResult:
-        """The innovation (``innovation``, ``S``, ``nis``) a fix would have now, with nothing changed (the session's
-        outlier gate). Cores without it return a result with an empty ``S`` (no gate)."""
-        return UpdateResult(False, reason=f"{self.name} has no GNSS prediction")
-
-    def update_gnss_velocity(self, vel: GnssVelocity) -> UpdateResult:
-        """Fuse a GNSS velocity (ENU antenna velocity relative to Earth, at the core's current time; the caller
-        propagates first). Cores with ``supports_gnss_velocity`` implement it."""
-        return UpdateResult(False, reason=f"{self.name} does not use GNSS velocity")
-
-    def predict_gnss_velocity(self, vel: GnssVelocity) -> UpdateResult:
-        """The innovation a velocity would have now, with nothing changed (the session's outlier gate); an empty
-        ``S`` where not implemented (no gate)."""
-        return UpdateResult(False, reason=f"{self.name} has no GNSS velocity prediction")
-
-    def update_zero_velocity(self, stamp_s: float, sigma_v_m_s: float) -> UpdateResult:
-        """Fuse the zero-velocity condition (vehicle at rest relative to Earth) with std sigma_v [m/s]."""
-        return UpdateResult(False, reason=f"{self.name} does not use zero-velocity updates")
+    def predict(self, meas) -> UpdateResult:
+        """The innovation (``innovation``, ``S``, ``nis``) ``meas`` would have now, with nothing changed (the
+        session's outlier gate); a result with an empty ``S`` (no gate) where the core has no prediction."""
+        if type(meas) not in self.accepts or type(meas) in self.own_models:  # own hooks: no prediction
+            return UpdateResult(False, reason=f"{self.name} has no prediction of {meas.label}")
+        return update_pipeline.predict(self, meas)
 
     def set_gyro_bias_prior(self, b_g_b: np.ndarray, P_b_g_b: np.ndarray) -> None:
         """Optional (``supports_gyro_bias_prior``): right after ``initialize``, replace the gyro bias estimate
         [rad/s, body] and its 3x3 covariance [rad^2/s^2] (no correlation with the other states)."""
         raise NotImplementedError(f"{self.name} has no gyro bias prior")
 
-    def update_zero_rate(self, omega_mean_b: np.ndarray, R_b: np.ndarray) -> UpdateResult:
-        """Optional (``supports_zero_rate``): the vehicle was at rest (relative to Earth) over a window ending now
-        and the gyros' mean over it was ``omega_mean_b`` [rad/s] with covariance ``R_b`` [rad^2/s^2]."""
-        return UpdateResult(False, reason=f"{self.name} does not use zero-angular-rate updates")
+    # ---------------------------------------------------------------- hooks of the update (filters/update.py)
+    def _observe(self, meas) -> UpdateResult:
+        return UpdateResult(False, reason=f"{self.name} does not use {meas.label}")
+
+    def _fuse(self, meas) -> UpdateResult:
+        """The update of an accepted model: the one pipeline; a core whose equation is its paper's own (the static
+        cores' fused zero-velocity kernel) overrides this one step."""
+        return update_pipeline.update(self, meas)
+
+    def _terms(self, meas):
+        self.flush()
+        return meas.terms(self)
+
+    def _fading_factor(self, meas, nis_v: float) -> float:
+        return 1.0
+
+    def _inflate(self, lam: float) -> None:
+        raise NotImplementedError
+
+    def _gate(self, meas) -> float:
+        return 0.0
+
+    def _correction(self, meas, z, L, H, N) -> np.ndarray:
+        """Error-state correction dx = L z (eq. (12)); PI-LIEKF overrides (eq. (30))."""
+        return L @ z
+
+    def _inject(self, dx: np.ndarray) -> None:
+        raise NotImplementedError
+
+    def _after_update(self, meas, res: UpdateResult) -> UpdateResult:
+        return res
+
+    def _after_prediction(self, meas, res: UpdateResult) -> UpdateResult:
+        return res
 
     def propagate_backward(self, imu: ImuSample, t_prev_s: float) -> None:
         """Optional (``supports_backtracking``): inverse step from ``imu.stamp_s`` (the core's current time) back
@@ -225,3 +243,4 @@ class AlignmentCore(ABC):
     @abstractmethod
     def initialized(self) -> bool:
         """True once initialize() was called."""
+

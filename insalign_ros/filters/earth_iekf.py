@@ -16,7 +16,7 @@ Inverse-alignment paper (Liu et al. 2025), sec. 2.3-3.3. docs/backtracking.md ha
   ``z = C^T v_e_hat - omega_ib_b x L_hat = H xi + n`` with
   ``H = [0, -I, C^T (omega_ie)_x C, 0, 0, (omega_ib_b)_x]`` (our sign convention: truth = estimate + error).
   The core applies it itself every ``auto_zupt_period_s`` (the vehicle is static during alignment), and on
-  ``update_zero_velocity``.
+  ``update(ZeroVelocity(...))``.
 * P0, eq. (56): ``P_l0 = T P0 T^T`` with ``T = [[C_b_n^T, 0, 0], [0, C_b_n^T, C_e_b (omega_ie)_x C_n_e],
   [0, 0, C_b_n^T]]`` from ENU (attitude psi_n, dv_n, dp_n). The paper's T has I on the attitude block because its
   attitude error is already in the error frame; ours is the body-frame phi, psi_n = C_b_n phi.
@@ -44,6 +44,7 @@ from .config import InMotionConfig
 from .checks import check_imu
 from .eci_batch import liekf_transition_batch, prefix_products, propagate_eci_batch, step_increments_batch
 from .kalman import joseph_update
+from . import measurements  # noqa: F401  (registers its zero-velocity model)
 
 _I3 = np.eye(3)
 N_STATES = 18
@@ -69,7 +70,7 @@ class EarthIekfConfig(InMotionConfig):
     acc_bias_mg: float = 0.020
     #: initial 1-sigma of each lever-arm component [m] (eq. (47))
     init_sigma_lever_arm_m: float = 0.05
-    #: zero-velocity observation: period [s] of the automatic update (0: only on update_zero_velocity) and std [m/s]
+    #: zero-velocity observation: period [s] of the automatic update (0: only on update(ZeroVelocity)) and std [m/s]
     auto_zupt_period_s: float = 0.5
     auto_zupt_sigma_m_s: float = 0.001
     status_yaw_3sigma_deg: float = 0.05
@@ -121,7 +122,7 @@ class EarthIekf(AlignmentCore):
     name = "earth_iekf"
     config_class = EarthIekfConfig
     needs_motion = False
-    supports_zero_velocity = True
+    convention = "earth_left"  # its zero-velocity model (filters/measurements.py)
     supports_backtracking = True
     #: its propagate_arrays (for the backtracking driver) flushes and batches differently from propagate
     propagate_arrays_matches_propagate = False
@@ -342,27 +343,23 @@ class EarthIekf(AlignmentCore):
         return z, H
 
     def _zupt(self, sigma_v_m_s: float) -> UpdateResult:
+        """The automatic zero-velocity update inside propagation (no flush: the passes need it where it falls)."""
         z, H = self.zupt_model()
         N = sigma_v_m_s**2 * _I3
         K, P_new, S = joseph_update(self.P, H, N)
-        dx = K @ z
         self.P = P_new
+        self._inject(K @ z)
+        self.counters["zupt"] += 1
+        return UpdateResult(True, z, S, float(z @ np.linalg.solve(S, z)), "")
+
+    def _inject(self, dx: np.ndarray) -> None:
+        """Retraction X_hat exp(dxi) and the additive biases and lever arm."""
         X = lie.se23_from(self.C, self.v, self.p) @ lie.se23_exp(dx[0:9])
         C, v, p = lie.se23_parts(X)
         self.C, self.v, self.p = C.copy(), v.copy(), p.copy()
         self.b_g = self.b_g + dx[9:12]
         self.b_a = self.b_a + dx[12:15]
         self.L = self.L + dx[15:18]
-        self.counters["zupt"] += 1
-        return UpdateResult(True, z, S, float(z @ np.linalg.solve(S, z)), "")
-
-    def update_zero_velocity(self, stamp_s: float, sigma_v_m_s: float) -> UpdateResult:
-        if not self._init:
-            return UpdateResult(False, reason="not initialised")
-        if not (math.isfinite(sigma_v_m_s) and sigma_v_m_s > 0):
-            return UpdateResult(False, reason=f"sigma_v {sigma_v_m_s!r} must be finite and > 0")
-        self.flush()
-        return self._zupt(float(sigma_v_m_s))
 
     # ------------------------------------------------------------------ output
     def estimate(self) -> AlignmentEstimate:

@@ -10,7 +10,7 @@ mechanization as every other core (core/mechanization.py, batched in :mod:`.liek
   ``dp' = dv``, ``db' = w_b``; discrete ``Phi = I + F dt`` per IMU sample with C_hat at the start of the step;
   Gamma is the gravitation gradient ``GM/r^3 (3 u u^T - I)``.
 * GNSS: ``z = p_gps_i - p_hat``, ``H = [0 I 0]`` on the position block, Joseph form; with the antenna lever arm
-  and for GNSS velocity see ``_gnss_model`` / ``_velocity_model`` (the gyro-bias term of the lever-arm velocity,
+  and for GNSS velocity see filters/measurements.py, convention ``eci_ekf`` (the gyro-bias term of the lever-arm velocity,
   ``l x db_g``, is neglected: < 1e-3 m/s for a 1.5 m arm and 100 deg/h).
 
 The Jacobian depends on the estimated attitude through ``(C_hat f_hat)_x`` - the linearisation is wrong by
@@ -56,7 +56,8 @@ class ConventionalEkf(BatchedEciCore):
         return P
 
     _fused_kernel_transitions = False  # its own (multiplicative-error) transitions: the batched products
-    _invariant_position_model = False  # its own position model (_gnss_model below)
+    convention = "eci_ekf"  # its own measurement Jacobians (filters/measurements.py)
+    state_blocks = frozenset({"gyro_bias", "acc_bias"})
 
     def _noise_diag(self, dt):
         d = super()._noise_diag(dt)  # isotropic: C_hat Q C_hat^T = Q
@@ -81,22 +82,6 @@ class ConventionalEkf(BatchedEciCore):
         Qd = np.zeros((n, 15, 15))
         Qd[:, np.arange(15), np.arange(15)] = self._noise_diag(dt)
         return Phi, Qd
-
-    def _gnss_model(self, p_gps_i, R_i):
-        """Antenna at the lever arm l: p_ant = p + exp(psi_x) C l, z = p_gps - p - C l = dp - (C l)_x psi."""
-        Cl = self.C @ self.lever_b
-        H = np.zeros((3, 15))
-        H[:, 0:3] = -lie.hat3(Cl)
-        H[:, 6:9] = _I3
-        return p_gps_i - self.p - Cl, H, R_i
-
-    def _velocity_model(self, v_gps_i, R_i):
-        """v_ant = v + exp(psi_x) C a, a = omega_ib_b x l: z = v_gps - v - C a = dv - (C a)_x psi."""
-        Ca = self.C @ np.cross(self.omega_b, self.lever_b)
-        H = np.zeros((3, 15))
-        H[:, 0:3] = -lie.hat3(Ca)
-        H[:, 3:6] = _I3
-        return v_gps_i - self.v - Ca, H, R_i
 
     def _inject(self, dx):
         self.C = lie.so3_exp(dx[0:3]) @ self.C

@@ -52,11 +52,8 @@ class YawHypothesisBank(AlignmentCore):
         proto = factory(cfg)
         self.name = proto.name
         self.needs_motion = proto.needs_motion
-        self.supports_gnss = proto.supports_gnss
-        self.supports_gnss_velocity = proto.supports_gnss_velocity
-        self.supports_zero_velocity = proto.supports_zero_velocity
+        self.convention, self.state_blocks, self.own_models = proto.convention, proto.state_blocks, proto.own_models
         self.supports_gyro_bias_prior = proto.supports_gyro_bias_prior
-        self.supports_zero_rate = proto.supports_zero_rate
         self.supports_backtracking = False
         self.att_index, self.vel_index, self.pos_index = proto.att_index, proto.vel_index, proto.pos_index
         self._proto_sigmas = proto.default_initial_sigmas()
@@ -160,35 +157,22 @@ class YawHypothesisBank(AlignmentCore):
         for h in self.hyps:
             h.flush()
 
-    def predict_gnss(self, fix) -> UpdateResult:
+    def predict(self, meas) -> UpdateResult:
         """The prediction of the most probable hypothesis, once one is left; none while several live (their
         disagreement is what the weights resolve)."""
         if len(self.hyps) != 1:
             return UpdateResult(False, reason="several yaw hypotheses alive")
-        return self.hyps[0].predict_gnss(fix)
+        return self.hyps[0].predict(meas)
 
-    def update_gnss(self, fix) -> UpdateResult:
-        return self._update([h.update_gnss(fix) for h in self.hyps])
-
-    def predict_gnss_velocity(self, vel) -> UpdateResult:
-        """As predict_gnss: the last hypothesis' prediction, none while several live."""
-        if len(self.hyps) != 1:
-            return UpdateResult(False, reason="several yaw hypotheses alive")
-        return self.hyps[0].predict_gnss_velocity(vel)
-
-    def update_gnss_velocity(self, vel) -> UpdateResult:
-        """Every hypothesis fuses the velocity; its innovation likelihood weighs the hypotheses like a fix (the
-        velocity likelihood is what the PX4 EKF-GSF yaw estimator uses alone)."""
-        return self._update([h.update_gnss_velocity(vel) for h in self.hyps])
-
-    def update_zero_velocity(self, stamp_s: float, sigma_v_m_s: float) -> UpdateResult:
-        return self._update([h.update_zero_velocity(stamp_s, sigma_v_m_s) for h in self.hyps])
-
-    def update_zero_rate(self, omega_mean_b, R_b) -> UpdateResult:
-        """Every hypothesis fuses it; the weights do not move (the innovation differs between hypotheses only by
-        the horizontal Earth rate, 10 deg/h: no heading evidence worth the risk of a wrong noise model)."""
-        results = [h.update_zero_rate(omega_mean_b, R_b) for h in self.hyps]
-        return results[int(np.argmax(self.logw))]
+    def update(self, meas) -> UpdateResult:
+        """Every hypothesis fuses ``meas``; its innovation likelihood weighs the hypotheses (GNSS velocity: what the
+        PX4 EKF-GSF yaw estimator uses alone) unless the model says it carries no heading evidence
+        (``weighs_hypotheses`` False, the zero angular rate: the hypotheses differ only by the horizontal Earth
+        rate, 10 deg/h, not worth the risk of a wrong noise model): then the weights do not move."""
+        results = [h.update(meas) for h in self.hyps]
+        if not meas.weighs_hypotheses:
+            return results[int(np.argmax(self.logw))]
+        return self._update(results)
 
     def _update(self, results: list[UpdateResult]) -> UpdateResult:
         best_before = int(np.argmax(self.logw))

@@ -19,13 +19,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core import earth
-from ..core.lie import hat3
 from ..core.units import deg_h_to_rad_s, mg_to_m_s2
-from .base import UpdateResult
 from .config import IekfConfig
 from .eci_batch import liekf_transition_batch
-from .kalman import joseph_update
 from .liekf import BatchedEciCore
 
 _I3 = np.eye(3)
@@ -73,31 +69,8 @@ class ImperfectIekf(BatchedEciCore):
         self.P[:, 9:12] = 0.0
         self.P[9:12, 9:12] = 0.5 * (P_b_g_b + P_b_g_b.T)
 
-    supports_zero_rate = True
-    #: NIS gate of the zero-angular-rate update (chi-square, 3 dof, p = 1e-5): a person getting in is rejected
-    zero_rate_nis_gate = 25.9
-
-    def update_zero_rate(self, omega_mean_b, R_b) -> UpdateResult:
-        """Zero-angular-rate update at rest: the gyros read ``b_g + C_b_i^T Omega_ie_i``. With the left-invariant
-        error ``C = C_hat exp(phi)``: ``z = omega_mean - b_g_hat - w_hat = db_g + [w_hat]x phi`` (w_hat the Earth rate
-        in the estimated body frame). Joseph form; NIS gate ``zero_rate_nis_gate``; no fading memory."""
-        if not self._init:
-            return UpdateResult(False, reason="not initialised")
-        self.flush()
-        w = self.C.T @ earth.OMEGA_IE_E
-        z = np.asarray(omega_mean_b, float) - self.b_g - w
-        H = np.zeros((3, 15))
-        H[:, 0:3] = hat3(w)
-        H[:, 9:12] = _I3
-        L, P_new, S = joseph_update(self.P, H, np.asarray(R_b, float))
-        nis = float(z @ np.linalg.solve(S, z))
-        if not nis <= self.zero_rate_nis_gate:
-            self.counters["zero_rate_rejected"] = self.counters.get("zero_rate_rejected", 0) + 1
-            return UpdateResult(False, z, S, nis, f"zero rate: NIS {nis:.1f} above gate {self.zero_rate_nis_gate}")
-        self.P = P_new
-        self._inject(L @ z)
-        self.counters["zero_rate"] = self.counters.get("zero_rate", 0) + 1
-        return UpdateResult(True, z, S, nis, "")
+    #: the bias blocks (a zero-angular-rate update needs the gyro bias: filters/measurements.py, ZeroAngularRate)
+    state_blocks = frozenset({"gyro_bias", "acc_bias"})
     # ---- end of the bias initialisation / zero-rate API ----
 
     def _noise_diag(self, dt):

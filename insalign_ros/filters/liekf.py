@@ -35,15 +35,15 @@ import math
 
 import numpy as np
 
-from ..core import earth, lie
+
 from ..core import mechanization_numba as nb
 from ..core.mechanization import NavStateEci, geodetic_from_state_eci, state_eci_from_geodetic
 from ..core.units import deg_sqrt_h_to_rad_sqrt_s, m_s_sqrt_h_to_m_s_sqrt_s
-from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, GnssFix, GnssVelocity, ImuSample, UpdateResult
-from .checks import ImuBuffer, check_fix, check_imu, check_velocity, usable_imu_arrays
+from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, ImuSample, UpdateResult
+from .checks import ImuBuffer, check_imu, usable_imu_arrays
 from .config import LiekfConfig
-from .eci_batch import covariance_batch, gnss_terms_eci, liekf_transition_batch, orthonormalize, retract_se23
-from .kalman import joseph_update, nis, prediction
+from .eci_batch import covariance_batch, liekf_transition_batch, orthonormalize, retract_se23
+from . import measurements  # noqa: F401  (registers the models of the cores' conventions)
 
 _I3 = np.eye(3)
 _NO_TOT = np.eye(1)  # the fused kernel's transition product when no correction reads it (not written)
@@ -54,12 +54,12 @@ class BatchedEciCore(AlignmentCore):
     """ECI strapdown + error-state covariance with batched propagation; subclasses define the error model.
 
     Subclass hooks: ``_n_states``, ``state_names``, ``_bias_correct(omega, f)``, ``_transitions(...)``,
-    ``_P0(P_att_n, sigma_v, sigma_p)``, ``_gnss_model()``, ``_inject(dx)``, ``_P_att_n()``.
+    ``_P0(P_att_n, sigma_v, sigma_p)``, ``_inject(dx)``, ``_P_att_n()``; the measurement Jacobians are the models'
+    (filters/measurements.py, ``convention``), the update the one pipeline (filters/update.py).
     """
 
     needs_motion = True
-    supports_gnss = True
-    supports_gnss_velocity = True
+    convention = "eci_left"  # the models' Jacobians (filters/measurements.py): GNSS position and velocity, ...
     att_index = (0, 1, 2)
     vel_index = (3, 4, 5)
     pos_index = (6, 7, 8)
@@ -208,8 +208,6 @@ class BatchedEciCore(AlignmentCore):
         own = vars(cls)
         if ("_transitions" in own or "_noise_diag" in own) and "_fused_kernel_transitions" not in own:
             raise TypeError(f"{cls.__name__} defines its own transitions or noise: declare _fused_kernel_transitions")
-        if "_gnss_model" in own and "_invariant_position_model" not in own:
-            raise TypeError(f"{cls.__name__} defines its own position model: declare _invariant_position_model")
 
     @classmethod
     def _fused_transition(cls) -> bool:
@@ -257,29 +255,6 @@ class BatchedEciCore(AlignmentCore):
         Qd[:, idx, idx] = self._noise_diag(dt)
         return Phi, Qd
 
-    def _gnss_model(self, p_gps_i: np.ndarray, R_i: np.ndarray):
-        """(z, H, N): left-invariant position innovation, eqs. (10), (11), (42), (43), of the antenna at the lever
-        arm l: p_ant = p + C exp(phi) l, so z = C^T (p_gps - p) - l = rho - l_x phi."""
-        Ct = self.C.T
-        return Ct @ (p_gps_i - self.p) - self.lever_b, self._position_H(), Ct @ R_i @ self.C
-
-    def _position_H(self) -> np.ndarray:
-        """H of the position innovation z = rho - l_x phi (:meth:`_gnss_model`): (3, n_states)."""
-        H = np.zeros((3, self._n_states))
-        H[:, 0:3] = -lie.hat3(self.lever_b)
-        H[:, 6:9] = _I3
-        return H
-
-    def _velocity_model(self, v_gps_i: np.ndarray, R_i: np.ndarray):
-        """(z, H, N): left-invariant velocity innovation of the antenna, v_ant = v + C exp(phi) a with
-        a = omega_ib_b x l: z = C^T (v_gps - v) - a = nu - a_x phi."""
-        a = np.cross(self.omega_b, self.lever_b)
-        H = np.zeros((3, self._n_states))
-        H[:, 0:3] = -lie.hat3(a)
-        H[:, 3:6] = _I3
-        Ct = self.C.T
-        return Ct @ (v_gps_i - self.v) - a, H, Ct @ R_i @ self.C
-
     def _inject(self, dx: np.ndarray) -> None:
         """Retraction X_hat exp(dxi) (eq. (14)); error reset (eq. (15)) is implicit."""
         self.C, self.v, self.p = retract_se23(self.C, self.v, self.p, np.ascontiguousarray(dx[0:9], dtype=float))
@@ -287,126 +262,30 @@ class BatchedEciCore(AlignmentCore):
     def _P_att_n(self, C_b_n: np.ndarray) -> np.ndarray:
         return C_b_n @ self.P[0:3, 0:3] @ C_b_n.T
 
-    # ---------------------------------------------------------------- update
-    #: whether ``_gnss_model`` is the left-invariant position model above (then one compiled call forms its terms:
-    #: :func:`eci_batch.gnss_terms_eci`); a subclass with another position model declares False
-    _invariant_position_model = True
+    # ---------------------------------------------------------------- update hooks (filters/update.py)
+    def _gate(self, meas) -> float:
+        return self.cfg.gnss_nis_gate
 
-    def _gnss_terms(self, fix: GnssFix):
-        """(z, H, N) of a fix at the core's current time (after flushing the buffered samples); the fix covariance
-        floored at ``gnss_sigma_floor_m`` (its smallest eigenvalue raised: the same in ECEF and ECI)."""
-        self.flush()
-        R_e = np.asarray(fix.R_e, float)
-        floor2 = getattr(self.cfg, "gnss_sigma_floor_m", 0.0) ** 2
-        if floor2 > 0:
-            lo = float(np.linalg.eigvalsh(0.5 * (R_e + R_e.T)).min())
-            if lo < floor2:
-                R_e = R_e + (floor2 - lo) * np.eye(3)
-        if self._invariant_position_model:
-            a = earth.OMEGA_IE_RAD_S * (self.t_s - self.t0_s)
-            z, H, N = np.empty(3), np.zeros((3, self._n_states)), np.empty((3, 3))
-            gnss_terms_eci(math.cos(a), math.sin(a), np.asarray(fix.p_e, float), R_e, np.ascontiguousarray(self.C),
-                           np.asarray(self.p, float), self.lever_b, z, H, N)
-            return z, H, N
-        Cei = earth.C_e_i(self.t_s, self.t0_s)
-        return self._gnss_model(Cei @ np.asarray(fix.p_e, float), Cei @ R_e @ Cei.T)
-
-    def _velocity_terms(self, vel: GnssVelocity):
-        """(z, H, N) of a GNSS velocity at the core's current time: the ENU antenna velocity relative to Earth
-        turned into the ECI inertial velocity at the estimated antenna position (the earth-rate term
-        omega_ie x p_ant uses the estimate: its error is omega_ie |dp| ~ 7e-5 m/s per metre, neglected in H)."""
-        self.flush()
-        Cei = earth.C_e_i(self.t_s, self.t0_s)
-        p_ant_e = Cei.T @ (self.p + self.C @ self.lever_b)
-        lat, lon, _ = earth.ecef_to_geodetic(p_ant_e)
-        Cne = earth.C_n_e(lat, lon)
-        v_i = Cei @ (Cne @ np.asarray(vel.v_n, float) + np.cross(earth.OMEGA_IE_E, p_ant_e))
-        M = Cei @ Cne
-        return self._velocity_model(v_i, M @ np.asarray(vel.R_n, float) @ M.T)
-
-    def _prediction(self, terms) -> UpdateResult:
-        z, H, N = terms
-        S, nis_v = prediction(self.P, H, N, z)
-        return UpdateResult(False, z, S, nis_v, "prediction only")
-
-    def predict_gnss(self, fix: GnssFix) -> UpdateResult:
-        """The innovation, its covariance and NIS a fix would have now; changes nothing (an outlier gate)."""
-        if not self._init:
-            return UpdateResult(False, reason="not initialised")
-        reason = check_fix(fix)
-        if reason:
-            return UpdateResult(False, reason=reason)
-        return self._prediction(self._gnss_terms(fix))
-
-    def predict_gnss_velocity(self, vel: GnssVelocity) -> UpdateResult:
-        """The innovation, its covariance and NIS a GNSS velocity would have now; changes nothing."""
-        if not self._init:
-            return UpdateResult(False, reason="not initialised")
-        reason = check_velocity(vel.v_n, vel.R_n)
-        if reason:
-            return UpdateResult(False, reason=reason)
-        return self._prediction(self._velocity_terms(vel))
-
-    def update_gnss_velocity(self, vel: GnssVelocity) -> UpdateResult:
-        """Fuse a GNSS velocity (Joseph form, the same fading memory and NIS gate as a fix; a plain Kalman
-        correction in every core, PI-LIEKF included: its PI loop and LMI are built on position innovations)."""
-        if not self._init:
-            return UpdateResult(False, reason="not initialised")
-        reason = check_velocity(vel.v_n, vel.R_n)
-        if reason:
-            self.counters["gnss_vel_rejected"] += 1
-            self.last_reject_reason = f"GNSS velocity: {reason}"
-            return UpdateResult(False, reason=reason)
-        return self._kalman_update(*self._velocity_terms(vel), kind="gnss_vel")
-
-    def update_gnss(self, fix: GnssFix) -> UpdateResult:
-        if not self._init:
-            return UpdateResult(False, reason="not initialised")
-        reason = check_fix(fix)
-        if reason:
-            self.counters["gnss_rejected"] += 1
-            self.last_reject_reason = f"GNSS: {reason}"
-            return UpdateResult(False, reason=reason)
-        return self._kalman_update(*self._gnss_terms(fix), kind="gnss")
-
-    def _kalman_update(self, z, H, N, kind: str) -> UpdateResult:
-        """One update with (z, H, N); ``kind`` "gnss" (position: the PI-LIEKF correction and its update clock) or
-        "gnss_vel" (plain correction L z)."""
-        self._P_prior = self.P
-        L, P_new, S = joseph_update(self.P, H, N)
-        nis_v = nis(S, z)
+    def _fading_factor(self, meas, nis_v: float) -> float:
+        """Adaptive fading memory: NIS / threshold, never above ``fading_max_factor`` nor above the initial attitude
+        uncertainty (beyond it the linear update only adds damage); 1 = none (docs/inmotion_cores.md)."""
         fading = self.cfg.fading_nis_threshold
-        self.last_fading_factor = 1.0
-        if fading > 0 and nis_v > fading:
-            # adaptive fading memory: the innovation says P is too small (linearisation error of a large
-            # initial attitude error); inflate the prior by NIS/threshold and redo the gain (docs/inmotion_cores.md)
-            # never above the initial attitude uncertainty: beyond it the linear update only adds damage
-            room = float(np.min(np.diag(self._P0_att) / np.maximum(np.diag(self.P)[0:3], 1e-30)))
-            lam = max(1.0, min(nis_v / fading, self.cfg.fading_max_factor, room))
-            self.last_fading_factor = lam
-            D = np.ones(self._n_states)
-            D[0:9] = math.sqrt(lam)  # navigation block, by congruence D P D (stays SPD, keeps correlations)
-            self.P = self.P * np.outer(D, D)
-            self._P_prior = self.P
-            self.counters["fading"] = self.counters.get("fading", 0) + 1
-            L, P_new, S = joseph_update(self.P, H, N)
-        if self.cfg.gnss_nis_gate > 0 and nis_v > self.cfg.gnss_nis_gate:
-            self.counters[f"{kind}_rejected"] += 1
-            self.last_reject_reason = (f"{'GNSS' if kind == 'gnss' else 'GNSS velocity'}: NIS {nis_v:.1f} above "
-                                       f"gate {self.cfg.gnss_nis_gate}")
-            return UpdateResult(False, z, S, nis_v, self.last_reject_reason)
-        dx = self._correction(z, L, H, N) if kind == "gnss" else L @ z
-        self.P = P_new
-        self._inject(dx)
-        self.counters[kind] += 1
-        if kind == "gnss":
+        if not (fading > 0 and nis_v > fading):
+            return 1.0
+        room = float(np.min(np.diag(self._P0_att) / np.maximum(np.diag(self.P)[0:3], 1e-30)))
+        return max(1.0, min(nis_v / fading, self.cfg.fading_max_factor, room))
+
+    def _inflate(self, lam: float) -> None:
+        """The navigation block by congruence D P D (stays SPD, keeps correlations)."""
+        D = np.ones(self._n_states)
+        D[0:9] = math.sqrt(lam)
+        self.P = self.P * np.outer(D, D)
+
+    def _after_update(self, meas, res: UpdateResult) -> UpdateResult:
+        if meas.is_position:  # the update clock of PI-LIEKF's eq. (30)
             self._Phi_since_update = np.eye(self._n_states)
             self._t_last_update = self.t_s
-        return UpdateResult(True, z, S, nis_v, "")
-
-    def _correction(self, z, L, H, N) -> np.ndarray:
-        """Error-state correction dx = L z (eq. (12)); PI-LIEKF overrides (eq. (30))."""
-        return L @ z
+        return res
 
     # ---------------------------------------------------------------- output
     def estimate(self) -> AlignmentEstimate:

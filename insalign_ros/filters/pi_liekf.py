@@ -24,7 +24,7 @@ Per GNSS update k (our sign convention: :mod:`.liekf`):
   yaw kick on the car: NIS 6-11 while the open-loop error grows to 49 m). The core carries the first-order offset
   ``d`` (left-invariant, X_plain = X_hat exp(d)) to the LIEKF that would have made the plain correction L z from the
   same data and covariance: between updates ``d <- Phi d``; at an update the plain innovation is ``z - H d`` and
-  ``d <- d + L (z - H d) - L Z_PI``. ``predict_gnss`` and ``update_gnss`` report the NIS of ``z - H d`` (with the
+  ``d <- d + L (z - H d) - L Z_PI``. ``predict`` and ``update`` of a position report the NIS of ``z - H d`` (with the
   same S): what the session's gate, CUSUM and flag test (docs/session.md "PI-LIEKF"). The estimate is unchanged.
 
 ``diagnostics()`` returns the latest LMI status, reason, solver time, whether the safe gains are in use, and the
@@ -43,6 +43,7 @@ import numpy as np
 
 from .base import UpdateResult
 from .config import PiLiekfConfig
+from ..core.lie import hat3
 from .kalman import nis
 from .liekf import Liekf
 
@@ -192,7 +193,7 @@ class PiLiekf(Liekf):
         self.Z_I = np.zeros(3)
         self._d = np.zeros(9)  # offset to the plain LIEKF (module docstring), left-invariant [phi, nu, rho]
         self._pi_gain = None  # (z_plain, N, L (k_P - I)) of the update in progress
-        self._H_pos = None  # predict_gnss: the fix's H (built at the first prediction)
+        self._H_pos = None  # predict: a fix's H (built at the first prediction)
         self.k_P = np.eye(3)
         self._k_P_excess = None
         self.k_I = self.cfg.safe_k_I_per_s * np.eye(3)
@@ -334,7 +335,10 @@ class PiLiekf(Liekf):
             self._pending = None
             self._apply(self._miss(time.perf_counter() - job.started_s))
 
-    def _correction(self, z, L, H, N):
+    def _correction(self, meas, z, L, H, N):
+        self._pi_gain = None
+        if not meas.is_position:  # GNSS velocity, ...: a plain Kalman correction (the PI loop is on positions)
+            return L @ z
         Ts = self.t_s - self._t_last_update
         if Ts <= 0.0:  # a fix at the initialisation time: no interval, plain Kalman correction
             return L @ z
@@ -348,7 +352,7 @@ class PiLiekf(Liekf):
         Z_PI = self.k_P @ z + self.Z_I
         self._d = d + L @ (z_plain - Z_PI)
         dk = self._k_P_excess
-        # (z_plain, N, L (k_P - I) or None): update_gnss finishes the NIS and the covariance with the S it returns
+        # (z_plain, N, L (k_P - I) or None): _after_update finishes the NIS and the covariance with the S it returns
         self._pi_gain = (z_plain, N, None if dk is None else L @ dk)
         self.Z_I = self.Z_I + self.k_I @ z * Ts
         c = self.cfg.integral_clamp_m
@@ -356,21 +360,21 @@ class PiLiekf(Liekf):
             self.Z_I = np.clip(self.Z_I, -c, c)
         return L @ Z_PI
 
-    def predict_gnss(self, fix) -> UpdateResult:
-        """The prediction of :class:`Liekf` with the NIS of the plain LIEKF's innovation ``z - H Phi d``."""
-        res = super().predict_gnss(fix)
-        if res.S.size and self._init:
+    def _after_prediction(self, meas, res: UpdateResult) -> UpdateResult:
+        """A position's prediction reports the NIS of the plain LIEKF's innovation ``z - H Phi d``."""
+        if meas.is_position:
             if self._H_pos is None:  # the lever arm is fixed: built once
-                self._H_pos = self._position_H()
+                self._H_pos = np.zeros((3, self._n_states))
+                self._H_pos[:, 0:3] = -hat3(self.lever_b)
+                self._H_pos[:, 6:9] = np.eye(3)
             res.nis = nis(res.S, res.innovation - self._H_pos @ (self._Phi_since_update @ self._d))  # a fresh result
         return res
 
-    def update_gnss(self, fix) -> UpdateResult:
-        """The update of :class:`Liekf` (the PI correction), reporting the plain LIEKF's NIS (module docstring)."""
-        self._pi_gain = None
-        res = super().update_gnss(fix)
+    def _after_update(self, meas, res: UpdateResult) -> UpdateResult:
+        """The update of :class:`Liekf` with the PI correction, reporting the plain LIEKF's NIS (module docstring)."""
+        res = super()._after_update(meas, res)
         pi, self._pi_gain = self._pi_gain, None
-        if not (res.accepted and pi is not None):
+        if pi is None:
             return res
         z_plain, N, G = pi
         if G is not None:

@@ -17,6 +17,7 @@ import numpy as np
 from ..core import earth
 from ..core.types import GnssFix, ImuSample
 from .base import AlignmentCore, AlignmentEstimate, UpdateResult
+from .measurements import GnssPosition
 
 D2R = math.pi / 180.0
 
@@ -81,7 +82,7 @@ class EventRunner:
             if event.stamp_s < self.init_stamp_s:
                 self.counters["gnss_skipped_stale"] += 1
                 return None
-            res = self.core.update_gnss(event)
+            res = self.core.update(GnssPosition.of(event))
             self.last_update = res
             if res.accepted:
                 self.counters["gnss_accepted"] += 1

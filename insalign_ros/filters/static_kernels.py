@@ -140,7 +140,7 @@ def _expm_taylor_nb(A, order, out):
 
 @nb._jit
 def _zupt_cov_update_nb(x, P, F, dt, Q, N_k, N_next, use_oc, z, r2, Phi_raw, innov, S):
-    """Covariance prediction and the eq. (32) update of :meth:`StaticZuptCore.update_zero_velocity`, compiled:
+    """Covariance prediction and the eq. (32) update of the zero-velocity step of :class:`StaticZuptCore`, compiled:
     Phi = exp(F dt) (Taylor, written to Phi_raw), the OC-EKF correction when ``use_oc``, P = Phi P Phi^T + Q, then
     H = [I2 0], R = r2 I2 in Joseph form; updates x, P in place, writes innov (2,), S (2, 2); returns the NIS."""
     n = P.shape[0]
@@ -281,7 +281,7 @@ def _pkf_rows_from(HP, Y, qm, K5):
 @nb._jit
 def _zupt_step_nb(x, P, f_np, lat, r_m, m, dt, with_G, qrate, oc_w_h, N_k, r2, pkf_p, re, qm, m_rate, C, v,
                   acc_corr, gyro_corr, az_thr, innov, S, N_next, Phi_raw):
-    """One whole compiled zero-velocity step of :meth:`StaticZuptCore.update_zero_velocity` after the interval's
+    """One whole compiled zero-velocity step of the zero-velocity step of :class:`StaticZuptCore` after the interval's
     flush: the eq. (34) prediction (:func:`_zupt_predict_nb`; with ``with_G`` the 10-state EKF's model-error columns
     :func:`model_error_jacobian_nb`), the OC-EKF nullspace at the predicted azimuth when ``oc_w_h > 0`` (the
     10-state EKF's ``_nullspace``: ``[0,0,0,0,1,0,0,w_h sin, w_h cos,0]``, written to N_next), the covariance

@@ -33,6 +33,7 @@ from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, ImuSample, 
 from .config import ConfigDict, param
 from .static_kernels import _corrected_attitude_nb, _f_model_nb, _jacobian_nb, _M0, _zupt_step_nb
 from .checks import ImuBuffer, usable_imu_arrays
+from .measurements import ZeroVelocity
 
 #: NED <-> ENU axis swap (a proper rotation, its own inverse): v_ned = T v_enu
 T_NED_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
@@ -194,13 +195,14 @@ class StaticZuptCore(AlignmentCore):
 
     State: the 5 paper states, plus (``n_bias = 5``) residual accelerometer N/E [m/s^2] and gyro N/E/D [rad/s]
     errors in n' (the 10-state EKF). ``propagate`` runs the mechanization at the IMU rate (cheap) and accumulates
-    the interval; ``update_zero_velocity`` predicts the error state over the accumulated interval with the
+    the interval; ``update(ZeroVelocity(...))`` predicts the error state over the accumulated interval with the
     nonlinear model and the Jacobian, fuses eq. (32), and feeds back: velocity and level angles (and biases) every
     update, the azimuth once ``sigma(phiD) < azimuth_feedback_sigma_deg``. Recommended ZUPT rate: 10 Hz.
     """
 
     name = "static"
-    supports_zero_velocity = True
+    convention = "static"
+    own_models = frozenset({ZeroVelocity})  # its own fused zero-velocity step (_fuse)
     _fused_zupt = True  #: this class's hooks are the ones :func:`_zupt_step_nb` implements (declared per class)
     vel_index = (0, 1)  # dvN dvE
     att_index = (2, 3, 4)  # phiN phiE phiD
@@ -287,11 +289,15 @@ class StaticZuptCore(AlignmentCore):
         """A vector in n' (NED) -> body FLU with the current mechanised attitude (C_n'^b = (C_b^n')^T)."""
         return self.mech.C_b_n.T @ ned_from_enu(v_ned)
 
-    def update_zero_velocity(self, stamp_s: float, sigma_v_m_s: float) -> UpdateResult:
+    def _fuse(self, meas) -> UpdateResult:
+        """The zero-velocity step is the paper's own (eq. (32) after the eq. (34) prediction, the fused compiled
+        kernel): the core's one hook instead of the shared pipeline (filters/update.py)."""
         if not self._init:
             return UpdateResult(False, reason="not initialized")
-        if not (math.isfinite(sigma_v_m_s) and sigma_v_m_s > 0):
-            return UpdateResult(False, reason=f"sigma_v_m_s must be > 0, got {sigma_v_m_s}")
+        reason = meas.check()
+        if reason:
+            return UpdateResult(False, reason=reason)
+        stamp_s, sigma_v_m_s = meas.stamp_s, meas.sigma_v_m_s
         self.flush()
         dt = self._dt_acc
         if dt <= 0:
@@ -351,7 +357,7 @@ class StaticZuptCore(AlignmentCore):
         return UpdateResult(True, innovation=innov, S=S, nis=nis)
 
     def _zupt_compiled(self, u, m_prime, dt, stamp_s, sigma_v_m_s) -> UpdateResult:
-        """The prediction, update, model-error step and feedback of :meth:`update_zero_velocity` in one compiled
+        """The prediction, update, model-error step and feedback of :meth:`_fuse` in one compiled
         call (:func:`_zupt_step_nb`, the same formulas) for the classes that declare ``_fused_zupt`` (their hooks are
         the ones the kernel implements)."""
         m = self.mech
@@ -582,8 +588,8 @@ def run_static(core: AlignmentCore, sc, az0_rad: float, sigma_R_m_s: float, zupt
     ts, errs, sig = [], [], []
     for k in range(1, sc.n):
         core.propagate(ImuSample(float(sc.t_s[k]), sc.omega_ib_b[k], sc.f_ib_b[k]))
-        if k % every == 0 and core.supports_zero_velocity:
-            core.update_zero_velocity(float(sc.t_s[k]), sigma_R_m_s)
+        if k % every == 0 and ZeroVelocity in core.accepts:
+            core.update(ZeroVelocity(float(sc.t_s[k]), sigma_R_m_s))
         if k % rec == 0:
             e = core.estimate()
             ts.append(float(sc.t_s[k]))

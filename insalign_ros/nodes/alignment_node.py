@@ -7,7 +7,7 @@ Topics (relative names, remappable as usual):
   geometry_msgs/PoseStamped (optional: initialisation in tests and the Euler errors), ``gps/vel``
   geometry_msgs/TwistWithCovarianceStamped (optional: the GNSS antenna's ENU velocity relative to Earth, as u-blox,
   NovAtel and MicroStrain drivers publish it; QoS ``gnss_qos``; fused at its stamp like a fix by the cores that
-  declare ``supports_gnss_velocity``; the antenna offset is the core parameter ``gnss_lever_arm_b_m``), ``wheel/odom``
+  accept the GNSS velocity model; the antenna offset is the core parameter ``gnss_lever_arm_b_m``), ``wheel/odom``
   nav_msgs/Odometry (optional: wheel speed, twist.linear.x in the child frame) and ``gps/heading`` sensor_msgs/Imu
   (optional: a dual-antenna heading as ublox_gps publishes it, the orientation's ENU yaw), QoS ``gnss_qos``, counted
   and queued by the session (conversions.wheel_speed_from_odometry, gnss_heading_from_imu_msg). The Imu's rates and specific

@@ -6,7 +6,7 @@ A state machine around two cores and the motion detector (session/motion.py), se
 * **waiting for data**: the session's own status until it has a position and 1 s of accelerometer data;
 * **static, levelling**: a zero-velocity core (``static_core``, default pkf, tuned from the IMU grade) started by
   the session's sensors initialisation (level from the accelerometers, heading unknown: its azimuth bootstrap),
-  zero-velocity updates scheduled by the session (``supports_gnss`` is False in the static states);
+  zero-velocity updates scheduled by the session (``accepts`` has no GNSS position in the static states);
 * **static, fine**: the level 1-sigma is within 2x the b_acc/g floor. Heading: gyrocompassing only where the IMU
   grade's azimuth floor eps/(omega_ie cos lat) is below ``heading_floor_max_deg`` at this latitude; otherwise the
   status is WAITING_FOR_MOTION and the reason says "heading needs motion (floor X deg)";
@@ -14,7 +14,7 @@ A state machine around two cores and the motion detector (session/motion.py), se
   initialised from a snapshot of the static solution taken before the onset of the motion (level, heading if
   trusted, their 3x3 covariance, the position, zero velocity, and the gyro bias measured over the rest window:
   :func:`gyro_bias_from_rest`) and the buffered IMU samples since the snapshot are replayed into it; a bank of ``unknown_heading_hypotheses`` yaw hypotheses when the heading is not trusted. From
-  then on ``supports_gnss`` is True: the session fuses the fixes, gates them and stops its zero-velocity updates;
+  then on ``accepts`` is the in-motion core's: the session fuses the fixes, gates them and stops its zero-velocity updates;
 * **stopped**: the detector declares rest again: the in-motion core keeps running (no reset) and takes a
   zero-velocity constraint at 10 Hz as a position hold (a pseudo-fix at the position where it stopped, 1-sigma
   ``stop_hold_sigma_m``; the in-motion cores have no velocity update) besides the real fixes, and a
@@ -38,6 +38,7 @@ from ..filters import imu_grade, registry
 from ..filters.base import AlignmentCore, AlignmentEstimate, AlignmentStatus, UpdateResult
 from ..filters.config import ConfigDict, param
 from ..filters.hypotheses import YawHypothesisBank
+from ..filters.measurements import GnssPosition, ZeroAngularRate, ZeroVelocity
 from .motion import MotionConfig, MotionDetector
 from .rest import REST_BLOCK_S, _BlockMean, block_variance, gyro_bias_from_rest, rest_rate_mean
 
@@ -172,12 +173,9 @@ class AutoCore(AlignmentCore):
     (stamp [s], state, reason) at every change."""
 
     name = "auto"
-    supports_zero_velocity = True
 
     def __init__(self, cfg: AutoConfig):
         self.cfg = cfg
-        self.supports_gnss = False  # the session reads it per call: True from the hand-over on
-        self.supports_gnss_velocity = False  # ... and the in-motion core's from the hand-over on
         self.static: AlignmentCore | None = None
         self.motion: AlignmentCore | None = None
         self.state = "waiting for data"
@@ -316,7 +314,7 @@ class AutoCore(AlignmentCore):
             self._next_hold_t = t + 1.0 / self.cfg.stop_hold_rate_hz - 1e-9
             if not (isinstance(self.motion, YawHypothesisBank) and len(self.motion.hyps) > 1):
                 # one pseudo-fix for a bank that has not collapsed would move its weights: the fixes do it
-                res = self.motion.update_gnss(GnssFix(t, self._hold_p_e, np.eye(3) * self.cfg.stop_hold_sigma_m ** 2))
+                res = self.motion.update(GnssPosition(t, self._hold_p_e, np.eye(3) * self.cfg.stop_hold_sigma_m ** 2))
                 self.counters["stop_holds"] += int(res.accepted)
 
     def _stop_block(self, dt: float, w: np.ndarray, at_rest: bool) -> None:
@@ -329,12 +327,12 @@ class AutoCore(AlignmentCore):
         self._stop_blocks.append(mean)
         n = len(self._stop_blocks)
         if self.cfg.stop_zero_rate_min_blocks == 0 or n < self.cfg.stop_zero_rate_min_blocks \
-                or not self.motion.supports_zero_rate:
+                or ZeroAngularRate not in self.motion.accepts:
             return
         arw2 = (self.cfg.gyro_arw_deg_sqrt_h * D2R / 60.0) ** 2 / REST_BLOCK_S
         R = np.diag(np.maximum(block_variance(np.array(self._stop_blocks)), 1e-4 * arw2))
         for k in range(self._stop_applied, n):
-            res = self.motion.update_zero_rate(self._stop_blocks[k], R)
+            res = self.motion.update(ZeroAngularRate(self._stop_blocks[k], R))
             self.counters["zero_rate_updates" if res.accepted else "zero_rate_rejected"] += 1
         self._stop_applied = n
 
@@ -353,13 +351,14 @@ class AutoCore(AlignmentCore):
         v = self.motion.estimate().v_n
         return float(math.hypot(v[0], v[1]))
 
-    def update_zero_velocity(self, stamp_s: float, sigma_v_m_s: float) -> UpdateResult:
+    def _fuse_zero_velocity(self, meas: ZeroVelocity) -> UpdateResult:
+        stamp_s = meas.stamp_s
         if self.motion is not None:
             return UpdateResult(False, reason="in motion: the in-motion core holds its position at stops")
         if self._motion_evidence():
             self.counters["zupt_rejected_moving"] += 1
             return UpdateResult(False, reason="motion evidence: no zero-velocity update")
-        res = self.static.update_zero_velocity(stamp_s, sigma_v_m_s)
+        res = self.static.update(meas)
         est = self.static.estimate()
         self.snaps.append((float(stamp_s), est, len(self._blocks)))
         while len(self.snaps) > 2 and self.snaps[1][0] < stamp_s - 5.0:
@@ -437,8 +436,6 @@ class AutoCore(AlignmentCore):
             core.close()
             raise
         self.motion = core
-        self.supports_gnss = True
-        self.supports_gnss_velocity = core.supports_gnss_velocity
         self.counters["handovers"] += 1
         self.static.close()
         how = ("heading from gyrocompassing" if self.heading_trusted else
@@ -452,7 +449,13 @@ class AutoCore(AlignmentCore):
         self.motion = core
         self._set_state(self._t, self.state, f"{self.reason}; yaw seeded: {how}")
 
-    def observe_gnss(self, fix: GnssFix) -> None:
+    def _observe(self, fix) -> UpdateResult:
+        """A fix while static (not fused): ``_observe_gnss``; any other model: not used."""
+        if isinstance(fix, GnssPosition):
+            self._observe_gnss(fix)
+        return UpdateResult(False, reason=f"{self.state}: {fix.label} not used")
+
+    def _observe_gnss(self, fix: GnssFix) -> None:
         """Static: the GNSS speed over >= ``GNSS_SPEED_BASE_S`` from the fixes (position difference, per-axis sigma
         from both fixes' covariances) goes to the motion detector: a car cruising at constant speed on a smooth road
         looks parked to the IMU (docs/motion_detector.md), and after a re-initialisation while driving the static
@@ -501,32 +504,27 @@ class AutoCore(AlignmentCore):
         age = max(0.0, (self._t or t1) - t1) + dt
         return v_n, math.hypot(sig, NO_REST_ACC_M_S2 * age)
 
-    def update_gnss(self, fix: GnssFix) -> UpdateResult:
+    @property
+    def accepts(self) -> frozenset:
+        """The session reads it per call: zero velocity while static, the in-motion core's set from the hand-over on."""
+        return self.motion.accepts if self.motion is not None else frozenset({ZeroVelocity})
+
+    def _fuse(self, meas) -> UpdateResult:
         if self.motion is None:
-            return UpdateResult(False, reason="static: fixes are not used while parked")
-        res = self.motion.update_gnss(fix)
-        if self._hold_p_e is not None:  # stopped: hold where the fix put the core (holds and fixes do not fight)
-            self._hold_p_e = self._position_e()
+            return self._fuse_zero_velocity(meas)  # the only model accepted while static
+        res = self.motion.update(meas)
+        if self._hold_p_e is not None and isinstance(meas, GnssPosition):
+            self._hold_p_e = self._position_e()  # stopped: hold where the fix put the core (holds and fixes agree)
         return res
 
-    def update_gnss_velocity(self, vel) -> UpdateResult:
+    def predict(self, meas) -> UpdateResult:
         if self.motion is None:
-            return UpdateResult(False, reason="static: GNSS velocities are not used while parked")
-        return self.motion.update_gnss_velocity(vel)
-
-    def predict_gnss_velocity(self, vel) -> UpdateResult:
-        if self.motion is None:
-            return super().predict_gnss_velocity(vel)
-        return self.motion.predict_gnss_velocity(vel)
+            return super().predict(meas)
+        return self.motion.predict(meas)
 
     def _position_e(self) -> np.ndarray:
         e = self.motion.estimate()
         return np.asarray(earth.geodetic_to_ecef(e.lat_rad, e.lon_rad, e.h_m), float)
-
-    def predict_gnss(self, fix: GnssFix) -> UpdateResult:
-        if self.motion is None:
-            return super().predict_gnss(fix)
-        return self.motion.predict_gnss(fix)
 
     # ------------------------------------------------------------------ outputs
     def estimate(self) -> AlignmentEstimate:

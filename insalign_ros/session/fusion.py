@@ -10,6 +10,8 @@ import math
 import numpy as np
 
 from ..core.types import GnssFix, GnssVelocity, ImuSample
+from ..filters.measurements import GnssPosition, ZeroVelocity
+from ..filters.measurements import GnssVelocity as GnssVelocityModel
 from .guard import fix_point
 from .outputs import Output
 
@@ -83,9 +85,10 @@ class Fusion:
     def _fuse_fix(self, fix: GnssFix) -> None:
         sess = self.s
         core = sess.core
-        if not core.supports_gnss:
+        fix = GnssPosition.of(fix)
+        if GnssPosition not in core.accepts:
             sess.counters["gnss_unused"] += 1
-            core.observe_gnss(fix)  # (core: auto's motion detector takes the GNSS speed)
+            core.update(fix)  # not fused (core: auto's motion detector takes the GNSS speed)
             return
         gate = sess.cfg.gnss_gate_nis
         jump = sess.guard.fix_jump(fix)
@@ -105,7 +108,7 @@ class Fusion:
             return
         # a jump in the fix sequence is suspect by itself: gated even while the core does not claim its attitude
         if gate > 0 and (sess.monitor.attitude_claimed() or jump or sess.guard._hold_since is not None):
-            pr = core.predict_gnss(fix)
+            pr = core.predict(fix)
             if pr.S.size and pr.nis > gate:
                 sess.counters["gnss_gated"] += 1
                 sess.counters["gnss_rejected"] += 1
@@ -128,7 +131,7 @@ class Fusion:
             sess.log("info", "gnss_hold", f"GNSS agrees with the held filter again after "
                                           f"{fix.stamp_s - sess.guard._hold_since:.1f} s: fusing fixes")
             sess.guard._hold_since = None
-        res = sess.bt.feed(fix) if sess.bt is not None else core.update_gnss(fix)
+        res = sess.bt.feed(fix) if sess.bt is not None else core.update(fix)
         if res is None:
             return
         sess.last_nis = res.nis
@@ -162,18 +165,19 @@ class Fusion:
         core's update; the flag's NIS window sees its NIS like a fix's."""
         sess = self.s
         core, c = sess.core, sess.counters
-        if not core.supports_gnss_velocity or sess.bt is not None:
+        vel = GnssVelocityModel.of(vel)
+        if GnssVelocityModel not in core.accepts or sess.bt is not None:
             c["gnss_vel_unused"] += 1
             return
         gate = sess.cfg.gnss_gate_nis
         if gate > 0 and sess.monitor.attitude_claimed():
-            pr = core.predict_gnss_velocity(vel)
+            pr = core.predict(vel)
             if pr.S.size and pr.nis > gate:
                 sess.inputs.reject("gnss_vel", "velocity", "gnss_vel_gated", f"NIS {pr.nis:.3g} above the gate {gate:g} "
                              f"(|innovation| {np.linalg.norm(pr.innovation):.3g} m/s)")
                 sess.monitor.lower_flag("a GNSS velocity failed the NIS gate")
                 return
-        res = core.update_gnss_velocity(vel)
+        res = core.update(vel)
         if res.accepted:
             c["gnss_vel_accepted"] += 1
         else:
@@ -186,13 +190,13 @@ class Fusion:
     def zupt_due(self, t: float) -> bool:
         sess = self.s
         c = sess.core
-        return (c.supports_zero_velocity and not c.supports_gnss and not c.schedules_own_zero_velocity
-                and sess.cfg.zupt_rate_hz > 0 and t >= sess.next_zupt_t)
+        return (sess.cfg.zupt_rate_hz > 0 and t >= sess.next_zupt_t and not c.schedules_own_zero_velocity
+                and ZeroVelocity in c.accepts and GnssPosition not in c.accepts)
 
     def _zupt(self, t: float) -> None:
         sess = self.s
         sess._est_memo = None
-        res = sess.core.update_zero_velocity(t, sess.cfg.zupt_sigma_m_s)
+        res = sess.core.update(ZeroVelocity(t, sess.cfg.zupt_sigma_m_s))
         sess.next_zupt_t = t + 1.0 / sess.cfg.zupt_rate_hz - 1e-9
         if res.accepted:
             sess.counters["zupt_accepted"] += 1

@@ -15,6 +15,7 @@ import numpy as np
 from ..core import earth, lie
 from ..filters import registry
 from ..filters.base import AlignmentCore, AlignmentStatus
+from ..filters.measurements import GnssPosition
 from . import catalog
 from .guard import extrapolation_excess, fix_point
 from .truth import TruthSample
@@ -38,12 +39,12 @@ class Initialiser:
         self.pre_init: deque = deque(maxlen=4000)  # IMU samples before the initialisation (level from sensors)
 
     def capabilities(self):
-        """(supports_gnss, default_initial_sigmas) of the configured core, from one probe built once (not per
+        """(accepts GNSS positions, default_initial_sigmas) of the configured core, from one probe built once (not per
         sample while the session waits for its first fix)."""
         sess = self.s
         if self._probe is None:
             probe = registry.make_core(sess.cfg.core, sess.core_params)
-            self._probe = (probe.supports_gnss, probe.default_initial_sigmas())
+            self._probe = (GnssPosition in probe.accepts, probe.default_initial_sigmas())
             probe.close()
         return self._probe
 

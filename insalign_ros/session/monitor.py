@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..filters.base import AlignmentStatus
+from ..filters.measurements import GnssPosition
 from ..filters.imu_grade import DEFAULT_IMU_GRADE
 
 
@@ -68,7 +69,7 @@ class Monitor:
 
     def gnss_age_warning(self) -> str:
         sess = self.s
-        if sess.core is None or not sess.core.supports_gnss or sess.processed_t is None:
+        if sess.core is None or GnssPosition not in sess.core.accepts or sess.processed_t is None:
             return ""
         ref = sess.last_accepted_fix_t if sess.last_accepted_fix_t is not None else sess.init_t
         age = sess.processed_t - ref

@@ -24,6 +24,7 @@ from ..core import earth
 from ..core.types import GnssFix, GnssVelocity
 from ..filters import registry
 from ..filters.yaw_gsf import YawGsf, YawGsfConfig, velocity_from_fixes
+from ..filters.measurements import GnssPosition
 from .auto import AutoCore
 
 D2R = math.pi / 180.0
@@ -112,7 +113,7 @@ class YawSeed:
         """Seed the in-motion core when the GSF is valid and the core's yaw is not as good."""
         sess = self.s
         core = sess.core
-        if self.done or core is None or not self.gsf.confident(SEED_MAX_SIGMA_DEG) or not core.supports_gnss \
+        if self.done or core is None or not self.gsf.confident(SEED_MAX_SIGMA_DEG) or GnssPosition not in core.accepts \
                 or sess.bt is not None:
             return
         est = core.estimate()

@@ -1,0 +1,144 @@
+"""Vehicle measurement models (issue 25): the non-holonomic constraint of a land vehicle and a dual-antenna GNSS
+heading, as models of filters/measurements.py with Jacobians for the ECI conventions ``eci_left`` (liekf, pi_liekf,
+iekf and their yaw banks) and ``eci_ekf`` (ekf). No core knows them: ``core.update(NonHolonomic(...))`` fuses them
+in every core whose convention they support (``type(m) in core.accepts``).
+
+Constructors:
+
+* ``NonHolonomic(stamp_s, sigma_lateral_m_s, sigma_vertical_m_s, C_b_v=I)``: the vehicle frame's lateral (y) and
+  vertical (z) velocity relative to Earth are zero, 1-sigmas [m/s] covering the side-slip and the suspension;
+  ``C_b_v`` (3x3) maps IMU body FLU vectors into the vehicle frame FLU (the IMU mounting, x forward along the
+  wheels). The velocity is the IMU's (the lever arm from the IMU to the rear axle is neglected: omega x l, < 0.1 m/s
+  for 1 m at 5 deg/s, inside a side-slip sigma).
+* ``GnssHeading(stamp_s, yaw_rad, sigma_yaw_rad, baseline_b=(1, 0, 0))``: the yaw of the dual-antenna baseline in
+  ENU [rad] (from East, counter-clockwise, REP 103: a driver's heading from North clockwise converts as
+  ``yaw = pi/2 - heading``), its 1-sigma [rad], and the baseline's direction in the body frame (FLU, any length;
+  primary -> secondary antenna). The local level's dependence on the position error (~1.6e-7 rad/m) is neglected.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..core import earth, lie
+from .measurements import Measurement, jacobian
+
+_I3 = np.eye(3)
+
+
+class NonHolonomic(Measurement):
+    """Lateral and vertical velocity of the vehicle frame ~ 0 (a land vehicle neither slides nor jumps)."""
+
+    counter = "nhc"
+    label = "non-holonomic constraint"
+    fading = False
+
+    def __init__(self, stamp_s: float, sigma_lateral_m_s: float, sigma_vertical_m_s: float, C_b_v=None):
+        self.stamp_s = float(stamp_s)
+        self.sigma_lateral_m_s = float(sigma_lateral_m_s)
+        self.sigma_vertical_m_s = float(sigma_vertical_m_s)
+        self.C_b_v = _I3.copy() if C_b_v is None else np.asarray(C_b_v, float)
+
+    def check(self) -> str:
+        s = (self.sigma_lateral_m_s, self.sigma_vertical_m_s)
+        if not all(math.isfinite(x) and x > 0 for x in s):
+            return f"sigmas {s} must be finite and > 0"
+        C = self.C_b_v
+        if C.shape != (3, 3) or not np.all(np.isfinite(C)) or np.abs(C @ C.T - _I3).max() > 1e-6:
+            return "C_b_v must be a 3x3 rotation matrix"
+        return ""
+
+    def noise(self) -> np.ndarray:
+        return np.diag([self.sigma_lateral_m_s ** 2, self.sigma_vertical_m_s ** 2])
+
+
+def _earth_relative_velocity_i(core) -> tuple[np.ndarray, np.ndarray]:
+    """(u_i, Omega_i): the velocity relative to Earth in ECI, u = v_i - Omega x p_i [m/s], and the Earth rate
+    vector in ECI [rad/s] (the ECI z axis is the Earth's)."""
+    W = earth.OMEGA_IE_E  # (0, 0, omega_ie): the same in ECI
+    return core.v - np.cross(W, core.p), W
+
+
+@jacobian(NonHolonomic, "eci_left")
+def _nhc_eci_left(m: NonHolonomic, core):
+    """h = E C_b_v C^T u, E the (y, z) rows. With C = C_hat exp(phi), v = v_hat + C_hat nu, p = p_hat + C_hat rho:
+    h = h_hat + E C_b_v [b_x phi + nu - w_x rho], b = C_hat^T u_hat, w = C_hat^T Omega."""
+    u, W = _earth_relative_velocity_i(core)
+    Ct = core.C.T
+    b, w = Ct @ u, Ct @ W
+    E = m.C_b_v[1:3]
+    H = np.zeros((2, core._n_states))
+    H[:, 0:3] = E @ lie.hat3(b)
+    H[:, 3:6] = E
+    H[:, 6:9] = -E @ lie.hat3(w)
+    return -(E @ b), H, m.noise()
+
+
+@jacobian(NonHolonomic, "eci_ekf")
+def _nhc_eci_ekf(m: NonHolonomic, core):
+    """With C = exp(psi_x) C_hat, v = v_hat + dv, p = p_hat + dp: h = h_hat + E C_b_v C_hat^T [u_x psi + dv - Omega_x dp]."""
+    u, W = _earth_relative_velocity_i(core)
+    A = m.C_b_v[1:3] @ core.C.T
+    H = np.zeros((2, core._n_states))
+    H[:, 0:3] = A @ lie.hat3(u)
+    H[:, 3:6] = A
+    H[:, 6:9] = -A @ lie.hat3(W)
+    return -(A @ u), H, m.noise()
+
+
+class GnssHeading(Measurement):
+    """Dual-antenna (moving-base) GNSS heading: the baseline's yaw in ENU [rad] with its 1-sigma [rad]."""
+
+    counter = "gnss_heading"
+    label = "GNSS heading"
+    fading = False
+
+    def __init__(self, stamp_s: float, yaw_rad: float, sigma_yaw_rad: float, baseline_b=(1.0, 0.0, 0.0)):
+        self.stamp_s = float(stamp_s)
+        self.yaw_rad = float(yaw_rad)
+        self.sigma_yaw_rad = float(sigma_yaw_rad)
+        self.baseline_b = np.asarray(baseline_b, float)
+
+    def check(self) -> str:
+        if not (math.isfinite(self.yaw_rad) and math.isfinite(self.sigma_yaw_rad) and self.sigma_yaw_rad > 0):
+            return f"yaw {self.yaw_rad!r} and sigma {self.sigma_yaw_rad!r} must be finite, sigma > 0"
+        b = self.baseline_b
+        if b.shape != (3,) or not np.all(np.isfinite(b)) or not np.linalg.norm(b) > 0:
+            return "baseline_b must be a finite non-zero 3-vector"
+        return ""
+
+
+def _n_from_i(core) -> np.ndarray:
+    """C_i_n: ECI -> local ENU at the estimated position."""
+    Cei = earth.C_e_i(core.t_s, core.t0_s)
+    lat, lon, _ = earth.ecef_to_geodetic(Cei.T @ core.p)
+    return earth.C_n_e(lat, lon).T @ Cei.T
+
+
+def _yaw_terms(m: GnssHeading, b_n: np.ndarray, D: np.ndarray, core):
+    """z = wrap(yaw_m - atan2(b_n_y, b_n_x)), H = g^T D on the attitude block, g = d yaw / d b_n."""
+    r2 = b_n[0] ** 2 + b_n[1] ** 2
+    if not r2 > 1e-12 * float(b_n @ b_n):  # a vertical baseline: no yaw
+        raise ValueError("GNSS heading: the baseline is vertical in the estimated attitude")
+    g = np.array([-b_n[1], b_n[0], 0.0]) / r2
+    H = np.zeros((1, core._n_states))
+    H[0, 0:3] = g @ D
+    z = np.array([math.remainder(m.yaw_rad - math.atan2(b_n[1], b_n[0]), 2.0 * math.pi)])
+    return z, H, np.array([[m.sigma_yaw_rad ** 2]])
+
+
+@jacobian(GnssHeading, "eci_left")
+def _heading_eci_left(m: GnssHeading, core):
+    """b_n = C_i_n C_hat exp(phi) b_b = b_n_hat - C_i_n C_hat (b_b)_x phi."""
+    A = _n_from_i(core) @ core.C
+    return _yaw_terms(m, A @ m.baseline_b, -A @ lie.hat3(m.baseline_b), core)
+
+
+@jacobian(GnssHeading, "eci_ekf")
+def _heading_eci_ekf(m: GnssHeading, core):
+    """b_n = C_i_n exp(psi_x) C_hat b_b = b_n_hat - C_i_n (C_hat b_b)_x psi."""
+    Cin = _n_from_i(core)
+    c = core.C @ m.baseline_b
+    return _yaw_terms(m, Cin @ c, -Cin @ lie.hat3(c), core)
