@@ -460,8 +460,8 @@ class AutoCore(AlignmentCore):
         t0, p0, R0 = old[-1]
         dt = t - t0
         sig_p = math.sqrt(max(np.trace(R + R0) / 6.0, 1e-12))
-        sigma = math.sqrt(2.0) * min(sig_p, max(self._fix_noise_m(t, p), FIX_NOISE_FLOOR_M)) / dt
-        self.detector.push_gnss_speed(t, float(np.linalg.norm(p - p0)) / dt, sigma)
+        veto = math.sqrt(2.0) * min(sig_p, max(self._fix_noise_m(t, p), FIX_NOISE_FLOOR_M)) / dt
+        self.detector.push_gnss_speed(t, float(np.linalg.norm(p - p0)) / dt, math.sqrt(2.0) * sig_p / dt, veto)
 
     def _fix_noise_m(self, t: float, p_e: np.ndarray) -> float:
         """Per-axis noise of the fixes [m] as the data show it: robust sigma of the second differences of the last

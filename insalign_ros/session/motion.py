@@ -449,8 +449,10 @@ class MotionDetector:
         self.rejected[kind] += 1
         self.last_reject_reason = reason
 
-    def push_gnss_speed(self, stamp_s: float, speed_m_s: float, sigma_m_s: float) -> bool:
-        """A GNSS speed (norm of the velocity [m/s], per-axis sigma [m/s]); False (counted) when rejected."""
+    def push_gnss_speed(self, stamp_s: float, speed_m_s: float, sigma_m_s: float,
+                        veto_sigma_m_s: float | None = None) -> bool:
+        """A GNSS speed (norm of the velocity [m/s], per-axis sigma [m/s]; veto_sigma_m_s: the sigma of the
+        walking-speed veto, e.g. the one the fixes show, default sigma_m_s); False (counted) when rejected."""
         vals = (float(stamp_s), float(speed_m_s), float(sigma_m_s))
         if not (all(map(math.isfinite, vals)) and vals[1] >= 0 and vals[2] > 0):
             self._reject("gnss", f"GNSS speed not finite or sigma <= 0: {vals}")
@@ -458,7 +460,8 @@ class MotionDetector:
         if self._gnss and vals[0] <= self._gnss[-1][0]:
             self._reject("gnss", f"GNSS speed stamp {vals[0]} not after {self._gnss[-1][0]}")
             return False
-        self._n_fast = self._n_fast + 1 if vals[1] > max(self.cfg.walk_speed_m_s, 3.0 * vals[2]) else 0
+        vs = vals[2] if veto_sigma_m_s is None or not veto_sigma_m_s > 0 else float(veto_sigma_m_s)
+        self._n_fast = self._n_fast + 1 if vals[1] > max(self.cfg.walk_speed_m_s, 3.0 * vs) else 0
         self._gnss.append(vals + (self._n_fast,))
         return True
 
