@@ -91,7 +91,8 @@ class Loop:
         sess = self.s
         core, cfg = sess.core, sess.cfg
         prev = sess.processed_t
-        if prev is None or self._median_dt is None or not self.hist_w or i >= plan.n_fast:
+        if prev is None or self._median_dt is None or not self.hist_w or i >= plan.n_fast \
+                or self._dt_count < self.dts.maxlen:  # the rate model is updated at every interval until then
             return i
         Tl = plan.Tl
         # events: fixes, outputs, zero-velocity updates (stamps increase along the buffer); the run ends at the first
@@ -114,8 +115,9 @@ class Loop:
         c0 = self._dt_count
         if self._gap_thr > cfg.gap_factor * self._median_dt:
             # jittery stamps (gaps.gap_threshold over gap_factor medians): the run ends before the next update of
-            # the rate model, so every interval is checked against the threshold the per-sample path would use
-            j = min(j, i + (c0 // 20 + 1) * 20 - 1 - c0)
+            # the rate model, so every interval is checked against the threshold the per-sample path would use (the
+            # spike check's cut, max(3 medians, it), is never below it)
+            j = min(j, i + (c0 // gaps.MODEL_EVERY + 1) * gaps.MODEL_EVERY - 1 - c0)
             if j <= i:
                 return i
             d = [Tl[i] - prev]
@@ -135,7 +137,7 @@ class Loop:
         # running window can take during the run (>= the 51st smallest interval of the old window and the run)
         d = [Tl[i] - prev]
         d += plan.dTl[i:j - 1]
-        fac = min(3.0, cfg.gap_factor)
+        fac = min(3.0, cfg.gap_factor)  # (the stored gap threshold may be older than the median: min with it)
         # cheap bound first (the smallest interval anywhere; the median now may come from a window partly older than
         # the window now), the 51st smallest of the old window and the run when jitter makes the cheap one too tight
         mc = self._dts_min_cache  # (a lower bound of min(dts), at interval count, exact at count, that deque)
@@ -143,12 +145,12 @@ class Loop:
             mc = (min(self.dts), c0, c0, self.dts)
         d_min = min(d)
         lb = min(mc[0], d_min, self._median_dt)
-        if max(d) > fac * lb or plan.dnextl[j - 1] > fac * lb:
+        if max(d) > min(fac * lb, self._gap_thr) or plan.dnextl[j - 1] > min(fac * lb, self._gap_thr):
             old = list(self.dts)
             alld = np.array(old + d)
             lb = float(alld.min()) if len(old) < self.dts.maxlen else float(np.partition(alld, 50)[50])
             lb = min(lb, self._median_dt)
-            thr = fac * lb
+            thr = min(fac * lb, self._gap_thr)
             over = np.flatnonzero(np.array(d) > thr)
             if over.size:
                 j = i + int(over[0]) - 1  # the sample before the long interval is the last whose next one is short
@@ -172,10 +174,16 @@ class Loop:
         m = j - i
         # period tracking as _track_period per sample: the median at the last multiple of 20 intervals in the run
         p = (c0 + m) // 20 * 20
+        q = (c0 + m) // gaps.MODEL_EVERY * gaps.MODEL_EVERY  # the rate model's update (a multiple of 20 too)
         if p > c0:
-            self.dts.extend(d[:p - c0])
+            if q > c0:
+                self.dts.extend(d[:q - c0])
+                self._median_dt = median(self.dts)
+                self._gap_thr = gaps.gap_threshold(self.dts, cfg.gap_factor, self._median_dt, self._gap_thr)
+                self.dts.extend(d[q - c0:p - c0])
+            else:
+                self.dts.extend(d[:p - c0])
             self._median_dt = median(self.dts)
-            self._gap_thr = gaps.gap_threshold(self.dts, cfg.gap_factor, self._median_dt, self._gap_thr)
             self.dts.extend(d[p - c0:])
         else:
             self.dts.extend(d)
@@ -286,9 +294,11 @@ class Loop:
         """Median IMU interval over the last 101 intervals (recomputed every 20): robust to gaps and jitter."""
         self.dts.append(dt)
         self._dt_count += 1
-        if self._median_dt is None or self._dt_count % 20 == 0:
+        c = self._dt_count
+        if self._median_dt is None or c % 20 == 0 or c <= self.dts.maxlen:
             self._median_dt = median(list(self.dts))
-            self._gap_thr = gaps.gap_threshold(self.dts, self.s.cfg.gap_factor, self._median_dt, self._gap_thr)
+            if c % gaps.MODEL_EVERY == 0 or c <= self.dts.maxlen:
+                self._gap_thr = gaps.gap_threshold(self.dts, self.s.cfg.gap_factor, self._median_dt, self._gap_thr)
 
     def _on_gap(self, t_a: float, t_b: float, w_b: np.ndarray, f_b: np.ndarray) -> None:
         """An IMU gap (t_a, t_b): bridge it and inflate the covariance by what the bridge may have got wrong.
