@@ -55,8 +55,7 @@ SPEED_CHECK_PERIOD_S = 0.5
 GNSS_SPEED_BASE_S = 0.9
 #: fixes over which the fixes' own noise is measured (second differences; _fix_noise_m)
 FIX_NOISE_N = 10
-#: ... never below this [m] (a parked receiver's positions drift smoothly: second differences of millimetres)
-FIX_NOISE_FLOOR_M = 0.1
+FIX_NOISE_FLOOR_M = 0.1  #: ... never below this [m] (a parked receiver drifts smoothly: second differences of mm)
 #: state names (``AutoCore.state``), in the order a parked-then-driving run passes through them
 STATES = ("static, levelling", "static, fine", "in motion", "stopped")
 
@@ -460,7 +459,8 @@ class AutoCore(AlignmentCore):
         t0, p0, R0 = old[-1]
         dt = t - t0
         sig_p = math.sqrt(max(np.trace(R + R0) / 6.0, 1e-12))
-        veto = math.sqrt(2.0) * min(sig_p, max(self._fix_noise_m(t, p), FIX_NOISE_FLOOR_M)) / dt
+        noise = max(self._fix_noise_m(t, p), FIX_NOISE_FLOOR_M)  # used when far below the declared (correlated)
+        veto = math.sqrt(2.0) * (noise if noise < 0.3 * sig_p else sig_p) / dt
         self.detector.push_gnss_speed(t, float(np.linalg.norm(p - p0)) / dt, math.sqrt(2.0) * sig_p / dt, veto)
 
     def _fix_noise_m(self, t: float, p_e: np.ndarray) -> float:
