@@ -559,11 +559,11 @@ class AutoCore(AlignmentCore):
 
     def _static_heading_support(self, P: np.ndarray) -> tuple[np.ndarray, str]:
         """Parked: the heading variance the flag sees is at least the gyrocompassing floor (eps_east / (omega_ie
-        cos lat))^2, scaled by 1 / the fraction of zero-velocity updates accepted (from 20 asked) and by their mean NIS
+        cos lat))^2, scaled by 1 / the fraction of zero-velocity updates accepted (under 0.9, from 20 asked), their mean NIS
         per dof when over 2 (from 50). A real parked car: 992 of 2,991 accepted, yaw 3.7 deg off at a 2.24 3-sigma."""
         asked, ok = self._zupt_support
         k, why = 1.0, ""
-        if asked >= 20:
+        if asked >= 20 and ok < 0.9 * asked:  # a few refused (a person getting in) say nothing about the model
             k = asked / max(ok, 1)
         nis = float(np.mean(self._zupt_nis)) if len(self._zupt_nis) >= 50 else 0.0
         if nis > 2.0:
