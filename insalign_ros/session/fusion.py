@@ -168,6 +168,9 @@ class Fusion:
         vel = GnssVelocityModel.of(vel)
         if GnssVelocityModel not in core.accepts or sess.bt is not None:
             c["gnss_vel_unused"] += 1
+            observe = getattr(core, "observe_gnss_velocity", None)  # core: auto's motion detector takes the speed
+            if observe is not None:
+                observe(vel)
             return
         gate = sess.cfg.gnss_gate_nis
         if gate > 0 and sess.monitor.attitude_claimed():

@@ -16,6 +16,39 @@ from dataclasses import dataclass
 
 import numpy as np
 
+#: a gap: an interval longer than the mean interval plus this many stamp-jitter sigmas on each of its two stamps
+JITTER_K = 6.0
+#: the rate model is updated every this many intervals (and at every one of the first 101)
+MODEL_EVERY = 200
+#: intervals before the stamp-jitter model is used (before: gap_factor x the median interval only)
+JITTER_MIN_INTERVALS = 8
+
+
+def gap_threshold(dts, gap_factor: float, median_dt: float, prev_threshold: float | None = None) -> float:
+    """The longest IMU interval [s] that is not a gap, from a rate model of the stamps (docs/session.md, "Gaps").
+
+    A host-stamped driver stamps each sample when it arrives: stamp = sample time + a latency that varies by a few
+    ms. The stamps then scatter about a line t_k = t_0 + k T with a per-stamp sigma sigma_s; an interval is
+    T + r_k - r_(k-1), so without a missing sample it stays under ``T + 2 JITTER_K sigma_s``. T is the mean of the
+    recent intervals (not the median: a driver that delivers in bursts has many short intervals), sigma_s the
+    robust (MAD) sigma of the stamps' residuals to that line; intervals over the previous threshold are taken as
+    gaps and left out of both. At 400 Hz the intervals alone hide the jitter (a 5-ms jitter makes them ~
+    exponential with the 2.5-ms mean): the residuals of the stamps show it. The threshold is never below
+    ``gap_factor`` x the median interval (a stream without jitter keeps the plain rule), nor below 3 x it and 4 x the mean
+    interval for the first ``JITTER_MIN_INTERVALS`` intervals."""
+    base = gap_factor * median_dt
+    d = np.asarray(dts, float)
+    if len(d) < JITTER_MIN_INTERVALS:  # too few to tell jitter: a gap is at least 3 medians and 4 mean intervals
+        return max(base, 3.0 * median_dt, 4.0 * float(d.mean()) if len(d) else 0.0)
+    cut = prev_threshold if prev_threshold is not None else max(base, 3.0 * median_dt)
+    ok = d <= cut
+    if ok.sum() < JITTER_MIN_INTERVALS // 2:
+        return base
+    T = float(d[ok].mean())
+    r = np.cumsum(np.where(ok, d, T)) - T * np.arange(1, len(d) + 1)
+    sigma_s = 1.4826 * float(np.median(np.abs(r - np.median(r))))
+    return max(base, T + 2.0 * JITTER_K * sigma_s)
+
 
 @dataclass(frozen=True)
 class Bridge:

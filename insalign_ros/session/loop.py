@@ -35,6 +35,7 @@ class Loop:
     def reset(self) -> None:
         self.dts: deque = deque(maxlen=101)
         self._median_dt: float | None = None
+        self._gap_thr: float | None = None  # the longest interval that is not a gap (gaps.gap_threshold)
         self._dt_count = 0
         self._spread = None
         self.hist_t = Ring(1000)  # recent processed samples (gap bridging statistics)
@@ -90,7 +91,8 @@ class Loop:
         sess = self.s
         core, cfg = sess.core, sess.cfg
         prev = sess.processed_t
-        if prev is None or self._median_dt is None or not self.hist_w or i >= plan.n_fast:
+        if prev is None or self._median_dt is None or not self.hist_w or i >= plan.n_fast \
+                or self._dt_count < self.dts.maxlen:  # the rate model is updated at every interval until then
             return i
         Tl = plan.Tl
         # events: fixes, outputs, zero-velocity updates (stamps increase along the buffer); the run ends at the first
@@ -110,25 +112,45 @@ class Loop:
             if j == i or (plan.next_candidate(i) == i if i > 0 and self.hist_t[-1] == Tl[i - 1]
                           else plan.candidate_at(i, self.hist_w[-1], self.hist_f[-1])):
                 return i
+        c0 = self._dt_count
+        if self._gap_thr > cfg.gap_factor * self._median_dt:
+            # jittery stamps (gaps.gap_threshold over gap_factor medians): the run ends before the next update of
+            # the rate model, so every interval is checked against the threshold the per-sample path would use (the
+            # spike check's cut, max(3 medians, it), is never below it)
+            j = min(j, i + (c0 // gaps.MODEL_EVERY + 1) * gaps.MODEL_EVERY - 1 - c0)
+            if j <= i:
+                return i
+            d = [Tl[i] - prev]
+            d += plan.dTl[i:j - 1]
+            thr = self._gap_thr  # = min(the gap threshold, the spike check's cut max(3 medians, it))
+            over = np.flatnonzero(np.array(d) > thr)
+            if over.size:
+                j = i + int(over[0]) - 1
+                d = d[:max(j - i, 0)]
+            elif plan.dnextl[j - 1] > thr:
+                j -= 1
+                d = d[:j - i]
+            if j - i < 1:
+                return i
+            return self._finish_run(plan, i, j, d, min(d), c0, None, t_end, out)
         # intervals: none may be a gap or exceed 3 medians (the spike check's early return), for any median the
         # running window can take during the run (>= the 51st smallest interval of the old window and the run)
         d = [Tl[i] - prev]
         d += plan.dTl[i:j - 1]
-        fac = min(3.0, cfg.gap_factor)
+        fac = min(3.0, cfg.gap_factor)  # (the stored gap threshold may be older than the median: min with it)
         # cheap bound first (the smallest interval anywhere; the median now may come from a window partly older than
         # the window now), the 51st smallest of the old window and the run when jitter makes the cheap one too tight
-        c0 = self._dt_count
         mc = self._dts_min_cache  # (a lower bound of min(dts), at interval count, exact at count, that deque)
         if mc is None or mc[1] != c0 or mc[3] is not self.dts or c0 - mc[2] > self.dts.maxlen:
             mc = (min(self.dts), c0, c0, self.dts)
         d_min = min(d)
         lb = min(mc[0], d_min, self._median_dt)
-        if max(d) > fac * lb or plan.dnextl[j - 1] > fac * lb:
+        if max(d) > min(fac * lb, self._gap_thr) or plan.dnextl[j - 1] > min(fac * lb, self._gap_thr):
             old = list(self.dts)
             alld = np.array(old + d)
             lb = float(alld.min()) if len(old) < self.dts.maxlen else float(np.partition(alld, 50)[50])
             lb = min(lb, self._median_dt)
-            thr = fac * lb
+            thr = min(fac * lb, self._gap_thr)
             over = np.flatnonzero(np.array(d) > thr)
             if over.size:
                 j = i + int(over[0]) - 1  # the sample before the long interval is the last whose next one is short
@@ -139,11 +161,28 @@ class Loop:
             if j - i < 1:
                 return i
             d_min = min(d)
+        return self._finish_run(plan, i, j, d, d_min, c0, mc, t_end, out)
+
+    def _finish_run(self, plan: "FastPlan", i: int, j: int, d: list, d_min: float, c0: int, mc, t_end: float,
+                    out: list[Output]) -> int:
+        """Process the run ``i:j`` of the plan (its intervals ``d``) as ``_step`` would sample by sample."""
+        sess = self.s
+        core, cfg = sess.core, sess.cfg
+        Tl = plan.Tl
+        if mc is None:
+            mc = (min(self.dts), c0, c0, self.dts)
         m = j - i
         # period tracking as _track_period per sample: the median at the last multiple of 20 intervals in the run
         p = (c0 + m) // 20 * 20
+        q = (c0 + m) // gaps.MODEL_EVERY * gaps.MODEL_EVERY  # the rate model's update (a multiple of 20 too)
         if p > c0:
-            self.dts.extend(d[:p - c0])
+            if q > c0:
+                self.dts.extend(d[:q - c0])
+                self._median_dt = median(self.dts)
+                self._gap_thr = gaps.gap_threshold(self.dts, cfg.gap_factor, self._median_dt, self._gap_thr)
+                self.dts.extend(d[q - c0:p - c0])
+            else:
+                self.dts.extend(d[:p - c0])
             self._median_dt = median(self.dts)
             self.dts.extend(d[p - c0:])
         else:
@@ -189,7 +228,8 @@ class Loop:
         if (cfg.imu_spike_rad_s <= 0 and cfg.imu_spike_m_s2 <= 0) or nxt is None or not self.hist_w \
                 or self._median_dt is None or sess.processed_t is None:
             return False
-        if t - sess.processed_t > 3.0 * self._median_dt or nxt[0] - t > 3.0 * self._median_dt:
+        cut = max(3.0 * self._median_dt, self._gap_thr)  # jitter is not a spike's interval either
+        if t - sess.processed_t > cut or nxt[0] - t > cut:
             return False
         if self._dt_count % 100 == 1 or self._spread is None:
             self._spread = (float(np.linalg.norm(np.std(np.asarray(self.hist_w), axis=0))),
@@ -229,7 +269,7 @@ class Loop:
                 sess.next_out_t = t + sess.cfg.output_period_s
                 out.append(sess.outputs.output(t))  # the initial estimate
             return
-        gap = dt is not None and self._median_dt is not None and dt > sess.cfg.gap_factor * self._median_dt
+        gap = dt is not None and self._gap_thr is not None and dt > self._gap_thr
         if gap:
             self._on_gap(prev, t, w, f)
         sess.fusion.feed(ImuSample(t, w, f))
@@ -256,8 +296,11 @@ class Loop:
         """Median IMU interval over the last 101 intervals (recomputed every 20): robust to gaps and jitter."""
         self.dts.append(dt)
         self._dt_count += 1
-        if self._median_dt is None or self._dt_count % 20 == 0:
+        c = self._dt_count
+        if self._median_dt is None or c % 20 == 0 or c <= self.dts.maxlen:
             self._median_dt = median(list(self.dts))
+            if c % gaps.MODEL_EVERY == 0 or c <= self.dts.maxlen:
+                self._gap_thr = gaps.gap_threshold(self.dts, self.s.cfg.gap_factor, self._median_dt, self._gap_thr)
 
     def _on_gap(self, t_a: float, t_b: float, w_b: np.ndarray, f_b: np.ndarray) -> None:
         """An IMU gap (t_a, t_b): bridge it and inflate the covariance by what the bridge may have got wrong.

@@ -13,7 +13,17 @@ So the detector separates *shaking* from *translation* (docs/motion_detector.md)
   ``W s^2 / sigma^2 ~ chi2(3 (W - 1))``; the threshold is that chi-square bound at ``1 - p_false_alarm`` plus the
   allowed vibration RMS in quadrature. Below both thresholds (and ``dv_h`` small) the IMU is *quiet*: rest evidence.
 * GNSS speed (norm of the velocity, per-axis sigma): motion evidence above ``sqrt(chi2_3(1 - p)) sigma``, else
-  consistent with rest. Used while younger than ``gnss_timeout_s``.
+  consistent with rest. Used while younger than ``gnss_timeout_s``. Walking-speed veto: ``walk_veto_count``
+  consecutive GNSS speeds above ``walk_speed_m_s`` and 3 sigma are motion evidence and veto rest (the 5.5-sigma
+  bound alone is 27 m/s for a consumer receiver's 3-5 m per-fix sigma: core auto gives the speed the sigma its fixes
+  show, see session/auto.py; one multipath jump spoils two consecutive differences: hence three).
+* Learned vibration allowance (``learn_cap_factor`` > 0): the spreads of consecutive ``window_s`` blocks are
+  collected (no block with a velocity change over its bound or a GNSS speed over walking speed); while the GNSS
+  speed is ~0 (under half the walking speed) the bound is ``LEARN_MARGIN_GNSS`` x their 95th percentile, without
+  GNSS ``LEARN_MARGIN_QUIET`` x the 20th percentile of the last ``LEARN_SPAN_S`` (the quietest windows), never below the
+  IMU grade's prior (``vib_acc_rms_m_s2``, ``vib_gyro_rms_deg_s``) and never above ``learn_cap_factor`` x it
+  (2 x without a GNSS speed). A real parked car shakes at 0.25-0.4 m/s^2 (engine harmonics, a running fan):
+  the fixed prior alone never sees it parked.
 
 Hysteresis: motion is declared after ``enter_hold_s`` of uninterrupted motion evidence; rest after ``leave_hold_s``
 of uninterrupted rest evidence (quiet IMU, and a fresh GNSS speed if any consistent with zero). Anything else keeps
@@ -22,7 +32,7 @@ the state: a person getting in is neither. Before the first decision the state i
 Two paths with the same decisions (test/test_motion.py): ``detect_motion`` takes whole arrays (offline, vectorised
 statistics), ``MotionDetector`` takes samples one by one (node/session); both use ``window_statistics`` and
 ``_Hysteresis``. The rates are treated as nominal (1 / rate_hz); a stamp gap over 1.5 sample intervals restarts
-the windows (the decision is kept).
+the windows (the decision is kept). ``blocking()`` says in words what keeps the state from "parked".
 """
 
 from __future__ import annotations
@@ -39,7 +49,14 @@ from ..filters.config import ConfigDict
 from ..sim import error_model
 
 G_M_S2 = error_model.G0_M_S2
-GAP_FACTOR = 1.5  #: a stamp step over this many nominal intervals restarts the windows
+#: a stamp step over this many nominal intervals restarts the windows (3: host-stamp jitter and drivers that alternate
+#: 20/30-ms intervals, as a real VN-100 at 40 Hz, must not restart them at every sample)
+GAP_FACTOR = 3.0
+#: learned allowance: these factors over the 95th percentile of the blocks while the GNSS speed is ~0, and over the
+#: 20th percentile of all quiet blocks without one (harmonics beating in a 0.5-s window spread by +-20 %)
+LEARN_MARGIN_GNSS, LEARN_MARGIN_QUIET = 1.25, 1.5
+LEARN_SPAN_S = 60.0  #: blocks older than this are forgotten [s]
+LEARN_MIN_BLOCKS = 4  #: blocks needed before anything is learned
 
 
 @dataclass
@@ -68,6 +85,11 @@ class MotionConfig(ConfigDict):
     leave_hold_s: float = 2.0
     #: a GNSS speed older than this is not used [s]
     gnss_timeout_s: float = 1.5
+    #: walking-speed veto: this many consecutive GNSS speeds above walk_speed_m_s are motion, whatever their sigma
+    walk_speed_m_s: float = 1.5
+    walk_veto_count: int = 3
+    #: learned vibration allowance: at most this factor x the prior (0: the fixed prior only)
+    learn_cap_factor: float = 4.0
 
     @classmethod
     def from_imu_spec(cls, spec, **overrides) -> "MotionConfig":
@@ -94,6 +116,8 @@ class MotionConfig(ConfigDict):
             raise ValueError(f"windows must hold at least 2 samples at {self.rate_hz} Hz: {n}")
         if n["window"] > n["dv"] + n["ref"]:
             raise ValueError("window_s must not exceed dv_window_s + ref_window_s")
+        if self.walk_veto_count < 1:
+            raise ValueError("walk_veto_count must be >= 1")
 
     def samples(self) -> dict:
         """Window lengths in samples."""
@@ -180,16 +204,88 @@ def last_window_statistics(omega_ib_b: np.ndarray, f_ib_b: np.ndarray, cfg: Moti
     return out
 
 
-def _evidence(stats: dict, gnss: tuple, thr: dict) -> tuple[bool, bool]:
-    """(motion evidence, rest evidence) of one sample from its statistics and its fresh GNSS speed (or None)."""
-    speed, sigma = gnss
-    gnss_moving = speed is not None and speed > thr["gnss_speed_per_sigma"] * sigma
+def _gnss_flags(gnss: tuple, thr: dict, cfg: MotionConfig) -> tuple[bool, bool]:
+    """(GNSS says moving, GNSS says ~0) from (speed, sigma, consecutive speeds over walking speed) or Nones."""
+    speed, sigma, n_fast = gnss
+    if speed is None:
+        return False, False
+    moving = speed > thr["gnss_speed_per_sigma"] * sigma or n_fast >= cfg.walk_veto_count
+    return moving, speed < min(0.5 * cfg.walk_speed_m_s, 3.0 * sigma) and not moving
+
+
+def _evidence(stats: dict, gnss: tuple, thr: dict, cfg: MotionConfig) -> tuple[bool, bool]:
+    """(motion evidence, rest evidence) of one sample from its statistics and its fresh GNSS speed (or Nones)."""
+    gnss_moving = _gnss_flags(gnss, thr, cfg)[0]
     if not np.isfinite(stats["dv_h"]):  # windows not full: only GNSS can tell
         return gnss_moving, False
     imu_moving = stats["dv_h"] > thr["dv_h_m_s"]
     quiet = (stats["spread_f"] < thr["spread_f_m_s2"] and stats["spread_omega"] < thr["spread_omega_rad_s"]
              and not imu_moving)
     return imu_moving or gnss_moving, quiet and not gnss_moving
+
+
+def blocking(stats: dict, gnss: tuple, thr: dict, cfg: MotionConfig, learned: str) -> str:
+    """What keeps the detector from rest evidence, in words ("" when nothing does)."""
+    speed, sigma, n_fast = gnss
+    if speed is not None and _gnss_flags(gnss, thr, cfg)[0]:
+        return (f"not parked: GNSS speed {speed:.1f} m/s above "
+                + (f"walking speed {cfg.walk_speed_m_s:g} m/s" if n_fast >= cfg.walk_veto_count
+                   else f"its bound {thr['gnss_speed_per_sigma'] * sigma:.2f} m/s"))
+    if not np.isfinite(stats["dv_h"]):
+        return "motion undecided: IMU windows filling"
+    if stats["dv_h"] > thr["dv_h_m_s"]:
+        return f"not parked: horizontal velocity change {stats['dv_h']:.2f} m/s above {thr['dv_h_m_s']:.2f}"
+    if stats["spread_f"] >= thr["spread_f_m_s2"]:
+        return (f"not parked: specific-force spread {stats['spread_f']:.2f} m/s^2 above the {learned} "
+                f"{thr['spread_f_m_s2']:.2f}")
+    if stats["spread_omega"] >= thr["spread_omega_rad_s"]:
+        return (f"not parked: angular-rate spread {math.degrees(stats['spread_omega']):.2f} deg/s above the "
+                f"{learned} {math.degrees(thr['spread_omega_rad_s']):.2f}")
+    return ""
+
+
+class VibrationLearner:
+    """The vibration allowance learned from the recording (module docstring): feed the spreads of consecutive
+    ``window_s`` blocks with their GNSS flags; ``thresholds`` are the config's with the spread bounds raised to what
+    the quiet blocks show."""
+
+    def __init__(self, cfg: MotionConfig):
+        self.cfg = cfg
+        self.prior = cfg.thresholds()
+        self.thresholds = dict(self.prior)
+        self.blocks: deque = deque()  # (t, spread_f, spread_omega, gnss_zero)
+        self.source = "prior"
+
+    def add(self, t_s: float, spread_f: float, spread_omega: float, dv_ok: bool, gnss: tuple,
+            declared_moving: bool) -> None:
+        """One block's spreads [m/s^2, rad/s]; dv_ok: the velocity change under its bound; declared_moving: the
+        detector's state (without a GNSS speed ~0 nothing is learned while driving: a smooth road is quiet too)."""
+        cfg = self.cfg
+        if cfg.learn_cap_factor <= 0 or not dv_ok:
+            return
+        moving, zero = _gnss_flags(gnss, self.prior, cfg)
+        if moving or (declared_moving and not zero):
+            return
+        self.blocks.append((t_s, spread_f, spread_omega, zero))
+        while self.blocks[0][0] < t_s - LEARN_SPAN_S:
+            self.blocks.popleft()
+        z = [b for b in self.blocks if b[3]]
+        if len(z) >= LEARN_MIN_BLOCKS:
+            arr, q, m, cap = np.array(z)[:, 1:3], 95.0, LEARN_MARGIN_GNSS, cfg.learn_cap_factor
+            self.source = "learned (GNSS speed ~0)"
+        elif len(self.blocks) >= LEARN_MIN_BLOCKS:
+            arr, q, m, cap = np.array(self.blocks)[:, 1:3], 20.0, LEARN_MARGIN_QUIET, min(2.0, cfg.learn_cap_factor)
+            self.source = "learned (quietest windows)"
+        else:
+            return
+        learned = m * np.percentile(arr, q, axis=0)
+        for i, key, vib in ((0, "spread_f_m_s2", cfg.vib_acc_rms_m_s2),
+                            (1, "spread_omega_rad_s", math.radians(cfg.vib_gyro_rms_deg_s))):
+            p = self.prior[key]
+            self.thresholds[key] = float(min(max(learned[i], p), math.sqrt(p * p + (cap * cap - 1) * vib * vib)))
+
+    def word(self) -> str:
+        return "learned" if self.thresholds != self.prior else "prior"
 
 
 class _Hysteresis:
@@ -233,8 +329,9 @@ class MotionTrack:
     spread_omega: np.ndarray  # [rad/s]
     dv_h: np.ndarray  # [m/s]
     gnss_speed: np.ndarray  # [m/s], NaN when no fresh GNSS speed
-    thresholds: dict
+    thresholds: dict  # at the end (the learned spread bounds)
     rejected: int = 0
+    spread_f_threshold: np.ndarray | None = None  # [m/s^2] per sample, as learned so far
 
     def declarations(self) -> list[tuple[float, bool]]:
         """(stamp [s], moving) of every change of the decision."""
@@ -248,7 +345,24 @@ class MotionTrack:
 
 def _valid_gnss(t, speed, sigma):
     ok = np.isfinite(t) & np.isfinite(speed) & np.isfinite(sigma) & (speed >= 0) & (sigma > 0)
+    ok &= t > np.concatenate([[-np.inf], np.fmax.accumulate(np.where(ok, t, -np.inf))[:-1]])
     return t[ok], speed[ok], sigma[ok]
+
+
+def _fast_counts(speed: np.ndarray, sigma: np.ndarray, walk_m_s: float) -> np.ndarray:
+    """Consecutive GNSS speeds over walking speed (and 3 sigma) up to and including each one."""
+    n, out = 0, np.zeros(len(speed), int)
+    for i, v in enumerate(speed):
+        n = n + 1 if v > max(walk_m_s, 3.0 * sigma[i]) else 0
+        out[i] = n
+    return out
+
+
+def _block_spreads(x: np.ndarray, W: int) -> np.ndarray:
+    """Spread (root of the trace of the covariance) of consecutive W-sample blocks of x (N, 3)."""
+    nb = x.shape[0] // W
+    b = x[:nb * W].reshape(nb, W, 3)
+    return np.sqrt(np.maximum(b.var(axis=1).sum(axis=1), 0.0))
 
 
 def _segments(t_s: np.ndarray, rate_hz: float):
@@ -276,22 +390,35 @@ def detect_motion(t_s, omega_ib_b, f_ib_b, cfg: MotionConfig, gnss_t_s=None, gns
     for sl in _segments(t_s, cfg.rate_hz):
         for k, v in window_statistics(omega[sl], f[sl], cfg).items():
             stats[k][sl] = v
+    W = cfg.samples()["window"]
+    block = {}  # sample index ending a block -> (spread_f, spread_omega)
+    for sl in _segments(t_s, cfg.rate_hz):
+        sf, so = _block_spreads(f[sl], W), _block_spreads(omega[sl], W)
+        for i in range(len(sf)):
+            block[sl.start + (i + 1) * W - 1] = (float(sf[i]), float(so[i]))
     g_speed = np.full(N, np.nan)
     g_sigma = np.full(N, np.nan)
+    g_fast = np.zeros(N, int)
     if gnss_t_s is not None and len(gnss_t_s):
         gt, gs, gsig = _valid_gnss(*(np.asarray(a, float) for a in (gnss_t_s, gnss_speed_m_s, gnss_sigma_m_s)))
+        gn = _fast_counts(gs, gsig, cfg.walk_speed_m_s)
         j = np.searchsorted(gt, t_s, side="right") - 1
         fresh = (j >= 0) & (t_s - gt[np.maximum(j, 0)] <= cfg.gnss_timeout_s)
-        g_speed[fresh], g_sigma[fresh] = gs[j[fresh]], gsig[j[fresh]]
-    thr = cfg.thresholds()
+        g_speed[fresh], g_sigma[fresh], g_fast[fresh] = gs[j[fresh]], gsig[j[fresh]], gn[j[fresh]]
+    learner = VibrationLearner(cfg)
     hyst = _Hysteresis(cfg.enter_hold_s, cfg.leave_hold_s)
     moving, decided, since = np.zeros(N, bool), np.zeros(N, bool), np.full(N, np.nan)
+    spread_thr = np.full(N, np.nan)
     for k in range(N):
-        gnss = (g_speed[k], g_sigma[k]) if np.isfinite(g_speed[k]) else (None, None)
-        hyst.step(float(t_s[k]), *_evidence({n: stats[n][k] for n in stats}, gnss, thr))
+        gnss = (g_speed[k], g_sigma[k], int(g_fast[k])) if np.isfinite(g_speed[k]) else (None, None, 0)
+        st = {n: stats[n][k] for n in stats}
+        if k in block:
+            learner.add(float(t_s[k]), *block[k], not st["dv_h"] > learner.prior["dv_h_m_s"], gnss, hyst.state is True)
+        hyst.step(float(t_s[k]), *_evidence(st, gnss, learner.thresholds, cfg))
         moving[k], decided[k], since[k] = hyst.state is True, hyst.state is not None, hyst.since_s
+        spread_thr[k] = learner.thresholds["spread_f_m_s2"]
     return MotionTrack(t_s, moving, decided, since, stats["spread_f"], stats["spread_omega"], stats["dv_h"],
-                       g_speed, thr, rejected)
+                       g_speed, learner.thresholds, rejected, spread_thr)
 
 
 class MotionDetector:
@@ -307,10 +434,14 @@ class MotionDetector:
         # the window in order, without a copy per sample
         self._ring = np.zeros((2 * self._L, 6))
         self._i = -1
-        self._gnss: deque = deque(maxlen=16)  # (stamp, speed, sigma), pending or current
+        self._gnss: deque = deque(maxlen=16)  # (stamp, speed, sigma, consecutive over walking), pending or current
+        self._n_fast = 0
         self._hyst = _Hysteresis(cfg.enter_hold_s, cfg.leave_hold_s)
         self._stats = {"spread_f": math.nan, "spread_omega": math.nan, "dv_h": math.nan}
-        self._gnss_now = (None, None, math.nan)  # speed, sigma, age
+        self._gnss_now = (None, None, 0, math.nan)  # speed, sigma, consecutive over walking, age
+        self.learner = VibrationLearner(cfg)
+        self._W = n["window"]
+        self._blk: list = []  # the samples (omega, f) of the spread block being filled
         self.rejected = {"imu": 0, "gnss": 0}
         self.last_reject_reason = ""
 
@@ -318,8 +449,10 @@ class MotionDetector:
         self.rejected[kind] += 1
         self.last_reject_reason = reason
 
-    def push_gnss_speed(self, stamp_s: float, speed_m_s: float, sigma_m_s: float) -> bool:
-        """A GNSS speed (norm of the velocity [m/s], per-axis sigma [m/s]); False (counted) when rejected."""
+    def push_gnss_speed(self, stamp_s: float, speed_m_s: float, sigma_m_s: float,
+                        veto_sigma_m_s: float | None = None) -> bool:
+        """A GNSS speed (norm of the velocity [m/s], per-axis sigma [m/s]; veto_sigma_m_s: the sigma of the
+        walking-speed veto, e.g. the one the fixes show, default sigma_m_s); False (counted) when rejected."""
         vals = (float(stamp_s), float(speed_m_s), float(sigma_m_s))
         if not (all(map(math.isfinite, vals)) and vals[1] >= 0 and vals[2] > 0):
             self._reject("gnss", f"GNSS speed not finite or sigma <= 0: {vals}")
@@ -327,7 +460,9 @@ class MotionDetector:
         if self._gnss and vals[0] <= self._gnss[-1][0]:
             self._reject("gnss", f"GNSS speed stamp {vals[0]} not after {self._gnss[-1][0]}")
             return False
-        self._gnss.append(vals)
+        vs = vals[2] if veto_sigma_m_s is None or not veto_sigma_m_s > 0 else float(veto_sigma_m_s)
+        self._n_fast = self._n_fast + 1 if vals[1] > max(self.cfg.walk_speed_m_s, 3.0 * vs) else 0
+        self._gnss.append(vals + (self._n_fast,))
         return True
 
     def push_imu(self, stamp_s: float, omega_ib_b, f_ib_b) -> MotionDecision:
@@ -342,6 +477,7 @@ class MotionDetector:
             return self.decision
         if self._t and t - self._t[-1] > GAP_FACTOR / self.cfg.rate_hz:
             self._t.clear()  # a gap restarts the windows
+            self._blk = []
         self._t.append(t)
         L = self._L
         i = self._i = (self._i + 1) % L
@@ -356,9 +492,21 @@ class MotionDetector:
             self._gnss.popleft()
         g = self._gnss[0] if self._gnss and self._gnss[0][0] <= t else None
         fresh = g is not None and t - g[0] <= self.cfg.gnss_timeout_s
-        self._gnss_now = (g[1], g[2], t - g[0]) if fresh else (None, None, math.nan)
-        self._hyst.step(t, *_evidence(self._stats, self._gnss_now[:2], self.thresholds))
+        self._gnss_now = (g[1], g[2], g[3], t - g[0]) if fresh else (None, None, 0, math.nan)
+        self._blk.append(self._ring[i, :].copy())
+        if len(self._blk) == self._W:
+            b = np.array(self._blk)
+            self._blk = []
+            sp = np.sqrt(np.maximum(b.var(axis=0), 0.0).reshape(2, 3).sum(axis=1))
+            self.learner.add(t, float(sp[1]), float(sp[0]), not self._stats["dv_h"] > self.learner.prior["dv_h_m_s"],
+                             self._gnss_now[:3], self._hyst.state is True)
+        self.thresholds = self.learner.thresholds
+        self._hyst.step(t, *_evidence(self._stats, self._gnss_now[:3], self.thresholds, self.cfg))
         return self.decision
+
+    def blocking(self) -> str:
+        """What keeps the detector from seeing the vehicle parked, in words ("" when nothing does)."""
+        return blocking(self._stats, self._gnss_now[:3], self.thresholds, self.cfg, self.learner.word())
 
     @property
     def decision(self) -> MotionDecision:
@@ -368,7 +516,7 @@ class MotionDetector:
     def diagnostics(self) -> dict:
         """The decision and the numbers behind it (for /diagnostics key-values)."""
         d, s, thr = self.decision, self._stats, self.thresholds
-        speed, sigma, age = self._gnss_now
+        speed, sigma, _, age = self._gnss_now
         return {
             "moving": d.moving, "decided": d.decided, "since_s": d.since_s, "declared_s": d.declared_s,
             "spread_f_m_s2": s["spread_f"], "spread_f_threshold_m_s2": thr["spread_f_m_s2"],
@@ -378,5 +526,6 @@ class MotionDetector:
             "gnss_speed_m_s": math.nan if speed is None else speed,
             "gnss_speed_threshold_m_s": math.nan if sigma is None else thr["gnss_speed_per_sigma"] * sigma,
             "gnss_age_s": age, "rejected_imu": self.rejected["imu"], "rejected_gnss": self.rejected["gnss"],
-            "last_reject_reason": self.last_reject_reason,
+            "last_reject_reason": self.last_reject_reason, "vibration_allowance": self.learner.source,
+            "blocking": self.blocking(),
         }

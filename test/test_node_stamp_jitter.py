@@ -1,0 +1,98 @@
+"""Over DDS (issue 24, item 5): a driver that stamps on the host, 5 ms of stamp jitter (samples delivered in order:
+sorted stamps) at 100 and 400 Hz, default parameters: the node counts no IMU gap and uses no more CPU than on the
+clean stream; a real 0.3-s dropout in the same stream is found and bridged (test_node_driver_style.Driver).
+400 Hz runs at the session level (test_gap_jitter.py): over DDS on a shared 2-core machine even the clean 400-Hz
+stream did not reach 99 % of its samples within 120 s (best-effort QoS), so it is not a test here."""
+
+import time
+
+import numpy as np
+import pytest
+
+from insalign_ros.cli.bringup import start_node, stop_nodes
+
+from test_node_driver_style import ALIGN, Driver
+
+pytestmark = pytest.mark.ros
+
+
+def _cpu_s(pid: int) -> float:
+    """User + system CPU of a process [s] (/proc/<pid>/stat)."""
+    import os
+    with open(f"/proc/{pid}/stat") as fh:
+        f = fh.read().rsplit(")", 1)[1].split()
+    return (int(f[11]) + int(f[12])) / os.sysconf("SC_CLK_TCK")
+
+
+class _Driver(Driver):
+    """Driver with host-stamp jitter and IMU samples that are never sent (a dropout)."""
+
+    imu_keep = None
+
+    def imu(self, k):
+        return Driver.imu(self, k)
+
+    def stream(self, msgs_per_s=1000.0, fix_delay_s=0.15):
+        pub = self.pub_imu
+        keep = self.imu_keep
+
+        class _Skip:  # publishes only the samples kept
+            def __init__(self):
+                self.k = 0
+
+            def publish(self, msg):
+                if keep is None or keep[self.k]:
+                    pub.publish(msg)
+                self.k += 1
+
+        self.pub_imu = _Skip()
+        try:
+            Driver.stream(self, msgs_per_s, fix_delay_s)
+        finally:
+            self.pub_imu = pub
+
+
+def _run(tmp_path, ros_env, d, jitter_s, drop):
+    from insalign_ros.nodes.monitor import AlignmentMonitor
+
+    node = start_node(ALIGN, ros_env, log_dir=tmp_path, remaps={"imu/data": "/imu/data_raw", "gps/fix": "/fix"})
+    mon = AlignmentMonitor(keep_poses=10)
+    drv = _Driver(d)
+    t_host = np.sort(d.t_s + np.random.default_rng(3).normal(0.0, jitter_s, d.n)) if jitter_s > 0 else d.t_s
+    drv.jitter_ns = np.round((t_host - d.t_s) * 1e9).astype(np.int64)
+    try:
+        end = time.monotonic() + 180.0
+        while drv.pub_imu.get_subscription_count() < 1 or mon.diag_count < 1:
+            assert time.monotonic() < end, "alignment_node did not come up"
+            time.sleep(0.05)
+        cpu0 = _cpu_s(node.popen.pid)
+        if drop is not None:
+            keep = ~((d.t_s > drop[0]) & (d.t_s < drop[1]))
+            drv.imu_keep = keep
+        drv.stream(msgs_per_s=d.imu_spec.rate_hz * 5.0)
+        n_sent = int(drv.imu_keep.sum()) if drop is not None else d.n
+        assert mon.wait_for(lambda m: int(m.diag.get("buffered_imu", "1")) == 0
+                            and int(m.diag.get("imu_received", "0")) >= 0.99 * n_sent, 120.0), mon.diag
+        time.sleep(1.0)
+        with mon.lock:
+            diag = dict(mon.diag)
+        return int(diag["imu_gaps"]), _cpu_s(node.popen.pid) - cpu0, diag
+    finally:
+        drv.close()
+        mon.close()
+        stop_nodes([node])
+
+
+@pytest.mark.timeout(600)
+@pytest.mark.parametrize("rate_hz", [100.0])  # 400 Hz: see the module docstring
+def test_host_stamp_jitter_over_dds(tmp_path, ros_env, rate_hz):
+    from insalign_ros.sim.scenarios import make_scenario
+
+    d = make_scenario("car", seed=4, duration_s=40.0, rate_hz=rate_hz, heading_deg=-120.0)
+    gaps_clean, cpu_clean, _ = _run(tmp_path / "clean", ros_env, d, 0.0, None)
+    gaps_jit, cpu_jit, diag = _run(tmp_path / "jitter", ros_env, d, 0.005, None)
+    gaps_drop, _, _ = _run(tmp_path / "gap", ros_env, d, 0.005, (20.0, 20.3))
+    print(f"{rate_hz:g} Hz: gaps clean/jitter/jitter+0.3-s dropout {gaps_clean}/{gaps_jit}/{gaps_drop}; node CPU "
+          f"clean {cpu_clean:.2f} s, jitter {cpu_jit:.2f} s ({cpu_jit / cpu_clean:.2f}x)")
+    assert gaps_clean == 0 and gaps_jit == 0 and gaps_drop == 1
+    assert cpu_jit < 1.5 * cpu_clean + 1.0  # loose on a shared machine; the measured ratio is printed
