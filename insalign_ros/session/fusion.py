@@ -64,6 +64,7 @@ class Fusion:
             return
         gate = sess.cfg.gnss_gate_nis
         jump = sess.guard.fix_jump(fix)
+        fix = sess.guard.floored(fix)  # divergence guard: the model's error budget under the receiver's sigma
         if jump and sess.guard.restart_young_reinit():  # divergence guard
             return
         if jump and gate > 0 and sess.guard._hold_since is None and not sess.monitor.attitude_claimed():

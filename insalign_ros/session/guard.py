@@ -29,6 +29,59 @@ class DivergenceGuard:
         self._nis_win: deque = deque(maxlen=max(self.s.cfg.divergence_nis_window, 1))
         self._level_bound_deg: float | None = None  # level 3-sigma bound of this filter
         self._cusum_llr = 0.0  # CUSUM of the NIS log-likelihood ratio while the attitude is claimed
+        self._inflated_at: float | None = None  # the last step-1 response (covariance widened, flag down) [s]
+        self.last_floor_m = 0.0  # the model floor added to the last fix's sigma [m]
+
+    #: an antenna offset nobody configured: a roof antenna on a car within ~0.1 m of the configured lever arm (the
+    #: part of an unmodelled lever arm the filter cannot absorb as a position offset is what a turn rotates away)
+    UNMODELLED_LEVER_ARM_M = 0.1
+
+    def model_floor_m(self, fix: GnssFix) -> float:
+        """The 1-sigma [m] per axis of what the filter's own model cannot reproduce between two fixes, whatever the
+        receiver says of its fix (its error budget; docs/session.md "Fix sigma floor"), from the fixes alone:
+
+        - timing: the fix is fused at the first IMU sample at or after its stamp (fusion.py), the state ahead of the
+          fix by a lag uniform in [0, dt) when the two clocks are independent: rms |v| dt / sqrt(3);
+        - integration at the IMU rate: the specific force held over dt while the body turns at omega in a turn of
+          centripetal |v| omega: per step 1/2 |v| omega^2 dt^2 of velocity, over the fix interval T a position error
+          |v| omega^2 dt T^2 / 4;
+        - an unmodelled lever arm: the part a turn of omega T rotates away, ``UNMODELLED_LEVER_ARM_M`` min(1, omega T).
+
+        |v| and omega from the last three fixes (chord speed and course change); dt the IMU's median period. The fix's
+        sigma is raised to it (:meth:`floored`): a receiver's centimetre sigma is not what this model can use at
+        10 m/s with a 10-Hz IMU."""
+        seq = self._fix_seq
+        dt = self.s.loop._median_dt
+        if len(seq) < 2 or dt is None or not dt > 0:
+            return 0.0
+        (t1, p1, _), (t2, p2, _) = seq[-2], seq[-1]
+        T = t2 - t1
+        if not 0.0 < T <= 3.0:
+            return 0.0
+        d2 = p2 - p1
+        v = float(np.linalg.norm(d2)) / T
+        omega = 0.0
+        if len(seq) >= 3 and 0.0 < t1 - seq[-3][0] <= 3.0:
+            d1 = p1 - seq[-3][1]
+            n1, n2 = float(np.linalg.norm(d1)), float(np.linalg.norm(d2))
+            if n1 > 0.5 and n2 > 0.5:  # a course exists (ECEF chords: the angle between them is the course change)
+                c = float(np.clip(np.dot(d1, d2) / (n1 * n2), -1.0, 1.0))
+                omega = math.acos(c) / (0.5 * (T + t1 - seq[-3][0]))
+        timing = v * dt / math.sqrt(3.0)
+        integ = 0.25 * v * omega * omega * dt * T * T
+        lever = self.UNMODELLED_LEVER_ARM_M * min(1.0, omega * T)
+        return math.sqrt(timing * timing + integ * integ + lever * lever)
+
+    def floored(self, fix: GnssFix) -> GnssFix:
+        """``fix`` with its per-axis sigma raised to the model floor (:meth:`model_floor_m`) where it is below it
+        (the same fix otherwise: a receiver's honest sigma above what the model can use is left as it is)."""
+        f = self.model_floor_m(fix)
+        self.last_floor_m = f
+        R = np.asarray(fix.R_e, float)
+        var = float(np.trace(R)) / 3.0
+        if not f * f > var + 1e-6:
+            return fix
+        return GnssFix(fix.stamp_s, fix.p_e, R + (f * f - max(var, 0.0)) * np.eye(3))
 
     def fix_jump(self, fix: GnssFix) -> bool:
         """Whether ``fix`` breaks the fix sequence: off the straight-line extrapolation of the two fixes before it
@@ -101,9 +154,39 @@ class DivergenceGuard:
             key = "divergences_covariance"
         if not reason:
             return False
+        if key == "divergences_cusum" and self.widen(reason):
+            return False
         sess.counters[key] += 1
         sess.monitor.lower_flag(reason)
         sess._diverged(reason)
+        return True
+
+    #: a second CUSUM trip within this many seconds of a widened covariance is evidence that the estimate is wrong
+    ESCALATE_S = 30.0
+
+    def widen(self, reason: str) -> bool:
+        """Step 1 of the response to a CUSUM trip (the innovations say the covariance is too small, not that the
+        estimate is wrong; sharp turns and GNSS mode changes do it to a consistent filter): drop the flag, widen
+        the attitude covariance by ``divergence_cusum_ratio`` (the H1 the CUSUM accepted), restart the CUSUM; no
+        re-initialisation. True when it did so; False (re-initialise) when the filter already had its covariance
+        widened less than ``ESCALATE_S`` ago and the fixes still contradict it (its CUSUM, restarted at 0, above
+        ``divergence_cusum_flag_llr`` again) (the widened filter could not follow
+        them: independent evidence of a wrong estimate). Fixes beyond the NIS gate in a run without a jump
+        (:meth:`gated_run_evidence`) are such evidence by themselves: re-initialised without this step. docs/session.md "Divergence: respond in steps"."""
+        sess = self.s
+        t = sess.processed_t or 0.0
+        if self._inflated_at is not None and t - self._inflated_at <= self.ESCALATE_S:
+            return False
+        self._inflated_at = t
+        self._cusum_llr = 0.0
+        r = sess.cfg.divergence_cusum_ratio
+        sess.counters["divergence_widened"] += 1
+        sess.monitor.lower_flag(f"inconsistent innovations: {reason}")
+        scale_attitude_covariance(sess.core, r)
+        sess._est_memo = None
+        sess.log("warn", "divergence_widened", f"{reason}: flag lowered and the attitude covariance widened "
+                                                f"{r:g}x; not re-initialising (a second trip within {self.ESCALATE_S:g} s "
+                                                f"would be; divergence_widened={sess.counters['divergence_widened']})")
         return True
 
     def _cusum(self, nis: float, dof: int) -> str:
@@ -122,8 +205,10 @@ class DivergenceGuard:
             return ""
         r = cfg.divergence_cusum_ratio
         self._cusum_llr = max(0.0, self._cusum_llr - 0.5 * dof * math.log(r) + 0.5 * nis * (1.0 - 1.0 / r))
-        if self._cusum_llr > cfg.divergence_cusum_llr:
-            return (f"CUSUM of the NIS log-likelihood ratio {self._cusum_llr:.3g} above {cfg.divergence_cusum_llr:g} "
+        widened = self._inflated_at is not None and (sess.processed_t or 0.0) - self._inflated_at <= self.ESCALATE_S
+        limit = cfg.divergence_cusum_flag_llr if widened and cfg.divergence_cusum_flag_llr > 0 else cfg.divergence_cusum_llr
+        if self._cusum_llr > limit:  # a widened filter the fixes still contradict: the flag level decides
+            return (f"CUSUM of the NIS log-likelihood ratio {self._cusum_llr:.3g} above {limit:g} "
                     f"(last NIS {nis:.3g}; the filter claims its attitude with a covariance {r:g}x too small)")
         if cfg.divergence_cusum_flag_llr > 0 and self._cusum_llr > cfg.divergence_cusum_flag_llr:
             sess.monitor.lower_flag(f"inconsistent innovations (NIS {nis:.3g}, CUSUM {self._cusum_llr:.3g})")
@@ -142,7 +227,7 @@ class DivergenceGuard:
         if self.gated_run < 2 and not (self.gated_run == 1 and 0 < flag_llr < self._cusum_llr):
             return False
         reason = self._cusum(min(nis, sess.cfg.gnss_gate_nis), dof)
-        if not reason:
+        if not reason:  # gated fixes, smooth among themselves, that the filter cannot explain: evidence, no widening
             return False
         sess.counters["divergences_cusum"] += 1
         sess._diverged(f"{reason}; {self.gated_run} gated fixes in a row")
@@ -246,6 +331,25 @@ class FixScreen:
         line.insert(k, point)
         while line and line[-1][0] - line[0][0] > self.SPAN_S:
             line.pop(0)
+
+
+def scale_attitude_covariance(core, ratio: float) -> None:
+    """The attitude block of ``core``'s covariance times ``ratio`` (D P D with D = sqrt(ratio) on the attitude
+    states, 1 elsewhere: stays positive definite, cross-covariances scaled by sqrt(ratio)). A core without one state
+    covariance (a yaw bank: each hypothesis) gets the level's variance times (ratio - 1) added isotropically
+    (``inflate_navigation``: never more than the level had)."""
+    target = getattr(core, "active", None) or core
+    P, idx = getattr(target, "P", None), getattr(target, "att_index", None)
+    if isinstance(P, np.ndarray) and idx is not None and P.ndim == 2 and not hasattr(target, "hyps"):
+        target.flush()
+        d = np.ones(P.shape[0])
+        d[list(idx)] = math.sqrt(ratio)
+        P *= np.outer(d, d)
+        return
+    Pa = np.asarray(core.estimate().P_att_n, float)
+    var = (ratio - 1.0) * float(min(Pa[0, 0], Pa[1, 1]))
+    if math.isfinite(var) and var > 0:
+        core.inflate_navigation(var, 0.0, 0.0)
 
 
 def fix_point(fix: GnssFix) -> tuple[float, np.ndarray, float]:

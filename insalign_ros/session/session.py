@@ -51,7 +51,8 @@ COUNTERS = (
     "gnss_invalid", "gnss_no_fix", "gnss_frame", "gnss_duplicate", "gnss_stale", "gnss_future", "gnss_before_init",
     "gnss_filter_rejected", "gnss_unused", "truth_received", "truth_invalid", "time_resets", "core_faults",
     "zupt_accepted", "watchdog_trips", "inputs_dropped", "gnss_gated", "imu_spikes", "divergences")
-COUNTERS += ("gnss_jumps", "gnss_holds", "divergences_nis", "divergences_covariance", "divergences_cusum")  # guard
+COUNTERS += ("gnss_jumps", "gnss_holds", "divergences_nis", "divergences_covariance", "divergences_cusum",
+             "divergence_widened")  # guard
 COUNTERS += ("reinit_restarts",)  # divergence guard: a re-initialisation restarted after a GNSS jump
 COUNTERS += ("gnss_implausible",)  # a fix off the vehicle's own recent fixes while no filter claims its attitude
 #: GNSS velocity (push_velocity): received, fused, rejected (total) and per reason
