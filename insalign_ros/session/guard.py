@@ -41,7 +41,9 @@ class DivergenceGuard:
         receiver says of its fix (its error budget; docs/session.md "Fix sigma floor"), from the fixes alone:
 
         - timing: the fix is fused at the first IMU sample at or after its stamp (fusion.py), the state ahead of the
-          fix by a lag uniform in [0, dt) when the two clocks are independent: rms |v| dt / sqrt(3);
+          fix by the lag L = (that sample's stamp - the fix's); a fix stamped between IMU samples (two clocks) also
+          has its stamp quantised against the IMU's: |v| sqrt(L^2 + dt^2 / 12); a fix stamped on an IMU sample
+          (one clock, L = 0): nothing;
         - integration at the IMU rate: the specific force held over dt while the body turns at omega in a turn of
           centripetal |v| omega: per step 1/2 |v| omega^2 dt^2 of velocity, over the fix interval T a position error
           |v| omega^2 dt T^2 / 4;
@@ -67,7 +69,8 @@ class DivergenceGuard:
             if n1 > 0.5 and n2 > 0.5:  # a course exists (ECEF chords: the angle between them is the course change)
                 c = float(np.clip(np.dot(d1, d2) / (n1 * n2), -1.0, 1.0))
                 omega = math.acos(c) / (0.5 * (T + t1 - seq[-3][0]))
-        timing = v * dt / math.sqrt(3.0)
+        lag = max((self.s.processed_t if self.s.processed_t is not None else t2) - t2, 0.0)
+        timing = v * math.sqrt(lag * lag + dt * dt / 12.0) if lag > 1e-6 else 0.0
         integ = 0.25 * v * omega * omega * dt * T * T
         lever = self.UNMODELLED_LEVER_ARM_M * min(1.0, omega * T)
         return math.sqrt(timing * timing + integ * integ + lever * lever)

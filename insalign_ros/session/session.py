@@ -244,8 +244,9 @@ class AlignmentSession:
         resets = dict(self.counters)
         newest, recent, screen = self.newest_imu_t, self.inputs.recent_stamps, self.inputs.screen
         pending = self.buf
-        last_reject, offset = self.last_reject, self.stamp_offset_s
+        last_reject, offset, changes = self.last_reject, self.stamp_offset_s, self.flag_changes
         self._reset_state(f"after {why}")
+        self.flag_changes = changes  # the event list (offline CSV/JSON) survives the restart
         self.counters.update(resets)
         self.last_reject, self.stamp_offset_s = last_reject, offset
         # keep the time line and the buffered inputs: re-initialise from the data that follow
