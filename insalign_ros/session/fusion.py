@@ -113,6 +113,7 @@ class Fusion:
         if res.accepted:
             sess.counters["gnss_accepted"] += 1
             sess.last_accepted_fix_t = fix.stamp_s
+            sess.grade_check.on_fix(res.nis, len(res.innovation) or 3)  # does the imu_grade fit the innovations?
         else:
             sess.counters["gnss_filter_rejected"] += 1
             sess.counters["gnss_rejected"] += 1

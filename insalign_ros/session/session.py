@@ -37,6 +37,7 @@ from .buffers import Pending, Ring  # noqa: F401  (Ring re-exported: the node's 
 from .config import SessionConfig
 from .flag import AlignedCriteria, AlignedFlag
 from .fusion import Fusion
+from .grade_check import GradeCheck
 from .guard import DivergenceGuard
 from .initialiser import Initialiser
 from .inputs import InputStage
@@ -53,6 +54,7 @@ COUNTERS = (
     "zupt_accepted", "watchdog_trips", "inputs_dropped", "gnss_gated", "imu_spikes", "divergences")
 COUNTERS += ("gnss_jumps", "gnss_holds", "divergences_nis", "divergences_covariance", "divergences_cusum",
              "divergence_widened")  # guard
+COUNTERS += ("grade_too_optimistic",)  # grade_check.py: the data contradict the declared imu_grade
 COUNTERS += ("reinit_restarts",)  # divergence guard: a re-initialisation restarted after a GNSS jump
 COUNTERS += ("gnss_implausible",)  # a fix off the vehicle's own recent fixes while no filter claims its attitude
 #: GNSS velocity (push_velocity): received, fused, rejected (total) and per reason
@@ -98,6 +100,7 @@ class AlignmentSession:
         self.fusion = Fusion(self)
         self.guard = DivergenceGuard(self)
         self.monitor = Monitor(self)
+        self.grade_check = GradeCheck(self)
         self.outputs = Outputs(self)
         self._reset_state("start")
 
@@ -168,7 +171,8 @@ class AlignmentSession:
         self.fault_reason = ""
         self.newest_imu_t: float | None = None
         self.processed_t: float | None = None  # stamp of the last processed IMU sample (= the core's time)
-        for stage in (self.inputs, self.loop, self.initialiser, self.fusion, self.guard, self.monitor, self.outputs):
+        for stage in (self.inputs, self.loop, self.initialiser, self.fusion, self.guard, self.monitor, self.outputs,
+                      self.grade_check):
             stage.reset()
         self.initialiser.after_restart = why != "start"  # the vehicle may be moving: start from what the data say
         self.init_t: float | None = None
