@@ -210,11 +210,14 @@ def _run(args) -> int:
     with open(f"{stem}.csv", "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["t_s", "roll_deg", "pitch_deg", "yaw_deg", "roll_err_deg", "pitch_err_deg", "yaw_err_deg",
-                    "sigma3_roll_deg", "sigma3_pitch_deg", "sigma3_yaw_deg", "nees", "aligned", "status"])
+                    "sigma3_roll_deg", "sigma3_pitch_deg", "sigma3_yaw_deg", "nees", "aligned", "status", "event"])
+        from ..session.offline import event_column
+
+        ev = event_column(r.t_s, r.metrics.get("events", []))
         for i in range(len(r.t_s)):
             w.writerow([f"{r.t_s[i]:.3f}", *(f"{x:.6f}" for x in r.rpy_deg[i]), *(f"{x:.6f}" for x in r.rpy_err_deg[i]),
                         *(_sigma3_cell(x) for x in r.sigma3_deg[i]), f"{r.nees[i]:.4f}", int(r.aligned[i]),
-                        r.status[i]])
+                        r.status[i], ev[i]])
     summ = dict(r.metrics)
     summ.update(data=name, init_mode=sp["init_mode"], imu_grade=sp.get("imu_grade", SessionConfig().imu_grade),
                 final_rpy_deg=r.rpy_deg[-1].tolist(),

@@ -92,6 +92,7 @@ class Fusion:
             return
         gate = sess.cfg.gnss_gate_nis
         jump = sess.guard.fix_jump(fix)
+        fix = sess.guard.floored(fix)  # divergence guard: the model's error budget under the receiver's sigma
         if jump and sess.guard.restart_young_reinit():  # divergence guard
             return
         if jump and gate > 0 and sess.guard._hold_since is None and not sess.monitor.attitude_claimed():
@@ -140,6 +141,7 @@ class Fusion:
         if res.accepted:
             sess.counters["gnss_accepted"] += 1
             sess.last_accepted_fix_t = fix.stamp_s
+            sess.grade_check.on_fix(res.nis, len(res.innovation) or 3)  # does the imu_grade fit the innovations?
         else:
             sess.counters["gnss_filter_rejected"] += 1
             sess.counters["gnss_rejected"] += 1

@@ -83,6 +83,8 @@ class Monitor:
         g = self.gnss_age_warning()
         if g:
             parts.append(g)
+        if sess.grade_check.note:
+            parts.append(sess.grade_check.note)
         if not sess.aligned and "3-sigma" in sess.flag.reason and sess.cfg.imu_grade == DEFAULT_IMU_GRADE:
             # the conservative default prior is often why the 3-sigma stays up: say what the user can do
             parts.append(f"imu_grade is the conservative default {DEFAULT_IMU_GRADE!r}: give your IMU's grade "
@@ -112,6 +114,9 @@ class Monitor:
                  nis_band=f"[{lo:.2f}, {hi:.2f}]", last_reject=sess.last_reject)
         # divergence guard: the statistics behind a FAULT (docs/session.md)
         d["divergence_cusum_llr"] = f"{sess.guard._cusum_llr:.3f}"
+        d["fix_sigma_floor_m"] = f"{sess.guard.last_floor_m:.3f}"
+        if sess.grade_check._nis:
+            d["moving_nis_per_dof_mean"] = f"{float(np.mean(sess.grade_check._nis)):.3f}"
         if sess.guard._nis_win:
             d["divergence_nis_window_mean"] = f"{float(np.mean(sess.guard._nis_win)):.3f}"
         if sess.processed_t is not None and sess.last_accepted_fix_t is not None:

@@ -289,9 +289,30 @@ def result_from_outputs(core: str, outs: list[Output], session: AlignmentSession
     metrics.update(core=core, duration_s=float(t[-1] - data.t_s[0]) if n and data.n else 0.0,
                    aligned_first_raised_at_s=float(t[np.argmax(aligned)]) if aligned.any() else None,
                    restarts=int(c.get("divergences", 0) + c.get("core_faults", 0) + c.get("time_resets", 0)),
-                   final_aligned=bool(aligned[-1]) if n else False)
+                   final_aligned=bool(aligned[-1]) if n else False, events=events_of(session))
     return AlignResult(core, t, rpy, s3, aligned, err, nees, [o.status.value for o in outs], outs,
                        dict(session.counters), session.diagnostics(), metrics, init_t)
+
+
+def events_of(session: AlignmentSession) -> list[dict]:
+    """What happened, in order: every restart (FAULT and re-initialisation, with its reason), every flag rise and
+    drop (with the reason): ``{"t_s", "event": "restart" | "flag_raised" | "flag_lowered", "reason"}`` [s data
+    time]. The metrics JSON carries it; the CSV's ``event`` column puts each on its output row."""
+    out = []
+    for t, up, reason in session.flag_changes:
+        kind = "flag_raised" if up else "restart" if str(reason).startswith("fault (") else "flag_lowered"
+        out.append({"t_s": float(t), "event": kind, "reason": str(reason)})
+    return out
+
+
+def event_column(t_s: np.ndarray, events: list[dict]) -> list[str]:
+    """Per output row the events since the row before (``kind: reason``, joined by " | "; "" for none)."""
+    col = [""] * len(t_s)
+    for e in events:
+        i = min(int(np.searchsorted(t_s, e["t_s"], side="left")), len(t_s) - 1) if len(t_s) else -1
+        if i >= 0:
+            col[i] = (col[i] + " | " if col[i] else "") + f"{e['event']}: {e['reason']}"
+    return col
 
 
 def flag_up_with_error_above(result: AlignResult, bound_deg: float) -> int:

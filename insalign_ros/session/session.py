@@ -36,6 +36,7 @@ from .buffers import Pending, Ring  # noqa: F401  (Ring re-exported: the node's 
 from .config import SessionConfig
 from .flag import AlignedCriteria, AlignedFlag
 from .fusion import Fusion
+from .grade_check import GradeCheck
 from .guard import DivergenceGuard
 from .initialiser import Initialiser
 from .inputs import InputStage
@@ -51,7 +52,9 @@ COUNTERS = (
     "gnss_invalid", "gnss_no_fix", "gnss_frame", "gnss_duplicate", "gnss_stale", "gnss_future", "gnss_before_init",
     "gnss_filter_rejected", "gnss_unused", "truth_received", "truth_invalid", "time_resets", "core_faults",
     "zupt_accepted", "watchdog_trips", "inputs_dropped", "gnss_gated", "imu_spikes", "divergences")
-COUNTERS += ("gnss_jumps", "gnss_holds", "divergences_nis", "divergences_covariance", "divergences_cusum")  # guard
+COUNTERS += ("gnss_jumps", "gnss_holds", "divergences_nis", "divergences_covariance", "divergences_cusum",
+             "divergence_widened")  # guard
+COUNTERS += ("grade_too_optimistic",)  # grade_check.py: the data contradict the declared imu_grade
 COUNTERS += ("reinit_restarts",)  # divergence guard: a re-initialisation restarted after a GNSS jump
 COUNTERS += ("gnss_implausible",)  # a fix off the vehicle's own recent fixes while no filter claims its attitude
 #: GNSS velocity (push_velocity): received, fused, rejected (total) and per reason
@@ -102,6 +105,7 @@ class AlignmentSession:
         self.fusion = Fusion(self)
         self.guard = DivergenceGuard(self)
         self.monitor = Monitor(self)
+        self.grade_check = GradeCheck(self)
         self.outputs = Outputs(self)
         self.yaw_seed = YawSeed(self)
         self._reset_state("start")
@@ -184,7 +188,7 @@ class AlignmentSession:
         self.newest_imu_t: float | None = None
         self.processed_t: float | None = None  # stamp of the last processed IMU sample (= the core's time)
         for stage in (self.inputs, self.loop, self.initialiser, self.fusion, self.guard, self.monitor, self.outputs,
-                      self.yaw_seed):
+                      self.yaw_seed, self.grade_check):
             stage.reset()
         self.initialiser.after_restart = why != "start"  # the vehicle may be moving: start from what the data say
         self.init_t: float | None = None
@@ -260,8 +264,9 @@ class AlignmentSession:
         resets = dict(self.counters)
         newest, recent, screen = self.newest_imu_t, self.inputs.recent_stamps, self.inputs.screen
         pending = self.buf
-        last_reject, offset = self.last_reject, self.stamp_offset_s
+        last_reject, offset, changes = self.last_reject, self.stamp_offset_s, self.flag_changes
         self._reset_state(f"after {why}")
+        self.flag_changes = changes  # the event list (offline CSV/JSON) survives the restart
         self.counters.update(resets)
         self.last_reject, self.stamp_offset_s = last_reject, offset
         # keep the time line and the buffered inputs: re-initialise from the data that follow
