@@ -18,7 +18,6 @@ from insalign_ros.filters.imu_grade import (
 from insalign_ros.filters.registry import resolve_core_params
 from insalign_ros.session.config import SessionConfig
 from insalign_ros.session.session import AlignmentSession
-from test_node_params import node_factory  # noqa: F401  (fixture)
 
 ROOT = Path(__file__).resolve().parents[1]
 G0 = 9.80665

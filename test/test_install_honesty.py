@@ -25,7 +25,7 @@ ROSDEP = {
 OPTIONAL = {"distributed", "dask", "allantools"}  # eval/parallel.py imports the first two only when a parallel run
 # is asked for; eval/allan.py imports allantools only for insalign-characterise
 ROS_PACKAGES = {"rclpy", "rcl_interfaces", "sensor_msgs", "geometry_msgs", "std_msgs", "std_srvs", "diagnostic_msgs",
-                "rosgraph_msgs", "tf2_msgs"}  # tf2_msgs: not on PyPI; without it publish_tf warns (nodes/publishing.py)
+                "rosgraph_msgs", "tf2_msgs", "nav_msgs"}  # tf2_msgs: not on PyPI; without it publish_tf warns (nodes/publishing.py)
 
 
 def _runtime_imports() -> set:

@@ -72,7 +72,10 @@ def test_compiled_path_matches_reference(monkeypatch, data, core):
     d = data["static" if core in STATIC else "ship"]
     ref = _run(monkeypatch, d, core, False)
     fast = _run(monkeypatch, d, core, True)
-    _assert_same(ref, fast)
+    # auto's static heading comes from gyrocompassing: the azimuth divides by the horizontal Earth rate
+    # (omega_ie cos lat ~ 5e-5 rad/s), so the roundoff of two orders of summation (numba vs numpy) grows by ~1e4 there
+    # (measured 5.5e-9 rad); every other core within 1e-9
+    _assert_same(ref, fast, **({"bound_rad": 1e-8} if core == "auto" else {}))
 
 
 @pytest.mark.parametrize("core,scenario", [("iekf", "ship"), ("ekf10", "static")])

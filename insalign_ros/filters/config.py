@@ -116,7 +116,7 @@ class InMotionConfig(ConfigDict):
     #: A 179 deg yaw error is not Gaussian in any parametrisation; see docs/inmotion_cores.md for the choice.
     init_sigma_roll_deg: float = param(10.0, range=(0.0, 180.0))
     init_sigma_pitch_deg: float = param(10.0, range=(0.0, 180.0))
-    init_sigma_yaw_deg: float = param(60.0, range=(0.0, 360.0))
+    init_sigma_yaw_deg: float = param(60.0, range=(0.0, 1e5))  # above 180: unknown (a flat prior)
     #: initial velocity / position 1-sigma (PI-LIEKF Table 1: GPS velocity 0.1 m/s, position 1.0 m)
     init_sigma_v_m_s: float = 0.1
     init_sigma_p_m: float = 1.0

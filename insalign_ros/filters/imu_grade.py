@@ -131,7 +131,8 @@ CORE_DEFAULT_GRADE = {"liekf": "paper_ship", "pi_liekf": "paper_ship", "iekf": "
 #: (car, park_drive, drive_stop_drive) the MEMS preset whose numbers cover (>=) the simulated IMU's
 SCENARIO_IMU_GRADE = {"ship": "paper_ship", "car": "industrial_mems", "static": "paper_static",
                       "static_navgrade": "navigation", "two_position": "paper_two_position",
-                      "park_drive": "industrial_mems", "park_drive_navgrade": "navigation",
+                      "park_drive": "industrial_mems", "park_drive_vibration": "industrial_mems",
+                      "park_drive_navgrade": "navigation",
                       "drive_stop_drive": "industrial_mems"}
 
 #: config field -> its value from a grade. The cores' config classes name each datasheet number as the grade does

@@ -12,8 +12,20 @@ import numpy as np
 from ..core.types import GnssFix, GnssVelocity, ImuSample
 from ..filters.measurements import GnssPosition, ZeroVelocity
 from ..filters.measurements import GnssVelocity as GnssVelocityModel
+from ..filters.vehicle_models import GnssHeading as GnssHeadingModel
+from ..filters.vehicle_models import NonHolonomic  # (importing it registers the vehicle models' Jacobians)
 from .guard import fix_point
 from .outputs import Output
+
+
+#: the non-holonomic constraint of a land vehicle (``vehicle``): rate [Hz data time], lateral and vertical 1-sigma
+#: [m/s] (side-slip of a few degrees, the IMU's lever arm to the rear axle in a turn: 1.5 m at 20 deg/s is 0.5 m/s;
+#: the suspension), chi-square gate (2 dof, p = 1e-3); that many rejections in a row switch it off for NHC_OFF_S
+NHC_RATE_HZ = 10.0
+NHC_SIGMA_M_S = {"car": (0.5, 0.3), "wheeled_robot": (0.3, 0.2)}
+NHC_NIS_GATE = 13.8
+NHC_OFF_AFTER = 10
+NHC_OFF_S = 10.0
 
 
 class Fusion:
@@ -70,16 +82,57 @@ class Fusion:
             b.heading_t.pop(0)
             self.fuse_heading(b.heading.pop(0))
 
-    # -- the fusion of the vehicle's own sensors: the one place that connects them to the core's measurement
-    # models (``core.update(WheelSpeed model)`` / ``core.update(GnssHeading model)``). Until the cores take them, they
-    # are counted as received and unused (the diagnostics say so); nothing else in the session depends on them.
+    # -- the fusion of the vehicle's own sensors through their measurement models (filters/vehicle_models.py)
     def fuse_wheel_speed(self, ws) -> None:
-        """One wheel speed (core.types.WheelSpeed) at its stamp: not fused yet (wheel_speed_unused)."""
+        """One wheel speed (core.types.WheelSpeed) at its stamp: no measurement model yet (a speed along the vehicle's
+        x axis needs a scale-factor state): counted as unused."""
         self.s.counters["wheel_speed_unused"] += 1
 
     def fuse_heading(self, heading) -> None:
-        """One dual-antenna GNSS heading (core.types.GnssHeading) at its stamp: not fused yet (gnss_heading_unused)."""
-        self.s.counters["gnss_heading_unused"] += 1
+        """One dual-antenna GNSS heading (core.types.GnssHeading: the baseline's ENU yaw along the body x axis) at its
+        stamp, fused in the cores that accept the GnssHeading model; else counted as unused."""
+        sess = self.s
+        core = sess.core
+        if GnssHeadingModel not in core.accepts or sess.bt is not None:
+            sess.counters["gnss_heading_unused"] += 1
+            return
+        sess._est_memo = None
+        res = core.update(GnssHeadingModel(heading.stamp_s, heading.yaw_rad, math.sqrt(heading.var_rad2)))
+        sess.counters["gnss_heading_fused" if res.accepted else "gnss_heading_filter_rejected"] += 1
+        if not res.accepted:
+            sess.last_reject = f"gnss_heading: {res.reason}"
+
+    def nhc_due(self, t: float) -> bool:
+        """A non-holonomic constraint is due at ``t`` (``vehicle`` car or wheeled_robot, a core that accepts it)."""
+        sess = self.s
+        return (t >= sess.next_nhc_t and sess.cfg.vehicle in NHC_SIGMA_M_S and sess.bt is None
+                and NonHolonomic in sess.core.accepts and sess.nhc_off_until_t <= t)
+
+    def _nhc(self, t: float) -> None:
+        """The non-holonomic constraint at ``t`` (NHC_RATE_HZ): lateral and vertical velocity of the vehicle ~ 0 with
+        the vehicle's sigmas and a chi-square gate; NHC_OFF_AFTER rejections in a row (skidding, the IMU not on the
+        vehicle's axes) switch it off for NHC_OFF_S, said in the status."""
+        sess = self.s
+        sess._est_memo = None
+        lat, vert = NHC_SIGMA_M_S[sess.cfg.vehicle]
+        m = NonHolonomic(t, lat, vert)
+        m.nis_gate = NHC_NIS_GATE
+        res = sess.core.update(m)
+        sess.next_nhc_t = t + 1.0 / NHC_RATE_HZ - 1e-9
+        c = sess.counters
+        if res.accepted:
+            c["nhc_accepted"] += 1
+            sess.nhc_rejected_run = 0
+            return
+        c["nhc_rejected"] += 1
+        sess.nhc_rejected_run += 1
+        if sess.nhc_rejected_run >= NHC_OFF_AFTER:
+            sess.nhc_off_until_t = t + NHC_OFF_S
+            sess.nhc_rejected_run = 0
+            c["nhc_switched_off"] += 1
+            sess.log("warn", "nhc_off", f"t={t:.2f} s: {NHC_OFF_AFTER} non-holonomic constraints in a row failed "
+                                        f"their gate ({res.reason}): the vehicle slides or the IMU is not on its axes "
+                                        f"(imu_mount_rpy_deg); constraint off for {NHC_OFF_S:g} s")
     # -- end of the vehicle sensors' fusion
 
     def _fuse_fix(self, fix: GnssFix) -> None:
@@ -92,7 +145,7 @@ class Fusion:
             return
         gate = sess.cfg.gnss_gate_nis
         jump = sess.guard.fix_jump(fix)
-        fix = sess.guard.floored(fix)  # divergence guard: the model's error budget under the receiver's sigma
+        fix = GnssPosition.of(sess.guard.floored(fix))  # divergence guard: the model's error budget under the receiver's sigma
         if jump and sess.guard.restart_young_reinit():  # divergence guard
             return
         if jump and gate > 0 and sess.guard._hold_since is None and not sess.monitor.attitude_claimed():
@@ -170,9 +223,8 @@ class Fusion:
         vel = GnssVelocityModel.of(vel)
         if GnssVelocityModel not in core.accepts or sess.bt is not None:
             c["gnss_vel_unused"] += 1
-            observe = getattr(core, "observe_gnss_velocity", None)  # core: auto's motion detector takes the speed
-            if observe is not None:
-                observe(vel)
+            if sess.bt is None:
+                core.update(vel)  # not fused (core: auto's motion detector takes the speed while parked)
             return
         gate = sess.cfg.gnss_gate_nis
         if gate > 0 and sess.monitor.attitude_claimed():

@@ -105,6 +105,9 @@ class Loop:
             t_end = b.vel_t[0]
         if sess.next_zupt_t < t_end and sess.fusion.zupt_due(math.inf):  # the session schedules zero-velocity updates
             t_end = sess.next_zupt_t
+        t_nhc = max(sess.next_nhc_t, sess.nhc_off_until_t)  # ... and the vehicle's non-holonomic constraint
+        if t_nhc < t_end and sess.fusion.nhc_due(t_nhc):
+            t_end = t_nhc
         j = min(plan.n_fast, bisect.bisect_left(Tl, t_end, i) + 1)
         if plan.cand is not None:  # spike candidates after the first sample; the first against the history
             j = min(j, plan.next_candidate(i + 1))
@@ -288,6 +291,8 @@ class Loop:
             return
         if sess.fusion.zupt_due(t):
             sess.fusion._zupt(t)
+        if sess.fusion.nhc_due(t):
+            sess.fusion._nhc(t)
         if t >= sess.next_out_t - 1e-9:
             sess.next_out_t = t + sess.cfg.output_period_s
             out.append(sess.outputs.output(t))

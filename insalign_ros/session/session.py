@@ -66,7 +66,9 @@ COUNTERS = COUNTERS + VEL_COUNTERS
 #: per reason, fused, and unused (taken out of the buffer at their stamps but not fused: session/fusion.py)
 AUX_COUNTERS = tuple(f"{topic}_{what}" for topic in ("wheel_speed", "gnss_heading")
                      for what in ("received", "rejected", "invalid", "duplicate", "stale", "future", "fused", "unused"))
-COUNTERS = COUNTERS + AUX_COUNTERS
+COUNTERS = COUNTERS + AUX_COUNTERS + ("gnss_heading_filter_rejected",)
+#: the non-holonomic constraint of ``vehicle`` car / wheeled_robot (session/fusion.py): fused, gated, switched off
+COUNTERS += ("nhc_accepted", "nhc_rejected", "nhc_switched_off")
 
 
 class AlignmentSession:
@@ -195,6 +197,9 @@ class AlignmentSession:
         self.anchor: tuple[float, float, float] | None = None
         self.next_out_t = -math.inf
         self.next_zupt_t = -math.inf
+        self.next_nhc_t = -math.inf  # the next non-holonomic constraint (fusion.nhc_due)
+        self.nhc_rejected_run = 0
+        self.nhc_off_until_t = -math.inf
         self.last_output: Output | None = None
         self.last_nis = float("nan")
         self.last_accepted_fix_t: float | None = None
