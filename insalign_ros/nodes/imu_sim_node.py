@@ -32,6 +32,10 @@ shifts) instead of letting a slow consumer drop messages. Before the first pace 
 ``max_lead_s`` past the first GNSS fix (the consumer initialises there); if no pace message arrives for
 ``pace_timeout_s`` of wall time while paused, it logs a warning and stops pacing (never hangs).
 
+Start: with ``wait_for_subscribers`` > 0 it waits for that many subscriptions of ``imu/data`` (then up to 2 s for the
+other topics'), then ``match_settle_s`` (0.5 s) more: a best-effort reader drops the messages that arrive before it
+has matched the writer, and the writer cannot see that side of the match.
+
 QoS (nodes/qos.py, REP 2003): ``qos`` = ``reliable`` by default for every data topic: a reliable writer serves both
 the sensor-data (best-effort) subscription of alignment_node and a user's reliable subscriber; a best-effort writer
 would leave a reliable subscriber with nothing. ``sensor_data`` makes the writer best effort.
@@ -129,6 +133,9 @@ class ImuSimNode(Node):
         #: at the end, wait this long at most for reliable readers to acknowledge everything [s wall]
         self.drain_timeout_s = float(p("drain_timeout_s", 60.0).value)
         self.pace_timeout_s = float(p("pace_timeout_s", 5.0).value)
+        #: after the subscribers matched, wait this long [s wall] before the first message: a best-effort reader
+        #: drops what arrives before it has matched this writer, a match the writer cannot see
+        self.match_settle_s = float(p("match_settle_s", 0.5).value)
         from rcl_interfaces.msg import ParameterDescriptor
 
         from ..io import bag as bag_io
@@ -416,6 +423,10 @@ def _run_stream(node: ImuSimNode) -> None:
     while rclpy.ok() and time.monotonic() < end and any(
             p.get_subscription_count() < node.wait_for_subscribers for p in others):
         rclpy.spin_once(node, timeout_sec=0.05)
+    if node.wait_for_subscribers > 0:  # the readers' side of the match (not observable here) settles meanwhile
+        end = time.monotonic() + max(0.0, node.match_settle_s)
+        while rclpy.ok() and time.monotonic() < end:
+            rclpy.spin_once(node, timeout_sec=0.05)
     t_report = time.monotonic() + 5.0
     while rclpy.ok() and not node.done:
         nxt = node.publish_due(time.monotonic())
