@@ -199,20 +199,27 @@ class AlignmentCore(ABC):
     def flush(self) -> None:
         """Apply buffered IMU samples now (batched cores buffer; the default keeps none)."""
 
-    def inflate_navigation(self, var_att_rad2: float, var_v_m2_s2: float, var_p_m2: float = 0.0) -> None:
+    def inflate_navigation(self, var_att_rad2: float, var_v_m2_s2: float, var_p_m2: float = 0.0,
+                           var_bg_rad2_s2: float = 0.0, var_ba_m2_s4: float = 0.0) -> None:
         """Add ``var_att_rad2`` [rad^2] to each attitude-error variance and ``var_v_m2_s2`` [m^2/s^2] to each
         velocity-error variance and ``var_p_m2`` [m^2] to each position-error variance (isotropic, so the frame of
-        the error states does not matter).
+        the error states does not matter), and ``var_bg_rad2_s2`` [rad^2/s^2] / ``var_ba_m2_s4`` [m^2/s^4] to each
+        gyro- / accelerometer-bias variance where the core keeps that block.
 
-        The session calls it across an IMU gap: the motion during the gap is unknown, and what the missing
-        samples would have told the filter is lost (docs/session.md, "Gaps")."""
+        The session calls it across an IMU gap (the motion during the gap is unknown, and what the missing samples
+        would have told the filter is lost: docs/session.md, "Gaps") and when the data contradict the declared
+        ``imu_grade`` (session/grade_check.py: a prior that was too narrow is widened)."""
         if self.P is None or self.att_index is None:
             return
         self.flush()
         a = list(self.att_index)
         self.P[a, a] += var_att_rad2
-        for idx, var in ((self.vel_index, var_v_m2_s2), (self.pos_index, var_p_m2)):
-            if idx is not None:
+        block = {"bg": [], "ba": []}
+        for i, n in enumerate(self.state_names):
+            block.get(n.rstrip("_xyz").lstrip("d"), []).append(i)
+        for idx, var in ((self.vel_index, var_v_m2_s2), (self.pos_index, var_p_m2), (block["bg"] or None, var_bg_rad2_s2),
+                         (block["ba"] or None, var_ba_m2_s4)):
+            if idx is not None and var:
                 i = list(idx)
                 self.P[i, i] += var
 

@@ -140,9 +140,10 @@ class YawHypothesisBank(AlignmentCore):
         for h in self.hyps:
             h.close()
 
-    def inflate_navigation(self, var_att_rad2: float, var_v_m2_s2: float, var_p_m2: float = 0.0) -> None:
+    def inflate_navigation(self, var_att_rad2: float, var_v_m2_s2: float, var_p_m2: float = 0.0,
+                           var_bg_rad2_s2: float = 0.0, var_ba_m2_s4: float = 0.0) -> None:
         for h in self.hyps:
-            h.inflate_navigation(var_att_rad2, var_v_m2_s2, var_p_m2)
+            h.inflate_navigation(var_att_rad2, var_v_m2_s2, var_p_m2, var_bg_rad2_s2, var_ba_m2_s4)
 
     # ------------------------------------------------------------------ events
     def propagate(self, imu) -> None:

@@ -144,8 +144,9 @@ class AutoCore(AlignmentCore):
         if self.active is not None:
             self.active.flush()
 
-    def inflate_navigation(self, var_att_rad2: float, var_v_m2_s2: float, var_p_m2: float = 0.0) -> None:
-        self.active.inflate_navigation(var_att_rad2, var_v_m2_s2, var_p_m2)
+    def inflate_navigation(self, var_att_rad2: float, var_v_m2_s2: float, var_p_m2: float = 0.0,
+                           var_bg_rad2_s2: float = 0.0, var_ba_m2_s4: float = 0.0) -> None:
+        self.active.inflate_navigation(var_att_rad2, var_v_m2_s2, var_p_m2, var_bg_rad2_s2, var_ba_m2_s4)
 
     def _set_state(self, t: float, state: str, reason: str) -> None:
         self.reason = reason

@@ -13,6 +13,7 @@ from collections import deque
 
 import numpy as np
 
+from ..core.units import G0_M_S2, deg_h_to_rad_s, mg_to_m_s2
 from ..filters.imu_grade import get_grade
 
 
@@ -23,8 +24,9 @@ class GradeCheck:
     #: fused fixes while moving in the innovation window; the test's false-alarm probability per full window
     WINDOW = 20
     P_FALSE = 1e-3
-    #: a bias estimate beyond this many of the grade's 1-sigma (the prior the filter started from) contradicts it
-    BIAS_SIGMAS = 4.0
+    #: the bias consistency statistic (see _bias_findings) above this contradicts the grade (6 axes tested at every
+    #: fix: 5 sigma keeps the false alarms of a matched grade rare)
+    Z_MAX = 5.0
     #: moving: the fixes' chord speed above this [m/s]
     MOVING_M_S = 2.0
 
@@ -36,6 +38,50 @@ class GradeCheck:
 
     def reset(self) -> None:
         self._nis: deque = deque(maxlen=self.WINDOW)
+        self._core = None  # the core whose prior (b0, P0) is held
+        self._b0 = self._P0 = None
+        self.z_max = 0.0  # the largest bias consistency statistic so far (diagnostics)
+
+    def _bias_findings(self) -> list:
+        """The bias estimates against the prior the core started from: for a consistent linear filter the estimate's
+        move from its prior, b - b0, has the covariance P0 - P (the prior's minus the posterior's: the estimate is
+        orthogonal to its error), so z = |b - b0| / sqrt(P0 - P) per axis is a standard normal; an axis counts once
+        the data have taken at least half of its prior variance (below that P0 - P is mostly the prior's own noise).
+        z above ``Z_MAX`` says the IMU's biases are beyond the declared grade (a shrunk estimate: the bias in grade
+        sigmas, |b - b0| / sqrt(P0), is a lower bound of how far)."""
+        sess = self.s
+        try:
+            est = sess.core.estimate()
+        except Exception:  # noqa: BLE001 - a check never takes the pipeline down
+            return []
+        names = est.state_names
+        blocks = []
+        for kind, b, unit, scale in (("gyro", est.bias_gyro_b, "deg/h", math.degrees(1.0) * 3600.0),
+                                     ("accelerometer", est.bias_acc_b, "mg", 1e3 / 9.80665)):
+            idx = [i for i, n in enumerate(names) if n.rstrip("_xyz").lstrip("d") == ("bg" if kind == "gyro" else "ba")]
+            if b is None or len(idx) != 3:
+                continue
+            blocks.append((kind, np.asarray(b, float), np.array([est.P[i, i] for i in idx]), unit, scale))
+        if sess.core is not self._core:  # a new core (initialisation, hand-over): its prior is what it holds now
+            self._core, self._b0, self._P0 = sess.core, [bl[1].copy() for bl in blocks], [bl[2].copy() for bl in blocks]
+            return []
+        findings = []
+        for (kind, b, P, unit, scale), b0, P0 in zip(blocks, self._b0, self._P0):
+            learned = P < 0.5 * P0
+            if not np.any(learned):
+                continue
+            db = np.abs(b - b0)
+            z = np.where(learned, db / np.sqrt(np.maximum(P0 - P, 1e-30)), 0.0)
+            i = int(np.argmax(z))
+            self.z_max = max(self.z_max, float(z[i]))
+            if z[i] > self.Z_MAX:
+                k = float(db[i] / math.sqrt(P0[i]))
+                # the attitude error such a bias leaves uncovered: a tilt of b/g for the accelerometer's (its
+                # horizontal part is what levelling cannot tell from tilt); the gyro's is left to the innovations
+                findings.append((max(k, 1.0), f"the {kind} bias estimate moved {db[i] * scale:.3g} {unit} from its "
+                                              f"prior on axis {'xyz'[i]}, {z[i]:.1f} sigma of what the grade allows "
+                                              f"({math.sqrt(P0[i]) * scale:.3g} {unit} 1-sigma prior)"))
+        return findings
 
     def _moving(self) -> bool:
         seq = self.s.guard._fix_seq
@@ -49,27 +95,25 @@ class GradeCheck:
         sess = self.s
         if math.isfinite(nis) and dof > 0 and self._moving():
             self._nis.append(nis / dof)
-        findings = []
-        # the NIS window (self._nis) is kept for the diagnostics only: on KITTI 0018 its excess (1.5x) comes from the
-        # fixes' centimetre sigmas, not from the IMU, so it cannot name the grade; the filter's own bias estimate can
-        try:
-            grade = get_grade(sess.cfg.imu_grade)
-            b = sess.core.estimate().bias_gyro_b
-        except Exception:  # noqa: BLE001 - a check never takes the pipeline down
-            b, grade = None, None
-        if b is not None and grade is not None and grade.gyro_bias_deg_h > 0:
-            b_deg_h = float(np.max(np.abs(np.degrees(np.asarray(b, float)) * 3600.0)))
-            k = b_deg_h / grade.gyro_bias_deg_h
-            if k > self.BIAS_SIGMAS:
-                findings.append((k / 1.0, f"the estimated gyro bias {b_deg_h:.0f} deg/h is {k:.1f}x its 1-sigma "
-                                          f"{grade.gyro_bias_deg_h:g} deg/h"))
+        findings = self._bias_findings()
         if not findings:
             return
-        k, why = max(findings)
-        if k <= 1.5 * self.factor:  # said already (a new note only when it is clearly worse)
+        k, why = max(findings)  # k: the bias in sigmas of the prior the core holds now (the grade's, or widened)
+        if k < 1.5:  # not clearly beyond the current prior (said already)
             return
-        self.factor = k
+        grade = get_grade(sess.cfg.imu_grade)
+        before, self.factor = self.factor, self.factor * k
         self.note = (f"imu_grade {sess.cfg.imu_grade!r} is too optimistic for this IMU: {why}; "
-                     f"pass a grade about {k:.0f}x noisier (or characterise it: insalign-characterise)")
+                     f"pass a grade about {self.factor:.0f}x noisier (or characterise it: insalign-characterise); "
+                     f"the bias priors are widened to that")
         sess.counters["grade_too_optimistic"] += 1
         sess.log("warn", "grade_too_optimistic", self.note)
+        # the covariance must cover what the grade did not: both bias priors widened to the grade ``factor`` times
+        # noisier (what the user is told to pass), and the tilt the wider accelerometer bias leaves uncovered (b/g),
+        # so the estimate re-converges with honest sigmas (the flag follows them)
+        widen = self.factor ** 2 - before ** 2
+        var_bg = widen * deg_h_to_rad_s(grade.gyro_bias_deg_h) ** 2
+        var_ba = widen * mg_to_m_s2(grade.acc_bias_mg) ** 2
+        sess.core.inflate_navigation(var_ba / G0_M_S2 ** 2, 0.0, 0.0, var_bg_rad2_s2=var_bg, var_ba_m2_s4=var_ba)
+        sess._est_memo = None
+        self._core = None  # the widened state is the new prior the next findings are measured from

@@ -117,6 +117,7 @@ class Monitor:
         d["fix_sigma_floor_m"] = f"{sess.guard.last_floor_m:.3f}"
         if sess.grade_check._nis:
             d["moving_nis_per_dof_mean"] = f"{float(np.mean(sess.grade_check._nis)):.3f}"
+        d["grade_bias_z_max"] = f"{sess.grade_check.z_max:.2f}"  # grade_check: bias estimate vs the grade's prior
         if sess.guard._nis_win:
             d["divergence_nis_window_mean"] = f"{float(np.mean(sess.guard._nis_win)):.3f}"
         if sess.processed_t is not None and sess.last_accepted_fix_t is not None:
