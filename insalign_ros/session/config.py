@@ -48,6 +48,11 @@ class SessionConfig:
         "unknown",
         'car | wheeled_robot | boat | aircraft | unknown (safe for every platform): what the yaw from GNSS velocity '
         'may assume (cars and wheeled robots drive along their x axis)')
+    #: dual-antenna GNSS heading: yaw of the antenna baseline (primary -> secondary) in the body frame FLU [deg]
+    gnss_heading_baseline_yaw_deg: float = param(
+        0.0,
+        'dual-antenna GNSS heading: yaw of the antenna baseline (primary -> secondary antenna) in the body frame, '
+        'counter-clockwise from x [deg] (0: along x; 90: along y, an athwartships baseline)', range=(-180.0, 180.0))
     #: sensors: accelerometer averaging window for roll and pitch before the initialisation stamp [s]
     init_level_window_s: float = param(
         1.0,

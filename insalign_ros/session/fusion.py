@@ -15,6 +15,7 @@ from ..filters.measurements import GnssVelocity as GnssVelocityModel
 from ..filters.vehicle_models import GnssHeading as GnssHeadingModel
 from ..filters.vehicle_models import NonHolonomic  # (importing it registers the vehicle models' Jacobians)
 from .guard import fix_point
+from .heading_check import HeadingCheck
 from .outputs import Output
 
 
@@ -33,6 +34,7 @@ class Fusion:
 
     def __init__(self, session) -> None:
         self.s = session
+        self.heading_check = HeadingCheck(session)  # the dual-antenna heading against the IMU (kept across resets)
 
     def reset(self) -> None:
         pass
@@ -97,10 +99,13 @@ class Fusion:
             sess.counters["gnss_heading_unused"] += 1
             return
         sess._est_memo = None
-        res = core.update(GnssHeadingModel(heading.stamp_s, heading.yaw_rad, math.sqrt(heading.var_rad2)))
+        b = math.radians(sess.cfg.gnss_heading_baseline_yaw_deg)  # the declared mounting of the antenna baseline
+        res = core.update(GnssHeadingModel(heading.stamp_s, heading.yaw_rad, math.sqrt(heading.var_rad2),
+                                           baseline_b=(math.cos(b), math.sin(b), 0.0)))
         sess.counters["gnss_heading_fused" if res.accepted else "gnss_heading_filter_rejected"] += 1
         if not res.accepted:
             sess.last_reject = f"gnss_heading: {res.reason}"
+        self.heading_check.on_result(res, heading.var_rad2)
 
     def nhc_due(self, t: float) -> bool:
         """A non-holonomic constraint is due at ``t`` (``vehicle`` car or wheeled_robot, a core that accepts it)."""

@@ -85,6 +85,8 @@ class Monitor:
             parts.append(g)
         if sess.grade_check.note:
             parts.append(sess.grade_check.note)
+        if sess.fusion.heading_check.note:
+            parts.append(sess.fusion.heading_check.note)
         if not sess.aligned and "3-sigma" in sess.flag.reason and sess.cfg.imu_grade == DEFAULT_IMU_GRADE:
             # the conservative default prior is often why the 3-sigma stays up: say what the user can do
             parts.append(f"imu_grade is the conservative default {DEFAULT_IMU_GRADE!r}: give your IMU's grade "

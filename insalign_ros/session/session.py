@@ -54,7 +54,7 @@ COUNTERS = (
     "zupt_accepted", "watchdog_trips", "inputs_dropped", "gnss_gated", "imu_spikes", "divergences")
 COUNTERS += ("gnss_jumps", "gnss_holds", "divergences_nis", "divergences_covariance", "divergences_cusum",
              "divergence_widened")  # guard
-COUNTERS += ("grade_too_optimistic",)  # grade_check.py: the data contradict the declared imu_grade
+COUNTERS += ("grade_too_optimistic", "gnss_heading_disagrees")  # grade_check.py: the data contradict the declared imu_grade
 COUNTERS += ("reinit_restarts",)  # divergence guard: a re-initialisation restarted after a GNSS jump
 COUNTERS += ("gnss_implausible",)  # a fix off the vehicle's own recent fixes while no filter claims its attitude
 #: GNSS velocity (push_velocity): received, fused, rejected (total) and per reason
