@@ -260,6 +260,12 @@ def table(rec: Recording, runs: list[Run], ref: DS.AttitudeReference) -> str:
     for r in runs:
         if r.core == "auto" and r.result.outputs:
             lines += ["", f"auto's last status: {r.result.outputs[-1].reason}"]
+            c = r.result.counters
+            if c.get("nhc_accepted", 0) + c.get("nhc_rejected", 0):
+                lines.append(f"non-holonomic constraint: {c['nhc_accepted']} accepted, {c['nhc_rejected']} rejected, "
+                             f"switched off {c.get('nhc_switched_off', 0)} times"
+                             + (" (vehicle found not to fit: off for the rest of the run)"
+                                if c.get("nhc_misfit", 0) else ""))
     return "\n".join(lines)
 
 

@@ -27,6 +27,10 @@ NHC_SIGMA_M_S = {"car": (0.5, 0.3), "wheeled_robot": (0.3, 0.2)}
 NHC_NIS_GATE = 13.8
 NHC_OFF_AFTER = 10
 NHC_OFF_S = 10.0
+#: the vehicle does not drive like the declared ``vehicle``: more than this fraction of at least NHC_MISFIT_MIN tests
+#: failed the gate (a boat declared a car; an IMU mounted off the vehicle's axes): the constraint stays off
+NHC_MISFIT_FRACTION = 0.5
+NHC_MISFIT_MIN = 100
 
 
 class Fusion:
@@ -131,6 +135,16 @@ class Fusion:
             return
         c["nhc_rejected"] += 1
         sess.nhc_rejected_run += 1
+        tests = c["nhc_accepted"] + c["nhc_rejected"]
+        if tests >= NHC_MISFIT_MIN and c["nhc_rejected"] > NHC_MISFIT_FRACTION * tests and not sess.nhc_misfit:
+            sess.nhc_misfit = (f"vehicle {sess.cfg.vehicle!r} does not fit the motion: the non-holonomic constraint "
+                               f"failed its gate in {c['nhc_rejected']} of {tests} tests; it is off for the rest of the "
+                               f"run (is the vehicle a {sess.cfg.vehicle.replace('_', ' ')}, and the IMU on its axes: "
+                               f"imu_mount_rpy_deg?)")
+            sess.nhc_off_until_t = math.inf
+            c["nhc_misfit"] += 1
+            sess.log("warn", "nhc_misfit", sess.nhc_misfit)
+            return
         if sess.nhc_rejected_run >= NHC_OFF_AFTER:
             sess.nhc_off_until_t = t + NHC_OFF_S
             sess.nhc_rejected_run = 0

@@ -85,6 +85,8 @@ class Monitor:
             parts.append(g)
         if sess.grade_check.note:
             parts.append(sess.grade_check.note)
+        if sess.nhc_misfit:
+            parts.append(sess.nhc_misfit)
         if sess.fusion.heading_check.note:
             parts.append(sess.fusion.heading_check.note)
         if not sess.aligned and "3-sigma" in sess.flag.reason and sess.cfg.imu_grade == DEFAULT_IMU_GRADE:

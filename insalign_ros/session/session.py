@@ -68,7 +68,7 @@ AUX_COUNTERS = tuple(f"{topic}_{what}" for topic in ("wheel_speed", "gnss_headin
                      for what in ("received", "rejected", "invalid", "duplicate", "stale", "future", "fused", "unused"))
 COUNTERS = COUNTERS + AUX_COUNTERS + ("gnss_heading_filter_rejected",)
 #: the non-holonomic constraint of ``vehicle`` car / wheeled_robot (session/fusion.py): fused, gated, switched off
-COUNTERS += ("nhc_accepted", "nhc_rejected", "nhc_switched_off")
+COUNTERS += ("nhc_accepted", "nhc_rejected", "nhc_switched_off", "nhc_misfit")
 
 
 class AlignmentSession:
@@ -200,6 +200,7 @@ class AlignmentSession:
         self.next_nhc_t = -math.inf  # the next non-holonomic constraint (fusion.nhc_due)
         self.nhc_rejected_run = 0
         self.nhc_off_until_t = -math.inf
+        self.nhc_misfit = ""  # the status note when the vehicle does not drive like the declared one (fusion.py)
         self.last_output: Output | None = None
         self.last_nis = float("nan")
         self.last_accepted_fix_t: float | None = None
