@@ -176,7 +176,12 @@ class YawHypothesisBank(AlignmentCore):
         return self._update(results)
 
     def _update(self, results: list[UpdateResult]) -> UpdateResult:
-        best_before = int(np.argmax(self.logw))
+        """Weigh the components by their innovations; the result (accepted, innovation, NIS) is the one of the
+        component that is the most probable after this update, the one the bank publishes from now on: the session's
+        NIS tests (the flag's window, the divergence guard) see the innovations of the filter whose estimate and
+        covariance they judge, not those of a heading the same fix has just made unlikely (a wrong component's NIS
+        of 34 kept the flag's window of the survivor above its band for 10 s on park_drive)."""
+        best = int(np.argmax(self.logw))
         if len(self.hyps) > 1:
             for k, r in enumerate(results):
                 # accepted, or gated by this component's own NIS test (an implausible innovation is evidence
@@ -185,11 +190,11 @@ class YawHypothesisBank(AlignmentCore):
                     sign, logdet = np.linalg.slogdet(r.S)
                     self.logw[k] += -0.5 * (r.nis + (logdet if sign > 0 else 0.0))
             self.logw -= np.max(self.logw)
+            best = int(np.argmax(self.logw))  # before pruning: the indices of ``results``
             if any(r.accepted for r in results):
                 self.n_updates += 1
             self._prune()
-        out = results[best_before] if best_before < len(results) else results[0]
-        return out
+        return results[best] if best < len(results) else results[0]
 
     def _prune(self) -> None:
         if self.n_updates < self.cfg.hypothesis_min_updates:

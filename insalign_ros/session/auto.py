@@ -52,6 +52,8 @@ DETECTOR_SKIP_SPEED_M_S = 3.0
 SPEED_CHECK_PERIOD_S = 0.5
 #: the GNSS speed for the motion detector is a position difference over at least this long [s]
 GNSS_SPEED_BASE_S = 0.9
+#: a rest window of fewer 1-s gyro blocks than this takes at least the grade's ARW^2 / T as the variance of its mean
+SHORT_REST_BLOCKS = 10
 #: fixes over which the fixes' own noise is measured (second differences; _fix_noise_m)
 FIX_NOISE_N = 10
 FIX_NOISE_FLOOR_M = 0.1  #: ... never below this [m] (a parked receiver drifts smoothly: second differences of mm)
@@ -327,8 +329,11 @@ class AutoCore(AlignmentCore):
         self.gyro_bias_prior = None
         if n_blocks * REST_BLOCK_S >= cfg.gyro_rest_min_s and core.supports_gyro_bias_prior:
             sig_lvl = math.sqrt(max(P[0, 0], P[1, 1], 0.0))
+            mean_b, var_b = rest_rate_mean(np.array(self._blocks[:n_blocks]))
+            if n_blocks < SHORT_REST_BLOCKS:  # a short rest: at least the grade's white noise over the window
+                var_b = np.maximum(var_b, (cfg.gyro_arw_deg_sqrt_h * D2R / 60.0) ** 2 / (n_blocks * REST_BLOCK_S))
             self.gyro_bias_prior = gyro_bias_from_rest(
-                *rest_rate_mean(np.array(self._blocks[:n_blocks])), est.C_b_n, est.lat_rad, self.heading_trusted,
+                mean_b, var_b, est.C_b_n, est.lat_rad, self.heading_trusted,
                 cfg.gyro_bias_rw_deg_h_sqrt_h * math.sqrt(imu_grade.BIAS_RW_HORIZON_H), sig_lvl,
                 math.sqrt(max(P[2, 2], 0.0)) if self.heading_trusted else 0.0)
         try:

@@ -62,9 +62,12 @@ class AutoConfig(ConfigDict):
         0.3,
         'the static snapshot the in-motion core starts from is this long before the motion onset [s]')
     #: the in-motion core starts from the gyro bias measured at rest (:func:`gyro_bias_from_rest`) when the rest
-    #: window before the hand-over is at least this long [s]; else from the grade's bias prior
+    #: window before the hand-over is at least this long [s]; else from the grade's bias prior. Four 1-s blocks: a
+    #: car parked for seconds starts with its bias known to ~ARW/sqrt(4 s) instead of the grade's turn-on bias (360
+    #: deg/h for unknown_mems, which tilts the level by 0.1 deg/s); below SHORT_REST_BLOCKS the variance is at least
+    #: the grade's white noise (the spread of a few blocks is not a variance)
     gyro_rest_min_s: float = param(
-        10.0,
+        4.0,
         'the in-motion core starts from the gyro bias measured at rest when the rest window is this long '
         '[s]')
     #: zero-velocity constraint of the in-motion core at stops: position hold 1-sigma [m] and rate [Hz]
