@@ -5,10 +5,11 @@ import pytest
 
 from insalign_ros.core import earth, lie
 from insalign_ros.core.mechanization_e import OMEGA_IE_E, vbar_from_v_e
-from insalign_ros.filters.backtrack import run_offline_backtrack
 from insalign_ros.filters.earth_iekf import EarthIekf, EarthIekfConfig
 from insalign_ros.filters.registry import make_core
 from insalign_ros.sim.scenarios import make_scenario
+
+from reference_loops import run_offline_backtrack
 
 LAT, LON, H = 0.49, 1.97, 50.0
 
@@ -73,23 +74,22 @@ def test_backward_filter_propagation_returns_to_start_noise_free():
     c = EarthIekf(EarthIekfConfig(auto_zupt_period_s=0.0))
     c.initialize(d.t_s[0], d.lat_rad[0], d.lon_rad[0], d.h_m[0], d.C_b_n[0], d.v_n[0], np.eye(3) * 1e-4, 0.01, 1.0)
     C0, p0 = c.C.copy(), c.p.copy()
-    for s in d.imu_samples(1):
-        c.propagate(s)
+    for k in range(1, d.n):  # one sample at a time (arrays of length 1)
+        c.propagate(d.t_s[k:k + 1], d.omega_ib_b[k:k + 1], d.f_ib_b[k:k + 1])
     e = c.estimate()
     assert np.max(np.abs(earth.euler_error_rad(e.C_b_n, d.C_b_n[-1]))) < 1e-9
-    c.propagate_arrays(d.t_s[:-1][::-1], d.omega_ib_b[1:][::-1], d.f_ib_b[1:][::-1], backward=True)
+    c.propagate(d.t_s[:-1][::-1], d.omega_ib_b[1:][::-1], d.f_ib_b[1:][::-1], backward=True)
+    c.flush()
     assert c.t_s == d.t_s[0]
     assert np.linalg.norm(lie.so3_log(C0.T @ c.C)) < 1e-9
     assert np.linalg.norm(c.p - p0) < 1e-4
-    # the per-sample backward path agrees with the array path
+    # one backward sample at a time agrees with the whole array
     c2 = EarthIekf(EarthIekfConfig(auto_zupt_period_s=0.0))
     c2.initialize(d.t_s[0], d.lat_rad[0], d.lon_rad[0], d.h_m[0], d.C_b_n[0], d.v_n[0], np.eye(3) * 1e-4, 0.01, 1.0)
-    c2.propagate_arrays(d.t_s[1:], d.omega_ib_b[1:], d.f_ib_b[1:])
+    c2.propagate(d.t_s[1:], d.omega_ib_b[1:], d.f_ib_b[1:])
     P_end = c2.estimate().P
-    from insalign_ros.core.types import ImuSample
-
     for k in range(d.n - 1, 0, -1):
-        c2.propagate_backward(ImuSample(d.t_s[k], d.omega_ib_b[k], d.f_ib_b[k]), d.t_s[k - 1])
+        c2.propagate([d.t_s[k - 1]], [d.omega_ib_b[k]], [d.f_ib_b[k]], backward=True)
     c2.flush()
     assert np.linalg.norm(c2.p - c.p) < 1e-6
     assert np.allclose(c2.P, c.P, rtol=1e-8, atol=1e-18)

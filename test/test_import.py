@@ -100,7 +100,7 @@ def test_increment_rfu_log_of_a_simulated_car_aligns(tmp_path):
     the same estimate as on the scenario itself (the import loses nothing), final yaw within 0.5 deg and 3 sigma."""
     from insalign_ros.eval import metrics as MT
     from insalign_ros.filters.registry import make_core
-    from insalign_ros.filters.runner import run_offline
+    from reference_loops import run_offline
 
     s = make_scenario("car", seed=5, duration_s=60.0)
     write_csv(tmp_path / "car.csv", table_from_scenario(s, imu="increments", axes="RFU", euler="ned"))

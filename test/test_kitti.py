@@ -125,7 +125,7 @@ def test_real_drive_0042_unknown_heading_with_rt3003_sigma(name):
     (measured 5 s, max 0.6-0.7 deg after 60 s; docs/results.md). One filter alone diverges here (same table)."""
     from insalign_ros.eval import metrics as MT
     from insalign_ros.filters.registry import make_core
-    from insalign_ros.filters.runner import run_offline
+    from reference_loops import run_offline
 
     data, _ = convert_drive(REAL, gnss_rate_hz=1.0)
     core = make_core(name, {"yaw_hypotheses": 8, "gnss_sigma_floor_m": 0.0})
