@@ -84,7 +84,7 @@ class Loop:
         A sample needs attention when its interval could be a gap or make the spike check return early (bounded with
         a lower bound of the running median interval), or when it could be a spike (off both neighbours by more than
         the configured bounds, which the adaptive bound never undercuts). Everything else ``_step`` does per sample
-        is done here for the run at once (period tracking, counters, history, ``core.propagate_arrays``), with the
+        is done here for the run at once (period tracking, counters, history, ``core.propagate``), with the
         same result (docs/speed.md)."""
         sess = self.s
         core, cfg = sess.core, sess.cfg
