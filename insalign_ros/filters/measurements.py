@@ -157,9 +157,12 @@ class ZeroAngularRate(Measurement):
 
 
 class GyroBiasPrior(Measurement):
-    """The gyro bias observed directly: ``b_g_b`` [rad/s, body FLU] with covariance ``P_b_g_b`` [rad^2/s^2] (the
-    hand-over of ``core: auto`` gives the bias measured at rest; a re-seeded core the bias its predecessor learned).
-    No gate, no fading; it does not weigh yaw hypotheses (every hypothesis gets the same body-frame bias)."""
+    """A prior of the gyro bias: ``b_g_b`` [rad/s, body FLU] with covariance ``P_b_g_b`` [rad^2/s^2] (the hand-over of
+    ``core: auto`` gives the bias measured at rest; a re-seeded core the bias its predecessor learned, which already
+    holds the grade's prior). Observed directly, with the information it adds to the core's own knowledge of the block,
+    so that the block becomes (``b_g_b``, ``P_b_g_b``) where it is uncorrelated with the rest (right after
+    ``initialize``): the grade's prior is not counted twice, and a prior the core already holds changes nothing. No
+    gate, no fading; it does not weigh yaw hypotheses (every hypothesis gets the same body-frame bias)."""
 
     counter = "gyro_bias_prior"
     label = "gyro bias prior"
@@ -268,12 +271,26 @@ def _zero_rate_eci_left(m: ZeroAngularRate, core):
     return m.omega_mean_b - core.b_g - w, H, m.R_b
 
 
+#: the noise [x the trace of the core's block] of a direction in which a gyro bias prior adds no information
+_NO_INFORMATION = 1e12
+
+
 @jacobian(GyroBiasPrior, "eci_left")
 def _gyro_bias_eci_left(m: GyroBiasPrior, core):
-    """z = b_g - b_g_hat = db_g (the bias block 9:12, additive)."""
+    """db_g = b_g - b_g_hat observed (the bias block 9:12, additive) along the eigenvectors V of the information the
+    prior adds, D = P^-1 - P0^-1 = V diag(lam) V^T (P0, b0 the core's block and bias): z = lam^-1 V^T (P^-1 b -
+    P0^-1 b0) - V^T b0, H = V^T [0 I 0], N = diag(1 / lam), so that the posterior information is P^-1 and the mean b;
+    a direction with lam <= 0 (the prior adds nothing there) is observed with z = 0 and a noise that leaves it as is."""
+    P0, b0 = core.P[9:12, 9:12], np.asarray(core.b_g, float)
+    Pi = np.linalg.inv(0.5 * (m.P_b_g_b + m.P_b_g_b.T))
+    P0i = np.linalg.inv(0.5 * (P0 + P0.T))
+    lam, V = np.linalg.eigh(0.5 * ((Pi - P0i) + (Pi - P0i).T))
+    adds = lam > 1e-9 * float(np.max(np.linalg.eigvalsh(Pi)))
+    lam_a = np.where(adds, lam, 1.0)
+    z = np.where(adds, (V.T @ (Pi @ m.b_g_b - P0i @ b0)) / lam_a - V.T @ b0, 0.0)
     H = np.zeros((3, core._n_states))
-    H[:, 9:12] = _I3
-    return m.b_g_b - core.b_g, H, 0.5 * (m.P_b_g_b + m.P_b_g_b.T)
+    H[:, 9:12] = V.T
+    return z, H, np.diag(np.where(adds, 1.0 / lam_a, _NO_INFORMATION * float(np.trace(P0))))
 
 
 @jacobian(ZeroVelocity, "earth_left")
