@@ -63,9 +63,8 @@ class AlignmentCore(ABC):
     Life cycle: construct with a config dataclass, ``initialize(...)`` with an initial guess, then any
     interleaving of ``propagate`` (arrays of IMU samples) and ``update(model)`` with the measurement models it
     ``accepts`` (filters/measurements.py: GNSS position and velocity, zero velocity, zero angular rate, a gyro bias
-    prior, ...), reading
-    ``estimate()`` whenever needed. Cores that need motion (GNSS-aided in-motion cores) say so with
-    ``needs_motion``; static cores accept ``ZeroVelocity``.
+    prior, ...), reading ``estimate()`` whenever needed. Cores that need motion (GNSS-aided in-motion cores) say so
+    with ``needs_motion``; static cores accept ``ZeroVelocity``.
     """
 
     name: str = "base"
