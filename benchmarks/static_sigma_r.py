@@ -64,7 +64,7 @@ def convergence_time(t, err, tol_floor):
 
 def static_run(core, sc, az0_rad, sigma_R_m_s, params, zupt_hz=10.0, init_sigma_yaw_deg=100.0,
                init_sigma_level_deg=2.0):
-    """``run_static`` (filters/static_model.py) through the session path users take, ``ia.align``: truth attitude
+    """The static loop of the tests (``run_static``, test/reference_loops.py) through the session path users take, ``ia.align``: truth attitude
     turned by az0 about Up, a zero-velocity update every round(rate/zupt_hz) IMU samples (the session's ZUPT rate is
     set to rate/that, so the cadence is the same; the session's first update falls on the first sample after the
     initialisation instead of the 12th), outputs at 1 Hz. Returns (t_s, err_rad (K, 3) [E, N, U], sigma3_rad (K, 3))."""

@@ -166,7 +166,7 @@ def corrected_attitude(pN, pE, pD, C_b_n):
 
 
 def _static_propagate(self, imu):
-    """``StaticZuptCore.propagate`` sample by sample through the numpy local-level mechanization."""
+    """``StaticZuptCore._propagate_sample``: sample by sample through the numpy local-level mechanization."""
     dt = static_model.usable_step(self, imu)
     if dt is None:
         return
@@ -201,7 +201,7 @@ def use_reference_paths(monkeypatch) -> None:
     monkeypatch.setattr(static_model, "jacobian", jacobian)
     monkeypatch.setattr(static_model, "_corrected_attitude_nb", corrected_attitude)
     monkeypatch.setattr(static_model, "usable_imu_arrays", lambda *a: None)  # per-sample propagation below
-    monkeypatch.setattr(static_model.StaticZuptCore, "propagate", _static_propagate)
+    monkeypatch.setattr(static_model.StaticZuptCore, "_propagate_sample", _static_propagate)
     monkeypatch.setattr(ekf10, "model_error_jacobian_nb", model_error_jacobian)
     for cls in (static_model.StaticZuptCore, pkf.Pkf, ekf10.Ekf10):
         monkeypatch.setattr(cls, "_fused_zupt", False)

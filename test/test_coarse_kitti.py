@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 
 from insalign_ros.core import earth
-from insalign_ros.core.types import ImuSample
 from insalign_ros.filters.base import AlignmentStatus
 from insalign_ros.filters.coarse import NO_HEADING, CoarseAlignment, CoarseConfig
 
@@ -46,7 +45,7 @@ def _run(t, rows, cfg):
     lat, lon, h = math.radians(rows[0, 0]), math.radians(rows[0, 1]), rows[0, 2]
     core.initialize(t[0], lat, lon, h, np.eye(3), np.zeros(3), np.eye(3), 0.01, 1.0)
     for k in range(1, len(t)):  # sample k: the RT3003's 10 Hz output, taken as the mean over (t_{k-1}, t_k]
-        core.propagate(ImuSample(float(t[k]), rows[k, 17:20], rows[k, 11:14]))
+        core.propagate([float(t[k])], [rows[k, 17:20]], [rows[k, 11:14]])
     return core.estimate()
 
 

@@ -15,8 +15,10 @@ from insalign_ros.core import mechanization as M
 from insalign_ros.filters.base import AlignmentStatus
 from insalign_ros.filters.coarse import (DISTURBED, NO_HEADING, CoarseAlignment, CoarseConfig,
                                          gravity_reaction_integral_i0, wahba_covariance_rad2)
-from insalign_ros.filters.static_model import config_for_imu, run_static
+from insalign_ros.filters.static_model import config_for_imu
 from insalign_ros.sim.scenarios import make_scenario
+
+from reference_loops import run_static
 
 ROCK = dict(rock_amp_deg=0.2)
 

@@ -5,10 +5,11 @@ import pytest
 
 from insalign_ros.core import earth, lie
 from insalign_ros.core.mechanization_e import OMEGA_IE_E, vbar_from_v_e
-from insalign_ros.filters.backtrack import run_offline_backtrack
 from insalign_ros.filters.earth_iekf import EarthIekf, EarthIekfConfig
 from insalign_ros.filters.registry import make_core
 from insalign_ros.sim.scenarios import make_scenario
+
+from reference_loops import run_offline_backtrack
 
 LAT, LON, H = 0.49, 1.97, 50.0
 
@@ -73,28 +74,55 @@ def test_backward_filter_propagation_returns_to_start_noise_free():
     c = EarthIekf(EarthIekfConfig(auto_zupt_period_s=0.0))
     c.initialize(d.t_s[0], d.lat_rad[0], d.lon_rad[0], d.h_m[0], d.C_b_n[0], d.v_n[0], np.eye(3) * 1e-4, 0.01, 1.0)
     C0, p0 = c.C.copy(), c.p.copy()
-    for s in d.imu_samples(1):
-        c.propagate(s)
+    for k in range(1, d.n):  # one sample at a time (arrays of length 1)
+        c.propagate(d.t_s[k:k + 1], d.omega_ib_b[k:k + 1], d.f_ib_b[k:k + 1])
     e = c.estimate()
     assert np.max(np.abs(earth.euler_error_rad(e.C_b_n, d.C_b_n[-1]))) < 1e-9
-    c.propagate_arrays(d.t_s[:-1][::-1], d.omega_ib_b[1:][::-1], d.f_ib_b[1:][::-1], backward=True)
+    c.propagate(d.t_s[:-1][::-1], d.omega_ib_b[1:][::-1], d.f_ib_b[1:][::-1], backward=True)
+    c.flush()
     assert c.t_s == d.t_s[0]
     assert np.linalg.norm(lie.so3_log(C0.T @ c.C)) < 1e-9
     assert np.linalg.norm(c.p - p0) < 1e-4
-    # the per-sample backward path agrees with the array path
+    # one backward sample at a time agrees with the whole array
     c2 = EarthIekf(EarthIekfConfig(auto_zupt_period_s=0.0))
     c2.initialize(d.t_s[0], d.lat_rad[0], d.lon_rad[0], d.h_m[0], d.C_b_n[0], d.v_n[0], np.eye(3) * 1e-4, 0.01, 1.0)
-    c2.propagate_arrays(d.t_s[1:], d.omega_ib_b[1:], d.f_ib_b[1:])
+    c2.propagate(d.t_s[1:], d.omega_ib_b[1:], d.f_ib_b[1:])
     P_end = c2.estimate().P
-    from insalign_ros.core.types import ImuSample
-
     for k in range(d.n - 1, 0, -1):
-        c2.propagate_backward(ImuSample(d.t_s[k], d.omega_ib_b[k], d.f_ib_b[k]), d.t_s[k - 1])
+        c2.propagate([d.t_s[k - 1]], [d.omega_ib_b[k]], [d.f_ib_b[k]], backward=True)
     c2.flush()
     assert np.linalg.norm(c2.p - c.p) < 1e-6
     assert np.allclose(c2.P, c.P, rtol=1e-8, atol=1e-18)
     # backward propagation adds process noise: the attitude covariance grows in both directions
     assert np.trace(c.P[0:3, 0:3]) > np.trace(P_end[0:3, 0:3])
+
+
+def test_blocks_give_the_numbers_of_rows_fed_one_at_a_time():
+    """The session feeds blocks (runs without events) and single rows (arrays of length 1): both are buffered alike,
+    batches ending at max_batch_samples and at the automatic zero-velocity updates, so the numbers are identical; a
+    bad row in a block is rejected and counted, the rest propagated."""
+    d = make_scenario("two_position", seed=1, duration_s=30.0)
+    cores = []
+    for mode in ("rows", "blocks"):
+        c = EarthIekf(EarthIekfConfig(max_batch_samples=64))
+        c.initialize(d.t_s[0], d.lat_rad[0], d.lon_rad[0], d.h_m[0], d.C_b_n[0], d.v_n[0], np.eye(3) * 1e-4, 0.01,
+                     1.0)
+        if mode == "rows":
+            for k in range(1, 2500):
+                c.propagate(d.t_s[k:k + 1], d.omega_ib_b[k:k + 1], d.f_ib_b[k:k + 1])
+        else:
+            for k0, k1 in ((1, 30), (30, 31), (31, 700), (700, 2500)):
+                c.propagate(d.t_s[k0:k1], d.omega_ib_b[k0:k1], d.f_ib_b[k0:k1])
+        cores.append(c)
+    a, b = (c.estimate() for c in cores)
+    np.testing.assert_array_equal(a.C_b_n, b.C_b_n)
+    np.testing.assert_array_equal(a.P, b.P)
+    assert cores[0].counters == cores[1].counters and cores[0].counters["zupt"] > 0
+    w = d.omega_ib_b[2500:2510].copy()
+    w[3, 1] = np.nan
+    c = cores[1]
+    c.propagate(d.t_s[2500:2510], w, d.f_ib_b[2500:2510])
+    assert c.counters["imu_rejected"] == 1 and c.counters["imu"] == cores[0].counters["imu"] + 9
 
 
 def test_two_position_alignment_accuracy_and_consistency():

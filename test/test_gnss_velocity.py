@@ -8,7 +8,7 @@ import pytest
 from insalign_ros.filters.measurements import GnssPosition
 from insalign_ros.filters.measurements import GnssVelocity as GnssVelocityModel
 from insalign_ros.core import earth
-from insalign_ros.core.types import GnssFix, GnssVelocity, ImuSample
+from insalign_ros.core.types import GnssFix, GnssVelocity
 from insalign_ros.filters import registry
 from insalign_ros.sim.scenarios import antenna_position_velocity, make_scenario
 from insalign_ros.sim.trajectory import from_local_enu, imu_from_trajectory
@@ -90,7 +90,7 @@ def test_antenna_velocity_of_a_rotating_body_simulator_and_cores():
             core = registry.make_core(name, {"gnss_lever_arm_b_m": arm.tolist() if with_arm else [0.0, 0.0, 0.0]})
             core.initialize(0.0, LAT, LON, H, traj.C_b_n[1], np.zeros(3), 1e-6 * np.eye(3), 0.01, 0.1)
             for k in range(1, len(omega)):
-                core.propagate(ImuSample(float(traj.t_s[k + 1]), omega[k], f[k]))
+                core.propagate([float(traj.t_s[k + 1])], [omega[k]], [f[k]])
             innov[with_arm] = np.linalg.norm(core.predict(GnssVelocityModel.of(vel)).innovation)
             core.close()
         assert innov[True] < 2e-3, (name, innov)
@@ -135,7 +135,7 @@ def test_bag_round_trip_and_yaw_bank_forwards_velocity(tmp_path):
     # 1 s of 2 m/s^2 forward (level, heading East): only the hypothesis at offset 0 predicts v = (2, 0, 0) ENU
     f_b = np.array([2.0, 0.0, 0.0]) - earth.gravity_n(LAT, H)
     for k in range(1, 101):
-        bank.propagate(ImuSample(0.01 * k, earth.omega_ie_n(LAT), f_b))
+        bank.propagate([0.01 * k], [earth.omega_ie_n(LAT)], [f_b])
     bank.update(GnssVelocityModel(1.0, np.array([2.0, 0.0, 0.0]), 0.01 * np.eye(3)))
     assert all(h.counters["gnss_vel"] == 1 for h in bank.hyps)
     w = bank.weights  # the innovation likelihoods weigh the hypotheses: offsets 90/180/270 deg are 2-4 m/s off

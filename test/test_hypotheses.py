@@ -10,8 +10,9 @@ from insalign_ros.core.types import GnssFix
 from insalign_ros.filters.base import AlignmentStatus
 from insalign_ros.filters.hypotheses import YawHypothesisBank
 from insalign_ros.filters.registry import make_core
-from insalign_ros.filters.runner import EventRunner, initial_guess
 from insalign_ros.sim.scenarios import make_scenario
+
+from reference_loops import EventRunner, initial_guess
 
 
 def _start(core, d, yaw_err_deg):

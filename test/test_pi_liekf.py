@@ -9,7 +9,8 @@ import pytest
 
 from insalign_ros.filters import lmi as LMI
 from insalign_ros.filters.registry import make_core
-from insalign_ros.filters.runner import run_offline
+
+from reference_loops import run_offline
 
 
 def test_abar_reproduces_the_pi_recursion():

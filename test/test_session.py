@@ -35,7 +35,7 @@ def _angle(Ca, Cb) -> float:
 def test_session_equals_the_per_event_runner(ship60, core):
     """The session (fusion delay, buffer, batches of 1000) gives the runner's estimates at the same stamps, exactly."""
     from insalign_ros.filters.registry import make_core
-    from insalign_ros.filters.runner import run_offline
+    from reference_loops import run_offline
 
     # the runner's core has the dataclass defaults: the paper's ship IMU (imu_grade paper_ship)
     r = ia.align(ship60, core=core, init_mode="truth", init_rpy_error_deg=[10, 10, 60], output_period_s=0.0,

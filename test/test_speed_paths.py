@@ -176,10 +176,9 @@ def test_eci_kernel_is_the_sequential_mechanization():
     assert np.abs(pk - p).max() < 1e-8
 
 
-def test_propagate_arrays_equals_per_sample(data):
-    """The array entry point of the ECI cores cuts the same batches as per-sample propagate: identical numbers."""
-    from insalign_ros.core.types import ImuSample
-
+def test_propagate_blocks_equal_one_row_at_a_time(data):
+    """``propagate`` of the ECI cores cuts the same batches from blocks as from rows fed one at a time (arrays of
+    length 1): identical numbers."""
     d = data["ship"]
     cores = []
     for mode in ("samples", "arrays"):
@@ -188,10 +187,10 @@ def test_propagate_arrays_equals_per_sample(data):
                      np.eye(3) * 1e-3, 0.1, 1.0)
         if mode == "samples":
             for k in range(1, 700):
-                c.propagate(ImuSample(float(d.t_s[k]), d.omega_ib_b[k], d.f_ib_b[k]))
+                c.propagate([float(d.t_s[k])], [d.omega_ib_b[k]], [d.f_ib_b[k]])
         else:
-            c.propagate_arrays(d.t_s[1:30], d.omega_ib_b[1:30], d.f_ib_b[1:30])
-            c.propagate_arrays(d.t_s[30:700], d.omega_ib_b[30:700], d.f_ib_b[30:700])
+            c.propagate(d.t_s[1:30], d.omega_ib_b[1:30], d.f_ib_b[1:30])
+            c.propagate(d.t_s[30:700], d.omega_ib_b[30:700], d.f_ib_b[30:700])
         c.flush()
         cores.append(c)
     a, b = cores
@@ -201,16 +200,15 @@ def test_propagate_arrays_equals_per_sample(data):
     # a bad row goes through the per-sample path: rejected and counted, the rest propagated
     w = d.omega_ib_b[700:710].copy()
     w[3, 1] = np.nan
-    b.propagate_arrays(d.t_s[700:710], w, d.f_ib_b[700:710])
+    b.propagate(d.t_s[700:710], w, d.f_ib_b[700:710])
     b.flush()
     assert b.counters["imu_rejected"] == 1 and b.counters["imu"] == a.counters["imu"] + 9
     assert np.all(np.isfinite(b.P)) and np.all(np.isfinite(b.C))
 
 
-def test_static_propagate_arrays_equals_per_sample(data):
-    """The static cores' array entry point buffers the same interval: identical state after the next update."""
-    from insalign_ros.core.types import ImuSample
-
+def test_static_propagate_blocks_equal_one_row_at_a_time(data):
+    """The static cores' ``propagate`` buffers the same interval from blocks as from single rows: identical state after
+    the next update."""
     d = data["static"]
     cores = []
     for mode in ("samples", "arrays"):
@@ -220,9 +218,9 @@ def test_static_propagate_arrays_equals_per_sample(data):
         for k0 in range(1, 1200, 12):
             if mode == "samples":
                 for k in range(k0, k0 + 12):
-                    c.propagate(ImuSample(float(d.t_s[k]), d.omega_ib_b[k], d.f_ib_b[k]))
+                    c.propagate([float(d.t_s[k])], [d.omega_ib_b[k]], [d.f_ib_b[k]])
             else:
-                c.propagate_arrays(d.t_s[k0:k0 + 12], d.omega_ib_b[k0:k0 + 12], d.f_ib_b[k0:k0 + 12])
+                c.propagate(d.t_s[k0:k0 + 12], d.omega_ib_b[k0:k0 + 12], d.f_ib_b[k0:k0 + 12])
             c.update(ZeroVelocity(float(d.t_s[k0 + 11]), 0.01))
         cores.append(c.estimate())
     a, b = cores
@@ -423,7 +421,7 @@ def test_fused_zero_velocity_step_matches_reference(monkeypatch, data, core, par
                      np.diag(np.radians([1.0, 1.0, 5.0]) ** 2), 0.1, 1.0)
         seen, branches = [], set()
         for k0 in range(1, 1200, 12):
-            c.propagate_arrays(d.t_s[k0:k0 + 12], d.omega_ib_b[k0:k0 + 12], d.f_ib_b[k0:k0 + 12])
+            c.propagate(d.t_s[k0:k0 + 12], d.omega_ib_b[k0:k0 + 12], d.f_ib_b[k0:k0 + 12])
             sig = np.sqrt(c.P[4, 4])
             assert c.update(ZeroVelocity(float(d.t_s[k0 + 11]), 0.01)).accepted
             branches.add(bool(sig < c.cfg.azimuth_feedback_sigma_deg * np.pi / 180.0))
@@ -458,7 +456,7 @@ def test_compiled_gnss_checks_and_terms_match_numpy(monkeypatch):
             c = registry.make_core(name, {"gnss_lever_arm_b_m": list(lever)})
             c.initialize(float(d.t_s[0]), float(d.lat_rad[0]), float(d.lon_rad[0]), float(d.h_m[0]), d.C_b_n[0],
                          d.v_n[0], np.eye(3) * 1e-2, 0.1, 1.0)
-            c.propagate_arrays(d.t_s[1:200], d.omega_ib_b[1:200], d.f_ib_b[1:200])
+            c.propagate(d.t_s[1:200], d.omega_ib_b[1:200], d.f_ib_b[1:200])
             A = rng.normal(size=(3, 3)) if not terms else A
             fix = GnssFix(float(d.t_s[199]), d.gnss_p_e[1] + 3.0, A @ A.T + np.eye(3))
             terms.append(c._terms(GnssPosition.of(fix)) if compiled else oracles.gnss_terms(c, fix))

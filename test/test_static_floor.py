@@ -12,8 +12,10 @@ from insalign_ros.core import earth
 from insalign_ros.filters.coarse import CoarseAlignment, CoarseConfig
 from insalign_ros.filters.ekf10 import Ekf10, Ekf10Config
 from insalign_ros.filters.pkf import Pkf, PkfConfig
-from insalign_ros.filters.static_model import physical_floor, run_static
+from insalign_ros.filters.static_model import physical_floor
 from insalign_ros.sim.scenarios import make_scenario
+
+from reference_loops import run_static
 
 DUR_S = 150.0
 EPS_EAST_DEG_H = 0.5  # -> floor ~ 2.3 deg at 35 deg latitude

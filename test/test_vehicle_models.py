@@ -31,7 +31,7 @@ def _moving_core(name: str, d, yaw_err_deg: float = 0.0, sigma_yaw_deg: float = 
     P = np.diag(np.radians([2.0, 2.0, sigma_yaw_deg]) ** 2)
     core.initialize(float(d.t_s[0]), float(d.lat_rad[0]), float(d.lon_rad[0]), float(d.h_m[0]), C0, d.v_n[0], P,
                     0.5, 3.0)
-    core.propagate_arrays(d.t_s[1:n], d.omega_ib_b[1:n], d.f_ib_b[1:n])
+    core.propagate(d.t_s[1:n], d.omega_ib_b[1:n], d.f_ib_b[1:n])
     core.flush()
     return core
 
@@ -85,7 +85,7 @@ def _yaw_sigma_run(name: str, nhc: bool, heading: bool, seconds: float = 20.0):
         while True:  # NHC every 0.1 s up to the fix
             t_next = min(next_nhc, tg) if nhc else tg
             k2 = int(np.searchsorted(d.t_s, t_next + 1e-9, side="right"))
-            core.propagate_arrays(d.t_s[k:k2], d.omega_ib_b[k:k2], d.f_ib_b[k:k2])
+            core.propagate(d.t_s[k:k2], d.omega_ib_b[k:k2], d.f_ib_b[k:k2])
             k = k2
             if nhc and t_next == next_nhc:
                 core.update(NonHolonomic(float(d.t_s[k - 1]), 0.1, 0.3))

@@ -6,13 +6,14 @@ filter), forward again to the window end, ``passes`` times, then forward through
 mean time (catch-up); when it reaches the newest sample it replaces the live core (handover). The live core keeps
 running and producing output during the passes, so a node never stops publishing.
 
-Works with any core that implements ``propagate_backward(imu, t_prev_s)`` (and, for speed, the optional
-``propagate_arrays(t_s, omega, f, backward)``): the Earth-frame IEKF (filters/earth_iekf.py) and the ECI LIEKF
-through :class:`BacktrackLiekf` (core name ``liekf_backtrack``).
+Works with any core that propagates backward (``supports_backtracking``: ``propagate(t_s, omega, f,
+backward=True)``): the Earth-frame IEKF (filters/earth_iekf.py) and the ECI LIEKF through :class:`BacktrackLiekf`
+(core name ``liekf_backtrack``).
 
-API (no threads needed): ``feed(event)`` per IMU sample / GNSS fix (the node's callback, offline loop);
-``step_background(budget_s)`` does at most about ``budget_s`` of pass work and returns (a node timer calls it);
-``run_until_done()`` for offline use. ``estimate()`` is always the live core's.
+API (no threads needed), the core's own: ``propagate(t_s, omega, f)`` with arrays of IMU samples and ``update(fix)``
+with GNSS fixes (the session, session/fusion.py); ``step_background(budget_s)`` does at most about ``budget_s`` of
+pass work and returns (a node timer calls it); ``run_until_done()`` for offline use. ``estimate()`` is always the
+live core's.
 """
 
 from __future__ import annotations
@@ -24,12 +25,11 @@ import time
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..core.types import GnssFix, ImuSample
-from .base import AlignmentCore
+from ..core.types import GnssFix
+from .base import AlignmentCore, UpdateResult
 from .eci_batch import covariance_batch, propagate_eci_batch, step_increments_batch
 from .liekf import Liekf
 from .measurements import GnssPosition
-from .runner import EventRunner, initial_guess
 
 
 class BacktrackLiekf(Liekf):
@@ -39,14 +39,9 @@ class BacktrackLiekf(Liekf):
     name = "liekf_backtrack"
     supports_backtracking = True
 
-    def propagate_backward(self, imu: ImuSample, t_prev_s: float) -> None:
-        self.propagate_arrays(np.array([t_prev_s]), np.asarray(imu.omega_ib_b, float)[None],
-                              np.asarray(imu.f_ib_b, float)[None], backward=True)
-
-    def propagate_arrays(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
+    def propagate(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
         if not backward:
-            for k in range(len(t_s)):
-                self.propagate(ImuSample(float(t_s[k]), omega_ib_b[k], f_ib_b[k]))
+            super().propagate(t_s, omega_ib_b, f_ib_b)
             return
         self.flush()
         D = np.ones(self._n_states)
@@ -74,13 +69,15 @@ def make_backtrackable(core: AlignmentCore) -> AlignmentCore:
     if core.supports_backtracking:
         return core
     raise ValueError(f"core {core.name!r} does not support backtracking "
-                     "(needs propagate_backward); use earth_iekf or liekf_backtrack")
+                     "(needs backward propagation); use earth_iekf or liekf_backtrack")
 
 
 def _propagate(core, t, w, f, backward: bool) -> None:
+    """One chunk of a pass, flushed: its batches start and end with the chunk."""
     if len(t) == 0:
         return
-    core.propagate_arrays(t, w, f, backward=backward)  # every backtracking core has the batched backward path
+    core.propagate(t, w, f, backward=backward)
+    core.flush()
 
 
 class BacktrackingAligner:
@@ -104,7 +101,9 @@ class BacktrackingAligner:
         if passes > 0:
             make_backtrackable(core)
         self.live = core
-        self.runner = EventRunner(core, float(init_stamp_s))
+        #: samples at or before the initialisation stamp (they cover intervals before the initial state) and fixes
+        #: before it are skipped, counted
+        self.counters = {"imu_skipped_before_init": 0, "gnss_skipped_stale": 0}
         self.init_stamp_s = float(init_stamp_s)
         self.window_s = float(window_s)
         self.passes = int(passes)
@@ -120,20 +119,45 @@ class BacktrackingAligner:
                       "caught_up_samples": 0, "steps": 0}
 
     # ------------------------------------------------------------------ live side
-    def feed(self, event):
-        res = self.runner.feed(event)
-        if self.state == "done":
-            return res
-        if isinstance(event, ImuSample) and event.stamp_s > self.init_stamp_s:
-            if self._t and not event.stamp_s > self._t[-1]:
-                return res
-            self._t.append(float(event.stamp_s))
-            self._w.append(np.asarray(event.omega_ib_b, float))
-            self._f.append(np.asarray(event.f_ib_b, float))
-            if self.state == "recording" and event.stamp_s - self.init_stamp_s >= self.window_s - 1e-9:
+    def propagate(self, t_s, omega_ib_b, f_ib_b) -> None:
+        """IMU samples (arrays, as ``AlignmentCore.propagate``) to the live core, recorded for the passes; the
+        passes start after the sample that ends the window."""
+        t = np.asarray(t_s, float)
+        w = np.asarray(omega_ib_b, float)
+        f = np.asarray(f_ib_b, float)
+        after = t > self.init_stamp_s
+        if not after.all():
+            self.counters["imu_skipped_before_init"] += int(np.count_nonzero(~after))
+            t, w, f = t[after], w[after], f[after]
+        if self.state == "recording":  # the live core up to the sample that ends the window, then the passes start
+            ends = np.nonzero(t - self.init_stamp_s >= self.window_s - 1e-9)[0]
+            if ends.size:
+                k = int(ends[0])
+                self._live(t[:k + 1], w[:k + 1], f[:k + 1])
                 self._start()
-        elif isinstance(event, GnssFix) and event.stamp_s >= self.init_stamp_s:
-            self._fixes.append(event)
+                t, w, f = t[k + 1:], w[k + 1:], f[k + 1:]
+        self._live(t, w, f)
+
+    def _live(self, t: np.ndarray, w: np.ndarray, f: np.ndarray) -> None:
+        if t.shape[0] == 0:
+            return
+        self.live.propagate(t, w, f)
+        if self.state == "done":
+            return
+        keep = t > (self._t[-1] if self._t else -np.inf)  # stamps after the last recorded one
+        self._t.extend(t[keep].tolist())
+        self._w.extend(w[keep])
+        self._f.extend(f[keep])
+
+    def update(self, fix) -> UpdateResult | None:
+        """A GNSS fix (a measurement model) to the live core, recorded for the passes; None for a fix before the
+        initialisation stamp (skipped, counted)."""
+        if fix.stamp_s < self.init_stamp_s:
+            self.counters["gnss_skipped_stale"] += 1
+            return None
+        res = self.live.update(fix)
+        if self.state != "done" and isinstance(fix, GnssFix):
+            self._fixes.append(fix)
         return res
 
     def estimate(self):
@@ -221,7 +245,7 @@ class BacktrackingAligner:
     def step_background(self, budget_s: float = 0.02) -> bool:
         """Do pass work for about ``budget_s`` of wall time (one chunk at least); hand over when caught up.
 
-        Returns True while more work remains. Call from the same thread as :meth:`feed` (e.g. a node timer):
+        Returns True while more work remains. Call from the same thread as :meth:`propagate` (e.g. a node timer):
         the handover then happens between two events, with no lock.
         """
         if self.state != "passes":
@@ -241,7 +265,6 @@ class BacktrackingAligner:
 
     def _handover(self) -> None:
         self.live = self.worker
-        self.runner.core = self.worker
         self.worker = None
         self._gen = None
         self.state = "done"
@@ -251,24 +274,3 @@ class BacktrackingAligner:
     def run_until_done(self) -> None:
         while self.step_background(math.inf):
             pass
-
-
-def run_offline_backtrack(core, data, rpy_error_deg, window_s: float, passes: int = 1, output_period_s: float = 1.0,
-                          init_index: int = 0, covariance: str = "reset"):
-    """Offline: initialise from the truth of ``data`` plus an Euler error, feed all events; at the end of the
-    window run the passes to completion at once (zero catch-up). Returns (estimates, aligner)."""
-    k = init_index
-    guess = initial_guess(data.t_s[k], data.lat_rad[k], data.lon_rad[k], data.h_m[k], data.C_b_n[k], data.v_n[k],
-                          rpy_error_deg, core.cfg)
-    guess.apply(core)
-    bt = BacktrackingAligner(core, float(data.t_s[k]), window_s, passes, covariance=covariance)
-    out = []
-    next_out = float(data.t_s[k])
-    for ev in data.events(start=k):
-        bt.feed(ev)
-        if bt.busy:
-            bt.run_until_done()
-        if isinstance(ev, ImuSample) and ev.stamp_s >= next_out - 1e-9 and ev.stamp_s > data.t_s[k]:
-            out.append(bt.estimate())
-            next_out = ev.stamp_s + output_period_s
-    return out, bt

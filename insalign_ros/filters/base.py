@@ -1,11 +1,11 @@
 """The one interface every alignment core implements, and the sample/fix/estimate types it speaks.
 
-The offline runner (``insalign-align``) and the ROS node (``alignment_node``) drive the same
-:class:`AlignmentCore` objects with the same :class:`ImuSample` / :class:`GnssFix` types; the node adds only
-message conversion, input validation, timing and publishing.
+Every entry point (``insalign-align``, ``alignment_node``, ``insalign_ros.align``) drives the same
+:class:`AlignmentCore` objects through the session (session/): IMU samples as arrays (``propagate``), the sensors as
+measurement models (``update``, filters/measurements.py).
 
-Time: every stamp is data time in seconds (float), monotonic within a run. An :class:`ImuSample` stamped
-``t_k`` holds the average rate and specific force over ``(t_{k-1}, t_k]`` (see core/mechanization.py).
+Time: every stamp is data time in seconds (float), monotonic within a run. An IMU sample stamped ``t_k`` holds the
+average rate and specific force over ``(t_{k-1}, t_k]`` (see core/mechanization.py).
 
 Attitude output: ``C_b_n`` is body FLU -> local ENU at the current position; ``P_att_n`` is the 3x3 covariance
 [rad^2] of the attitude error expressed as a small rotation in ENU, ``C_b_n_true = exp(psi_x) C_b_n_est``
@@ -61,10 +61,10 @@ class AlignmentCore(ABC):
     """Base class of every alignment estimator.
 
     Life cycle: construct with a config dataclass, ``initialize(...)`` with an initial guess, then any
-    interleaving of ``propagate`` (one IMU sample) and ``update(model)`` with the measurement models it
-    ``accepts`` (filters/measurements.py: GNSS position and velocity, zero velocity, zero angular rate, ...), reading
-    ``estimate()`` whenever needed. Cores that need motion (GNSS-aided in-motion cores) say so with
-    ``needs_motion``; static cores accept ``ZeroVelocity``.
+    interleaving of ``propagate`` (arrays of IMU samples) and ``update(model)`` with the measurement models it
+    ``accepts`` (filters/measurements.py: GNSS position and velocity, zero velocity, zero angular rate, a gyro bias
+    prior, ...), reading ``estimate()`` whenever needed. Cores that need motion (GNSS-aided in-motion cores) say so
+    with ``needs_motion``; static cores accept ``ZeroVelocity``.
     """
 
     name: str = "base"
@@ -76,14 +76,12 @@ class AlignmentCore(ABC):
     state_blocks: frozenset = frozenset()
     #: models fused by the core's own hook (``_fuse``) rather than by a Jacobian of its convention
     own_models: frozenset = frozenset()
-    #: ``propagate_backward`` (and ``propagate_arrays(..., backward=True)``) work (filters/backtrack.py)
+    #: ``propagate(..., backward=True)`` works (filters/backtrack.py)
     supports_backtracking: bool = False
-    #: ``propagate_arrays`` gives exactly the numbers of one ``propagate`` per sample (the session's fast path
-    #: relies on it; a core whose array path differs says False and the session feeds it sample by sample)
-    propagate_arrays_matches_propagate: bool = True
-    #: ``set_gyro_bias_prior`` works (cores with gyro bias states: the hand-over of ``core: auto`` starts them from
-    #: the bias measured at rest instead of the grade prior)
-    supports_gyro_bias_prior: bool = False
+    #: initial 1-sigmas the core was tuned for: ((roll, pitch, yaw) [deg], velocity [m/s], position [m]); the session
+    #: uses them unless the user gives others. Default: level known to a few degrees from the accelerometers, heading
+    #: unknown (the static cores' bootstrap handles any azimuth); cores tuned by their configuration set their own
+    initial_sigmas: tuple = ((5.0, 5.0, 100.0), 0.01, 1.0)
     #: the core runs its own zero-velocity updates (earth_iekf's ``auto_zupt_period_s``: its backward passes need
     #: them inside the passes); the session then schedules none for it
     schedules_own_zero_velocity: bool = False
@@ -117,9 +115,23 @@ class AlignmentCore(ABC):
         """Start from an initial guess: position, ENU velocity [m/s], attitude C_b_n and its 3x3 covariance
         [rad^2] in ENU, velocity and position standard deviations."""
 
-    @abstractmethod
-    def propagate(self, imu: ImuSample) -> None:
-        """Propagate state and covariance to ``imu.stamp_s`` with one IMU sample."""
+    def propagate(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
+        """Propagate with arrays of IMU samples: ``t_s`` (N,) [s], ``omega_ib_b`` (N, 3) [rad/s], ``f_ib_b`` (N, 3)
+        [m/s^2] (one sample: arrays of length 1). Sample ``k`` holds the average over ``(t_s[k-1], t_s[k]]``.
+
+        ``backward`` (cores with ``supports_backtracking``, filters/backtrack.py): the inverse steps from the core's
+        time back; ``t_s`` are then the times *after* each step (decreasing), sample ``k`` covering
+        ``(t_s[k], t_s[k-1]]``. Default: one ``_propagate_sample`` per row forward; cores with an array path override
+        this and give the same numbers."""
+        if backward:
+            raise NotImplementedError(f"{self.name} does not support backward propagation")
+        for k in range(len(t_s)):
+            self._propagate_sample(ImuSample(float(t_s[k]), omega_ib_b[k], f_ib_b[k]))
+
+    def _propagate_sample(self, imu: ImuSample) -> None:
+        """One IMU sample forward (the per-row step behind the default :meth:`propagate`; bad rows are rejected and
+        counted here)."""
+        raise NotImplementedError
 
     @property
     def accepts(self) -> frozenset:
@@ -141,11 +153,6 @@ class AlignmentCore(ABC):
         if type(meas) not in self.accepts or type(meas) in self.own_models:  # own hooks: no prediction
             return UpdateResult(False, reason=f"{self.name} has no prediction of {meas.label}")
         return update_pipeline.predict(self, meas)
-
-    def set_gyro_bias_prior(self, b_g_b: np.ndarray, P_b_g_b: np.ndarray) -> None:
-        """Optional (``supports_gyro_bias_prior``): right after ``initialize``, replace the gyro bias estimate
-        [rad/s, body] and its 3x3 covariance [rad^2/s^2] (no correlation with the other states)."""
-        raise NotImplementedError(f"{self.name} has no gyro bias prior")
 
     # ---------------------------------------------------------------- hooks of the update (filters/update.py)
     def _observe(self, meas) -> UpdateResult:
@@ -182,20 +189,6 @@ class AlignmentCore(ABC):
     def _after_prediction(self, meas, res: UpdateResult) -> UpdateResult:
         return res
 
-    def propagate_backward(self, imu: ImuSample, t_prev_s: float) -> None:
-        """Optional (``supports_backtracking``): inverse step from ``imu.stamp_s`` (the core's current time) back
-        to ``t_prev_s`` with the sample covering ``(t_prev_s, imu.stamp_s]`` (filters/backtrack.py)."""
-        raise NotImplementedError(f"{self.name} does not support backward propagation")
-
-    def propagate_arrays(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
-        """Propagate with arrays of samples (t_s (N,), omega_ib_b (N, 3) [rad/s], f_ib_b (N, 3) [m/s^2]).
-
-        Default: one ``propagate`` per sample forward; cores with a faster batched path override it."""
-        if backward:
-            raise NotImplementedError(f"{self.name} does not support backward propagation")
-        for k in range(len(t_s)):
-            self.propagate(ImuSample(float(t_s[k]), omega_ib_b[k], f_ib_b[k]))
-
     def flush(self) -> None:
         """Apply buffered IMU samples now (batched cores buffer; the default keeps none)."""
 
@@ -222,13 +215,6 @@ class AlignmentCore(ABC):
             if idx is not None and var:
                 i = list(idx)
                 self.P[i, i] += var
-
-    def default_initial_sigmas(self) -> tuple[tuple[float, float, float], float, float]:
-        """Initial 1-sigmas the core was tuned for: ((roll, pitch, yaw) [deg], velocity [m/s], position [m]).
-
-        The session uses them unless the user gives others. Default: level known to a few degrees from the
-        accelerometers, heading unknown (the static cores' bootstrap handles any azimuth)."""
-        return (5.0, 5.0, 100.0), 0.01, 1.0
 
     def diagnostics(self) -> dict:
         """Core-specific diagnostics (key -> value) for /diagnostics and the metrics JSON."""

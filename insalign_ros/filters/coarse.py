@@ -176,7 +176,7 @@ class CoarseAlignment(AlignmentCore):
     def initialized(self) -> bool:
         return self._init
 
-    def propagate(self, imu: ImuSample) -> None:
+    def _propagate_sample(self, imu: ImuSample) -> None:
         dt = usable_step(self, imu)
         if dt is None:
             return

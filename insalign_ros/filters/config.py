@@ -141,6 +141,13 @@ class InMotionConfig(ConfigDict):
     #: every update and every estimate() call, so this only bounds latency and memory
     max_batch_samples: int = param(100, range=(1, 100000))
 
+    @property
+    def initial_sigmas(self) -> tuple:
+        """The ``init_sigma_*`` fields as ``AlignmentCore.initial_sigmas``: ((roll, pitch, yaw) [deg], velocity
+        [m/s], position [m])."""
+        return ((self.init_sigma_roll_deg, self.init_sigma_pitch_deg, self.init_sigma_yaw_deg), self.init_sigma_v_m_s,
+                self.init_sigma_p_m)
+
     # ------------------------------------------------------------------ validation
     def validate(self) -> None:
         self.check_field_types()

@@ -20,7 +20,7 @@ Inverse-alignment paper (Liu et al. 2025), sec. 2.3-3.3. docs/backtracking.md ha
 * P0, eq. (56): ``P_l0 = T P0 T^T`` with ``T = [[C_b_n^T, 0, 0], [0, C_b_n^T, C_e_b (omega_ie)_x C_n_e],
   [0, 0, C_b_n^T]]`` from ENU (attitude psi_n, dv_n, dp_n). The paper's T has I on the attitude block because its
   attitude error is already in the error frame; ours is the body-frame phi, psi_n = C_b_n phi.
-* Backward (inverse) propagation: ``propagate_backward(sample_k, t_{k-1})`` runs the inverse mechanization
+* Backward (inverse) propagation: ``propagate(t, omega, f, backward=True)`` runs the inverse mechanization
   (eqs. (6)-(10)) and the covariance backward by the time-reversal of the continuous model: with
   ``v -> -v`` and ``omega -> -omega`` (so ``b_g -> -b_g``) the reversed motion obeys the same forward equations;
   the error of the reversed state is ``D xi`` with ``D`` flipping nu and db_g.
@@ -41,7 +41,7 @@ from ..core.units import (
 )
 from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, ImuSample, UpdateResult
 from .config import InMotionConfig
-from .checks import check_imu
+from .checks import check_imu, usable_imu_arrays
 from .eci_batch import liekf_transition_batch, prefix_products, propagate_eci_batch, step_increments_batch
 from .kalman import joseph_update
 from . import measurements  # noqa: F401  (registers its zero-velocity model)
@@ -124,15 +124,9 @@ class EarthIekf(AlignmentCore):
     needs_motion = False
     convention = "earth_left"  # its zero-velocity model (filters/measurements.py)
     supports_backtracking = True
-    #: its propagate_arrays (for the backtracking driver) flushes and batches differently from propagate
-    propagate_arrays_matches_propagate = False
     att_index = (0, 1, 2)
     vel_index = (3, 4, 5)
     pos_index = (6, 7, 8)
-
-    def default_initial_sigmas(self):
-        c = self.cfg
-        return (c.init_sigma_roll_deg, c.init_sigma_pitch_deg, c.init_sigma_yaw_deg), c.init_sigma_v_m_s, c.init_sigma_p_m
 
     @property
     def schedules_own_zero_velocity(self) -> bool:  # its backward passes need the ZUPTs inside the passes
@@ -143,6 +137,7 @@ class EarthIekf(AlignmentCore):
     def __init__(self, config: EarthIekfConfig | None = None):
         self.cfg = config if config is not None else EarthIekfConfig()
         self.cfg.validate()
+        self.initial_sigmas = self.cfg.initial_sigmas
         self._init = False
         self.counters = {"imu": 0, "imu_rejected": 0, "zupt": 0, "backward": 0}
         self.last_reject_reason = ""
@@ -188,7 +183,60 @@ class EarthIekf(AlignmentCore):
         self._init = True
 
     # ------------------------------------------------------------------ propagation
-    def propagate(self, imu: ImuSample) -> None:
+    def propagate(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
+        """IMU rows buffered, as one sample at a time would be: a batch ends at ``max_batch_samples``, at an automatic
+        zero-velocity update and at a change of direction (``flush`` ends it by hand), so a block gives the numbers of
+        its rows fed one by one. Forward: an unusable row sends the call through the per-sample step (which rejects
+        and counts it). Backward (the backtracking passes, paper eqs. (6)-(10)): ``t_s`` are the times after each
+        inverse step (decreasing), sample j covering ``(t_s[j], t_before]``; the covariance is propagated by time
+        reversal and the automatic zero-velocity updates run at the same period as forward."""
+        t_last = self._buf[-1][0] if self._buf else self.t_s
+        if backward:
+            t, w, f = (np.asarray(x, float) for x in (t_s, omega_ib_b, f_ib_b))
+            n = t.shape[0] if t.ndim == 1 else 0
+            ok = self._init and n and w.shape == (n, 3) and f.shape == (n, 3) and bool(
+                np.all(np.isfinite(w)) and np.all(np.isfinite(f)) and np.all(np.diff(t, prepend=t_last) < 0))
+            if not ok:
+                if n:
+                    self.counters["imu_rejected"] += n
+                    self.last_reject_reason = "IMU: backward rows not finite or not decreasing from the core's time" \
+                        if self._init else "IMU: not initialised"
+                return
+        else:
+            arr = usable_imu_arrays(t_s, omega_ib_b, f_ib_b, t_last) if self._init else None
+            if arr is None:
+                super().propagate(t_s, omega_ib_b, f_ib_b)
+                return
+            t, w, f, _ = arr
+        self._buffer(t, w, f, -1 if backward else 1, t_last)
+
+    def _buffer(self, t: np.ndarray, w: np.ndarray, f: np.ndarray, d: int, t_last: float) -> None:
+        """Usable rows into the buffer in direction ``d`` (+1 forward, -1 backward) from ``t_last``."""
+        n = t.shape[0]
+        if self._dir == -d:
+            self.flush()
+        per, mb = self.cfg.auto_zupt_period_s, self.cfg.max_batch_samples
+        if self._dir != d:
+            self._t_next_zupt = t_last + d * per
+        self._dir = d
+        self.counters["backward" if d < 0 else "imu"] += n
+        dt = d * t  # increasing in both directions: a zero-velocity update is due at dt >= d t_next - 1e-9
+        i = 0
+        while i < n:
+            j = min(n, i + max(mb - len(self._buf), 1))
+            k = i + int(np.searchsorted(dt[i:j], d * self._t_next_zupt - 1e-9, side="left")) if per > 0 else j
+            if k < j:
+                j = k + 1
+            self._buf.extend((float(t[m]), w[m], f[m]) for m in range(i, j))
+            if k < j:
+                self.flush()
+                self._zupt(self.cfg.auto_zupt_sigma_m_s)
+                self._t_next_zupt = float(t[k]) + d * per
+            elif len(self._buf) >= mb:
+                self.flush()
+            i = j
+
+    def _propagate_sample(self, imu: ImuSample) -> None:
         if not self._init:
             self._reject("not initialised")
             return
@@ -199,52 +247,8 @@ class EarthIekf(AlignmentCore):
         if reason:
             self._reject(reason)
             return
-        if self._dir < 0:
-            self.flush()
-        if self._dir <= 0:
-            self._t_next_zupt = t_last + self.cfg.auto_zupt_period_s
-        self._dir = 1
-        self.counters["imu"] += 1
-        self._buf.append((float(imu.stamp_s), np.asarray(imu.omega_ib_b, float), np.asarray(imu.f_ib_b, float)))
-        self._maybe_zupt(float(imu.stamp_s), forward=True)
-
-    def propagate_backward(self, imu: ImuSample, t_prev_s: float) -> None:
-        """Inverse step: from ``imu.stamp_s`` (the current time) back to ``t_prev_s`` with the sample covering
-        ``(t_prev_s, imu.stamp_s]`` (paper eqs. (6)-(10)); covariance propagated by time reversal."""
-        if not self._init:
-            self._reject("not initialised")
-            return
-        t_cur = self._buf[-1][0] if self._buf else self.t_s
-        reason = check_imu(imu)
-        if not reason and abs(imu.stamp_s - t_cur) > 1e-6:
-            reason = f"backward sample stamped {imu.stamp_s:.6f} but the core is at {t_cur:.6f}"
-        if not reason and not t_prev_s < imu.stamp_s:
-            reason = f"t_prev {t_prev_s:.6f} not before {imu.stamp_s:.6f}"
-        if reason:
-            self._reject(reason)
-            return
-        if self._dir > 0:
-            self.flush()
-        if self._dir >= 0:
-            self._t_next_zupt = t_cur - self.cfg.auto_zupt_period_s
-        self._dir = -1
-        self.counters["backward"] += 1
-        self._buf.append((float(t_prev_s), np.asarray(imu.omega_ib_b, float), np.asarray(imu.f_ib_b, float)))
-        self._maybe_zupt(float(t_prev_s), forward=False)
-
-    def _maybe_zupt(self, t: float, forward: bool) -> None:
-        per = self.cfg.auto_zupt_period_s
-        if per <= 0:
-            if len(self._buf) >= self.cfg.max_batch_samples:
-                self.flush()
-            return
-        due = t >= self._t_next_zupt - 1e-9 if forward else t <= self._t_next_zupt + 1e-9
-        if due:
-            self.flush()
-            self._zupt(self.cfg.auto_zupt_sigma_m_s)
-            self._t_next_zupt = t + per if forward else t - per
-        elif len(self._buf) >= self.cfg.max_batch_samples:
-            self.flush()
+        self._buffer(np.array([float(imu.stamp_s)]), np.asarray(imu.omega_ib_b, float)[None],
+                     np.asarray(imu.f_ib_b, float)[None], 1, t_last)
 
     def _reject(self, reason: str) -> None:
         self.counters["imu_rejected"] += 1
@@ -281,45 +285,6 @@ class EarthIekf(AlignmentCore):
         self.C = Rotation.from_matrix(self.C).as_matrix()
         self._w_last = w[-1]
         self.t_s = float(t[-1])
-
-    def propagate_arrays(self, t_s: np.ndarray, omega_ib_b: np.ndarray, f_ib_b: np.ndarray,
-                         backward: bool = False) -> None:
-        """Fast path for stored data (the backtracking driver): many samples at once, no per-sample checks.
-
-        Forward: ``t_s`` (increasing) are the sample stamps, all after the core time. Backward: ``t_s`` are the
-        times *after* each inverse step (decreasing), sample j covers ``(t_s[j], t_before]``. The automatic
-        zero-velocity updates run at the same period as in :meth:`propagate`.
-        """
-        self.flush()
-        t_s = np.asarray(t_s, float)
-        omega_ib_b = np.asarray(omega_ib_b, float)
-        f_ib_b = np.asarray(f_ib_b, float)
-        n = t_s.shape[0]
-        if n == 0:
-            return
-        d = -1 if backward else 1
-        per = self.cfg.auto_zupt_period_s
-        if self._dir != d:
-            self._t_next_zupt = self.t_s + d * per
-        self._dir = d
-        self.counters["backward" if backward else "imu"] += n
-        i = 0
-        mb = self.cfg.max_batch_samples
-        while i < n:
-            j = min(n, i + mb)
-            zupt = False
-            if per > 0:
-                if backward:
-                    k = i + int(np.searchsorted(-t_s[i:j], -(self._t_next_zupt + 1e-9), side="left"))
-                else:
-                    k = i + int(np.searchsorted(t_s[i:j], self._t_next_zupt - 1e-9, side="left"))
-                if k < j:
-                    j, zupt = k + 1, True
-            self._flush_arrays(t_s[i:j], omega_ib_b[i:j], f_ib_b[i:j], d)
-            if zupt:
-                self._zupt(self.cfg.auto_zupt_sigma_m_s)
-                self._t_next_zupt = self.t_s + d * per
-            i = j
 
     def _batch(self, C, v, p, w, f, dt, P):
         dC, dv_b, dp_b = step_increments_batch(w, f, dt)

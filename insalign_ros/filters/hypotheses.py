@@ -53,10 +53,9 @@ class YawHypothesisBank(AlignmentCore):
         self.name = proto.name
         self.needs_motion = proto.needs_motion
         self.convention, self.state_blocks, self.own_models = proto.convention, proto.state_blocks, proto.own_models
-        self.supports_gyro_bias_prior = proto.supports_gyro_bias_prior
         self.supports_backtracking = False
         self.att_index, self.vel_index, self.pos_index = proto.att_index, proto.vel_index, proto.pos_index
-        self._proto_sigmas = proto.default_initial_sigmas()
+        self.initial_sigmas = proto.initial_sigmas
         proto.close()
         self.hyps: list[AlignmentCore] = []
         self.offsets_rad: list[float] = []
@@ -102,11 +101,6 @@ class YawHypothesisBank(AlignmentCore):
         self.collapsed_at_s = None
         self._init = True
 
-    def set_gyro_bias_prior(self, b_g_b, P_b_g_b) -> None:
-        """Every hypothesis starts from the same body-frame gyro bias prior (the bias does not depend on the yaw)."""
-        for h in self.hyps:
-            h.set_gyro_bias_prior(b_g_b, P_b_g_b)
-
     @property
     def initialized(self) -> bool:
         return self._init
@@ -119,9 +113,6 @@ class YawHypothesisBank(AlignmentCore):
     @property
     def best(self) -> AlignmentCore:
         return self.hyps[int(np.argmax(self.logw))]
-
-    def default_initial_sigmas(self):
-        return self._proto_sigmas
 
     @property
     def counters(self) -> dict:
@@ -146,13 +137,9 @@ class YawHypothesisBank(AlignmentCore):
             h.inflate_navigation(var_att_rad2, var_v_m2_s2, var_p_m2, var_bg_rad2_s2, var_ba_m2_s4)
 
     # ------------------------------------------------------------------ events
-    def propagate(self, imu) -> None:
+    def propagate(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
         for h in self.hyps:
-            h.propagate(imu)
-
-    def propagate_arrays(self, *args, **kwargs) -> None:
-        for h in self.hyps:
-            h.propagate_arrays(*args, **kwargs)
+            h.propagate(t_s, omega_ib_b, f_ib_b, backward)
 
     def flush(self) -> None:
         for h in self.hyps:

@@ -53,25 +53,8 @@ class ImperfectIekf(BatchedEciCore):
         P[12:15, 12:15] = mg_to_m_s2(self.cfg.acc_bias_mg) ** 2 * _I3
         return P
 
-    # ---- bias initialisation and zero-rate API (core: auto's hand-over and stops, session/auto.py) ----
-    supports_gyro_bias_prior = True
-
-    def set_gyro_bias_prior(self, b_g_b, P_b_g_b) -> None:
-        """Right after ``initialize`` (nothing propagated yet): gyro bias estimate [rad/s] and its 3x3 covariance
-        [rad^2/s^2] instead of zero and the grade's ``gyro_bias_deg_h`` (cross-covariances zero)."""
-        if not self._init or self._buf.n or self.t_s != self.t0_s:
-            raise RuntimeError("set_gyro_bias_prior: only right after initialize()")
-        P_b_g_b = np.asarray(P_b_g_b, float)
-        if P_b_g_b.shape != (3, 3) or not np.all(np.isfinite(P_b_g_b)) or np.any(np.linalg.eigvalsh(P_b_g_b) <= 0):
-            raise ValueError("set_gyro_bias_prior: P_b_g_b must be a finite 3x3 positive definite matrix")
-        self.b_g = np.asarray(b_g_b, float).reshape(3).copy()
-        self.P[9:12, :] = 0.0
-        self.P[:, 9:12] = 0.0
-        self.P[9:12, 9:12] = 0.5 * (P_b_g_b + P_b_g_b.T)
-
-    #: the bias blocks (a zero-angular-rate update needs the gyro bias: filters/measurements.py, ZeroAngularRate)
+    #: the bias blocks (the zero angular rate and the gyro bias prior need the gyro bias: filters/measurements.py)
     state_blocks = frozenset({"gyro_bias", "acc_bias"})
-    # ---- end of the bias initialisation / zero-rate API ----
 
     def _noise_diag(self, dt):
         d = super()._noise_diag(dt)

@@ -70,6 +70,7 @@ class BatchedEciCore(AlignmentCore):
         self.cfg = config if config is not None else self.config_class()
         self.cfg.validate()
         self._init = False
+        self.initial_sigmas = self.cfg.initial_sigmas
         self._buf = ImuBuffer()
         self.counters = {"imu": 0, "imu_rejected": 0, "gnss": 0, "gnss_rejected": 0, "gnss_vel": 0,
                          "gnss_vel_rejected": 0}
@@ -104,7 +105,7 @@ class BatchedEciCore(AlignmentCore):
         self._t_last_update = self.t0_s
         self._init = True
 
-    def propagate(self, imu: ImuSample) -> None:
+    def _propagate_sample(self, imu: ImuSample) -> None:
         """Buffer one IMU sample (propagated in a batch on the next flush). Bad samples are rejected."""
         if not self._init:
             self._reject_imu("not initialised")
@@ -135,20 +136,20 @@ class BatchedEciCore(AlignmentCore):
             return
         self._propagate_block(*self._buf.take())
 
-    def propagate_arrays(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
-        """Forward: whole arrays without a Python step per sample, in the same batches as sample-by-sample
-        ``propagate`` (so the same numbers); any unusable row (non-finite, stamps not increasing, a gap > 1 s) sends
-        the call through the per-sample path, which rejects and counts it."""
+    def propagate(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
+        """Forward: whole arrays without a Python step per sample, in the same batches as one sample at a time (so
+        the same numbers); any unusable row (non-finite, stamps not increasing, a gap > 1 s) sends the call through
+        the per-sample step, which rejects and counts it."""
         arr = usable_imu_arrays(t_s, omega_ib_b, f_ib_b, self._buf.last_t if self._buf.n else self.t_s) \
             if self._init and not backward else None
         if arr is None:
-            super().propagate_arrays(t_s, omega_ib_b, f_ib_b, backward)
+            super().propagate(t_s, omega_ib_b, f_ib_b, backward)
             return
         t, w, f, _ = arr
         n = t.shape[0]
         self.counters["imu"] += n
         mb = self.cfg.max_batch_samples
-        i = min(n, mb - self._buf.n)  # complete the pending batch first, as propagate() would
+        i = min(n, mb - self._buf.n)  # complete the pending batch first, as the per-sample step would
         self._buf.add_block(t[:i], w[:i], f[:i])
         if self._buf.n >= mb:
             self.flush()
@@ -228,10 +229,6 @@ class BatchedEciCore(AlignmentCore):
         """Whether a correction reads ``_Phi_since_update`` (PI-LIEKF's eq. (30) overrides ``_correction``); the
         fused kernel forms the transition product only then."""
         return cls._correction is not BatchedEciCore._correction
-
-    def default_initial_sigmas(self):
-        c = self.cfg
-        return (c.init_sigma_roll_deg, c.init_sigma_pitch_deg, c.init_sigma_yaw_deg), c.init_sigma_v_m_s, c.init_sigma_p_m
 
     # ---------------------------------------------------------------- hooks
     def _P0(self, C_b_n, P_att_n, sigma_v, sigma_p) -> np.ndarray:

@@ -12,6 +12,9 @@ Constructors (stamps [s] are data time, arrays are copied to float):
 * ``ZeroVelocity(stamp_s, sigma_v_m_s)``: at rest relative to Earth, 1-sigma [m/s] per axis.
 * ``ZeroAngularRate(omega_mean_b, R_b, stamp_s=nan)``: at rest over a window ending now; the gyros' mean
   [rad/s, body FLU] and its 3x3 covariance [rad^2/s^2].
+* ``GyroBiasPrior(b_g_b, P_b_g_b)``: a direct observation of the gyro bias [rad/s, body FLU] with its 3x3
+  covariance [rad^2/s^2] (the bias measured at rest, or learned by a core being replaced), fused right after
+  ``initialize`` by the cores that keep the gyro bias block.
 * ``NonHolonomic`` and ``GnssHeading``: filters/vehicle_models.py (issue 25).
 
 Error conventions a core declares (``AlignmentCore.convention``), with the state layout the models rely on:
@@ -153,6 +156,34 @@ class ZeroAngularRate(Measurement):
         return "" if spd3(self.R_b) else "covariance not positive definite"
 
 
+class GyroBiasPrior(Measurement):
+    """A prior of the gyro bias: ``b_g_b`` [rad/s, body FLU] with covariance ``P_b_g_b`` [rad^2/s^2] (the hand-over of
+    ``core: auto`` gives the bias measured at rest; a re-seeded core the bias its predecessor learned, which already
+    holds the grade's prior). Observed directly, with the information it adds to the core's own knowledge of the block,
+    so that the block becomes (``b_g_b``, ``P_b_g_b``) where it is uncorrelated with the rest (right after
+    ``initialize``): the grade's prior is not counted twice, and a prior the core already holds changes nothing. No
+    gate, no fading; it does not weigh yaw hypotheses (every hypothesis gets the same body-frame bias)."""
+
+    counter = "gyro_bias_prior"
+    label = "gyro bias prior"
+    needs = frozenset({"gyro_bias"})
+    fading = False
+    nis_gate = 0.0
+    weighs_hypotheses = False
+
+    def __init__(self, b_g_b, P_b_g_b, stamp_s: float = math.nan):
+        self.b_g_b = np.asarray(b_g_b, float).reshape(-1)
+        self.P_b_g_b = np.asarray(P_b_g_b, float)
+        self.stamp_s = float(stamp_s)
+
+    def check(self) -> str:
+        if self.b_g_b.shape != (3,) or self.P_b_g_b.shape != (3, 3):
+            return f"bad shapes b_g {self.b_g_b.shape}, P {self.P_b_g_b.shape}"
+        if not (np.all(np.isfinite(self.b_g_b)) and np.all(np.isfinite(self.P_b_g_b))):
+            return "non-finite bias or covariance"
+        return "" if spd3(self.P_b_g_b) else "covariance not positive definite"
+
+
 # ------------------------------------------------------------------------------------------ ECI terms
 def _floored(R_e: np.ndarray, floor_m: float) -> np.ndarray:
     """The fix covariance with its smallest eigenvalue raised to ``floor_m^2`` (the same in ECEF and ECI)."""
@@ -238,6 +269,28 @@ def _zero_rate_eci_left(m: ZeroAngularRate, core):
     H[:, 0:3] = lie.hat3(w)
     H[:, 9:12] = _I3
     return m.omega_mean_b - core.b_g - w, H, m.R_b
+
+
+#: the noise [x the trace of the core's block] of a direction in which a gyro bias prior adds no information
+_NO_INFORMATION = 1e12
+
+
+@jacobian(GyroBiasPrior, "eci_left")
+def _gyro_bias_eci_left(m: GyroBiasPrior, core):
+    """db_g = b_g - b_g_hat observed (the bias block 9:12, additive) along the eigenvectors V of the information the
+    prior adds, D = P^-1 - P0^-1 = V diag(lam) V^T (P0, b0 the core's block and bias): z = lam^-1 V^T (P^-1 b -
+    P0^-1 b0) - V^T b0, H = V^T [0 I 0], N = diag(1 / lam), so that the posterior information is P^-1 and the mean b;
+    a direction with lam <= 0 (the prior adds nothing there) is observed with z = 0 and a noise that leaves it as is."""
+    P0, b0 = core.P[9:12, 9:12], np.asarray(core.b_g, float)
+    Pi = np.linalg.inv(0.5 * (m.P_b_g_b + m.P_b_g_b.T))
+    P0i = np.linalg.inv(0.5 * (P0 + P0.T))
+    lam, V = np.linalg.eigh(0.5 * ((Pi - P0i) + (Pi - P0i).T))
+    adds = lam > 1e-9 * float(np.max(np.linalg.eigvalsh(Pi)))
+    lam_a = np.where(adds, lam, 1.0)
+    z = np.where(adds, (V.T @ (Pi @ m.b_g_b - P0i @ b0)) / lam_a - V.T @ b0, 0.0)
+    H = np.zeros((3, core._n_states))
+    H[:, 9:12] = V.T
+    return z, H, np.diag(np.where(adds, 1.0 / lam_a, _NO_INFORMATION * float(np.trace(P0))))
 
 
 @jacobian(ZeroVelocity, "earth_left")

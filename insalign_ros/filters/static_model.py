@@ -207,12 +207,11 @@ class StaticZuptCore(AlignmentCore):
     vel_index = (0, 1)  # dvN dvE
     att_index = (2, 3, 4)  # phiN phiE phiD
 
-    def default_initial_sigmas(self):
-        return (5.0, 5.0, 100.0), self.cfg.init_sigma_v_m_s, 1.0
     n_bias = 0
 
     def __init__(self, cfg: StaticConfig):
         self.cfg = cfg
+        self.initial_sigmas = ((5.0, 5.0, 100.0), cfg.init_sigma_v_m_s, 1.0)
         self._init = False
 
     # ------------------------------------------------------------------ interface
@@ -249,19 +248,19 @@ class StaticZuptCore(AlignmentCore):
     def initialized(self) -> bool:
         return self._init
 
-    def propagate(self, imu: ImuSample) -> None:
+    def _propagate_sample(self, imu: ImuSample) -> None:
         dt = usable_step(self, imu)
         if dt is None:
             return
         self.t_s = float(imu.stamp_s)
         self._buf.add(dt, imu.omega_ib_b, imu.f_ib_b)  # buffered: the compiled loop runs on the next flush
 
-    def propagate_arrays(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
+    def propagate(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
         """Forward: whole arrays appended to the interval buffer when every row is usable (finite, 0 < dt <= 1 s);
         otherwise sample by sample (which skips and handles the bad rows)."""
         arr = usable_imu_arrays(t_s, omega_ib_b, f_ib_b, self.t_s) if self._init and not backward else None
         if arr is None:
-            super().propagate_arrays(t_s, omega_ib_b, f_ib_b, backward)
+            super().propagate(t_s, omega_ib_b, f_ib_b, backward)
             return
         t, w, f, dt = arr
         self._buf.add_block(dt, w, f)
@@ -569,30 +568,3 @@ def config_for_imu(config_class, spec, **overrides):
     from .imu_grade import ImuGrade, grade_params
 
     return config_class.from_dict({**grade_params(ImuGrade.from_spec(spec), config_class), **overrides})
-
-
-def run_static(core: AlignmentCore, sc, az0_rad: float, sigma_R_m_s: float, zupt_hz: float = 10.0,
-               init_sigma_yaw_deg: float = 100.0, init_sigma_level_deg: float = 2.0, record_hz: float = 1.0):
-    """Run a static core on a ScenarioData from the true attitude turned by az0 about Up.
-
-    Returns (t_s, err_rad (K, 3): psi = heading_error_enu_rad(est, true) [E, N, U], sigma3_rad (K, 3)).
-    The zero-velocity update runs every round(rate/zupt_hz) IMU samples.
-    """
-    C0 = earth.C_b_n_from_rpy(0.0, 0.0, az0_rad) @ sc.C_b_n[0]
-    P0 = np.diag(np.radians([init_sigma_level_deg, init_sigma_level_deg, init_sigma_yaw_deg]) ** 2)
-    core.initialize(float(sc.t_s[0]), float(sc.lat_rad[0]), float(sc.lon_rad[0]), float(sc.h_m[0]), C0,
-                    np.zeros(3), P0, 0.01, 1.0)
-    rate = 1.0 / float(sc.t_s[1] - sc.t_s[0])
-    every = max(1, int(round(rate / zupt_hz)))
-    rec = max(1, int(round(rate / record_hz)))
-    ts, errs, sig = [], [], []
-    for k in range(1, sc.n):
-        core.propagate(ImuSample(float(sc.t_s[k]), sc.omega_ib_b[k], sc.f_ib_b[k]))
-        if k % every == 0 and ZeroVelocity in core.accepts:
-            core.update(ZeroVelocity(float(sc.t_s[k]), sigma_R_m_s))
-        if k % rec == 0:
-            e = core.estimate()
-            ts.append(float(sc.t_s[k]))
-            errs.append(earth.heading_error_enu_rad(e.C_b_n, sc.C_b_n[k]))
-            sig.append(3.0 * np.sqrt(np.maximum(np.diag(e.P_att_n), 0.0)))
-    return np.array(ts), np.array(errs), np.array(sig)

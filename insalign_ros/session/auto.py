@@ -32,11 +32,11 @@ from collections import deque
 import numpy as np
 
 from ..core import earth
-from ..core.types import GnssFix, ImuSample
+from ..core.types import GnssFix
 from ..filters import imu_grade, registry
 from ..filters.base import AlignmentCore, AlignmentEstimate, AlignmentStatus, UpdateResult
 from ..filters.hypotheses import YawHypothesisBank
-from ..filters.measurements import GnssPosition, GnssVelocity, ZeroAngularRate, ZeroVelocity
+from ..filters.measurements import GnssPosition, GnssVelocity, GyroBiasPrior, ZeroAngularRate, ZeroVelocity
 from .auto_config import AutoConfig, D2R
 from .motion import MotionConfig, MotionDetector
 from .rest import REST_BLOCK_S, _BlockMean, block_variance, gyro_bias_from_rest, rest_rate_mean
@@ -104,13 +104,10 @@ class AutoCore(AlignmentCore):
         self.counters = {"handovers": 0, "stops": 0, "stop_holds": 0, "zupt_rejected_moving": 0, "zero_rate_updates": 0,
                          "zero_rate_rejected": 0}
         with_static = registry.make_core(cfg.static_core, cfg.static_params())
-        self._static_sigmas = with_static.default_initial_sigmas()
+        self.initial_sigmas = with_static.initial_sigmas
         with_static.close()
 
     # ------------------------------------------------------------------ life cycle
-    def default_initial_sigmas(self):
-        return self._static_sigmas
-
     def initialize(self, stamp_s, lat_rad, lon_rad, h_m, C_b_n, v_n, P_att_n, sigma_v_m_s, sigma_p_m) -> None:
         cfg = self.cfg
         self.static = registry.make_core(cfg.static_core, cfg.static_params())
@@ -173,9 +170,16 @@ class AutoCore(AlignmentCore):
                 acc_vrw_m_s_sqrt_h=max(self.cfg.acc_vrw_m_s_sqrt_h, 1e-4))))
         return self.detector.push_imu(t, w, f)
 
-    def propagate(self, imu: ImuSample) -> None:
-        t = float(imu.stamp_s)
-        w, f = np.asarray(imu.omega_ib_b, float), np.asarray(imu.f_ib_b, float)
+    def propagate(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
+        """Row by row: the motion decision and the hand-over fall between two samples."""
+        if backward:
+            raise NotImplementedError("auto does not support backward propagation")
+        T, W, F = np.asarray(t_s, float), np.asarray(omega_ib_b, float), np.asarray(f_ib_b, float)
+        for k in range(T.shape[0]):
+            self._row(T[k:k + 1], W[k:k + 1], F[k:k + 1])
+
+    def _row(self, T: np.ndarray, W: np.ndarray, F: np.ndarray) -> None:
+        t, w, f = float(T[0]), W[0], F[0]
         if self.motion is not None and self.state == "in motion" and t >= self._next_speed_check_t:
             self._next_speed_check_t = t + SPEED_CHECK_PERIOD_S
             self.detector_skipped = self._speed() > DETECTOR_SKIP_SPEED_M_S
@@ -190,11 +194,11 @@ class AutoCore(AlignmentCore):
                 mean = self._block.add(t - t_prev, w)
                 if mean is not None:
                     self._blocks.append(mean)
-            self.static.propagate(imu)
+            self.static.propagate(T, W, F)
             if dec is not None and dec.moving:
                 self._handover(t, dec.since_s)
             return
-        self.motion.propagate(imu)
+        self.motion.propagate(T, W, F)
         if self.state == "stopped" and t_prev is not None and t > t_prev:
             self._stop_block(t - t_prev, w, dec is not None and dec.decided and not dec.moving)
         if dec is None or not dec.decided:
@@ -327,7 +331,7 @@ class AutoCore(AlignmentCore):
             est.lat_rad, est.lon_rad, est.h_m = lat, lon, h
             sig_p = math.hypot(math.sqrt(max(np.trace(R_f) / 3.0, 0.0)), sig_v * abs(t0 - t_f))
         self.gyro_bias_prior = None
-        if n_blocks * REST_BLOCK_S >= cfg.gyro_rest_min_s and core.supports_gyro_bias_prior:
+        if n_blocks * REST_BLOCK_S >= cfg.gyro_rest_min_s and GyroBiasPrior in core.accepts:
             sig_lvl = math.sqrt(max(P[0, 0], P[1, 1], 0.0))
             mean_b, var_b = rest_rate_mean(np.array(self._blocks[:n_blocks]))
             if n_blocks < SHORT_REST_BLOCKS:  # a short rest: at least the grade's white noise over the window
@@ -339,10 +343,11 @@ class AutoCore(AlignmentCore):
         try:
             core.initialize(t0, est.lat_rad, est.lon_rad, est.h_m, est.C_b_n, v0_n, P, sig_v, sig_p)
             if self.gyro_bias_prior is not None:
-                core.set_gyro_bias_prior(*self.gyro_bias_prior)
-            for (ts, w, f) in self.hist:
-                if ts > t0:
-                    core.propagate(ImuSample(ts, w, f))
+                core.update(GyroBiasPrior(*self.gyro_bias_prior, stamp_s=t0))
+            replay = [row for row in self.hist if row[0] > t0]
+            if replay:
+                core.propagate(np.array([r[0] for r in replay]), np.array([r[1] for r in replay]),
+                               np.array([r[2] for r in replay]))
         except Exception:
             core.close()
             raise

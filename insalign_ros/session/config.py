@@ -75,7 +75,7 @@ class SessionConfig:
     init_rpy_error_deg: list = param(
         [0.0, 0.0, 0.0],
         'Euler error added to the truth when init_from_ground_truth [deg]')
-    #: initial roll, pitch, yaw 1-sigma [deg]; NaN: the core's own defaults (AlignmentCore.default_initial_sigmas)
+    #: initial roll, pitch, yaw 1-sigma [deg]; NaN: the core's own defaults (AlignmentCore.initial_sigmas)
     init_sigma_rpy_deg: list = param(
         NAN3,
         "initial roll, pitch, yaw 1-sigma [deg] (NaN: the core's own defaults)")

@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from ..core.types import GnssFix, GnssVelocity, ImuSample
+from ..core.types import GnssFix, GnssVelocity
 from ..filters.measurements import GnssPosition, ZeroVelocity
 from ..filters.measurements import GnssVelocity as GnssVelocityModel
 from ..filters.vehicle_models import GnssHeading as GnssHeadingModel
@@ -43,15 +43,12 @@ class Fusion:
     def reset(self) -> None:
         pass
 
-    def feed(self, event) -> None:
+    def propagate(self, t_s, omega_ib_b, f_ib_b) -> None:
+        """IMU samples as arrays (one sample: length 1) to the core, or to the backtracking driver that records
+        them for its passes."""
         sess = self.s
         sess._est_memo = None
-        if sess.bt is not None:
-            sess.bt.feed(event)
-        elif isinstance(event, ImuSample):
-            sess.core.propagate(event)
-        else:
-            return
+        (sess.bt if sess.bt is not None else sess.core).propagate(t_s, omega_ib_b, f_ib_b)
 
     def apply_due_fixes(self, out: list[Output]) -> None:
         sess = self.s
@@ -204,7 +201,7 @@ class Fusion:
             sess.log("info", "gnss_hold", f"GNSS agrees with the held filter again after "
                                           f"{fix.stamp_s - sess.guard._hold_since:.1f} s: fusing fixes")
             sess.guard._hold_since = None
-        res = sess.bt.feed(fix) if sess.bt is not None else core.update(fix)
+        res = (sess.bt if sess.bt is not None else core).update(fix)
         if res is None:
             return
         sess.last_nis = res.nis

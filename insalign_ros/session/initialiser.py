@@ -39,12 +39,12 @@ class Initialiser:
         self.pre_init: deque = deque(maxlen=4000)  # IMU samples before the initialisation (level from sensors)
 
     def capabilities(self):
-        """(accepts GNSS positions, default_initial_sigmas) of the configured core, from one probe built once (not per
+        """(accepts GNSS positions, initial_sigmas) of the configured core, from one probe built once (not per
         sample while the session waits for its first fix)."""
         sess = self.s
         if self._probe is None:
             probe = registry.make_core(sess.cfg.core, sess.core_params)
-            self._probe = (GnssPosition in probe.accepts, probe.default_initial_sigmas())
+            self._probe = (GnssPosition in probe.accepts, probe.initial_sigmas)
             probe.close()
         return self._probe
 

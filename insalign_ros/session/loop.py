@@ -1,6 +1,6 @@
 """The processing loop: buffered IMU samples up to the fusion horizon go to the core in stamp order, runs without
-events as arrays (``core.propagate_arrays``), the samples at which something falls due (a fix, an output, a gap, a
-possible spike) one by one. Period tracking, spike dropping and gap bridging live here.
+events as arrays (``core.propagate``), the samples at which something falls due (a fix, an output, a gap, a
+possible spike) one by one (arrays of length 1: the same entry). Period tracking, spike dropping and gap bridging live here.
 
 docs/session.md ("Time line", "Gaps"), docs/speed.md."""
 
@@ -12,8 +12,6 @@ from collections import deque
 
 import numpy as np
 
-from ..core.types import ImuSample
-from ..filters.base import AlignmentCore
 from . import gaps
 from .buffers import Ring, row_norms
 from .outputs import Output
@@ -86,7 +84,7 @@ class Loop:
         A sample needs attention when its interval could be a gap or make the spike check return early (bounded with
         a lower bound of the running median interval), or when it could be a spike (off both neighbours by more than
         the configured bounds, which the adaptive bound never undercuts). Everything else ``_step`` does per sample
-        is done here for the run at once (period tracking, counters, history, ``core.propagate_arrays``), with the
+        is done here for the run at once (period tracking, counters, history, ``core.propagate``), with the
         same result (docs/speed.md)."""
         sess = self.s
         core, cfg = sess.core, sess.cfg
@@ -212,10 +210,7 @@ class Loop:
         sess._est_memo = None
         try:
             sess.yaw_seed.imu_arrays(T, W, F)
-            if core.propagate_arrays_matches_propagate:
-                core.propagate_arrays(T, W, F)
-            else:
-                AlignmentCore.propagate_arrays(core, T, W, F)
+            core.propagate(T, W, F)
             if t >= t_end:
                 self.events_at(t, out)
         except Exception as exc:  # noqa: BLE001 - a core failure is a fault; the alignment restarts
@@ -275,7 +270,7 @@ class Loop:
         gap = dt is not None and self._gap_thr is not None and dt > self._gap_thr
         if gap:
             self._on_gap(prev, t, w, f)
-        sess.fusion.feed(ImuSample(t, w, f))
+        sess.fusion.propagate(np.array([t]), np.asarray(w, float)[None], np.asarray(f, float)[None])
         sess.counters["imu_processed"] += 1
         self.hist_t.append(t)
         self.hist_w.append(w)
@@ -348,7 +343,7 @@ class Loop:
         for part in parts:
             sess.core.inflate_navigation(var_att / len(parts), var_v / len(parts), 0.0)
             for k in part[part < n_mid]:
-                sess.fusion.feed(ImuSample(float(t_mid[k]), Y_mid[k, :3], Y_mid[k, 3:]))
+                sess.fusion.propagate(t_mid[k:k + 1], Y_mid[k:k + 1, :3], Y_mid[k:k + 1, 3:])
                 sess.fusion.apply_fixes_until(float(t_mid[k]), [])
                 if sess.core is None:  # a divergence restarted the session
                     return

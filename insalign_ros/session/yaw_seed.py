@@ -24,7 +24,7 @@ from ..core import earth
 from ..core.types import GnssFix, GnssVelocity
 from ..filters import registry
 from ..filters.yaw_gsf import YawGsf, YawGsfConfig, velocity_from_fixes
-from ..filters.measurements import GnssPosition
+from ..filters.measurements import GnssPosition, GyroBiasPrior
 from .auto import AutoCore
 
 D2R = math.pi / 180.0
@@ -129,11 +129,11 @@ class YawSeed:
         name, params = (core.cfg.motion_core, core.cfg.grade_params(core.cfg.motion_core)) if auto \
             else (sess.initialiser._core_name(sess.core_params), dict(sess.core_params))
         params["yaw_hypotheses"] = 1
-        new = seeded_core(target, name, params, self.gsf.yaw_rad, SEED_VAR_FACTOR * var)
+        # core: auto starts its in-motion core from the gyro bias measured at rest (when it had one), as at its hand-over
+        new = seeded_core(target, name, params, self.gsf.yaw_rad, SEED_VAR_FACTOR * var,
+                          core.gyro_bias_prior if auto else None)
         if auto:
             core.replace_motion_core(new, f"yaw from GNSS velocity (GSF, 1-sigma {math.sqrt(var) / D2R:.2f} deg)")
-            if core.gyro_bias_prior is not None and new.supports_gyro_bias_prior:
-                new.set_gyro_bias_prior(*core.gyro_bias_prior)
         else:
             sess.core = new
             core.close()
@@ -156,9 +156,10 @@ class YawSeed:
         return d
 
 
-def seeded_core(old, name: str, params: dict, yaw_rad: float, yaw_var_rad2: float):
+def seeded_core(old, name: str, params: dict, yaw_rad: float, yaw_var_rad2: float, gyro_bias_prior=None):
     """A new core ``name`` started from ``old``'s estimate now (position, velocity, level and their covariance)
-    with the yaw ``yaw_rad`` (ENU, of the body x axis) and its variance instead of ``old``'s."""
+    with the yaw ``yaw_rad`` (ENU, of the body x axis) and its variance instead of ``old``'s; where the new core keeps
+    a gyro bias, ``gyro_bias_prior`` (b_g_b [rad/s], 3x3 [rad^2/s^2]) or else the bias ``old`` learned."""
     est = old.estimate()
     rpy = earth.rpy_from_C_b_n(np.asarray(est.C_b_n, float))
     P_att = np.array(est.P_att_n, float)
@@ -180,9 +181,11 @@ def seeded_core(old, name: str, params: dict, yaw_rad: float, yaw_var_rad2: floa
     try:
         new.initialize(est.stamp_s, est.lat_rad, est.lon_rad, est.h_m, earth.C_b_n_from_rpy(rpy[0], rpy[1], yaw_rad),
                        np.asarray(est.v_n, float), P_att, sig_v, sig_p)
-        if est.bias_gyro_b is not None and len(gyro) == 3 and new.supports_gyro_bias_prior \
-                and P.shape[0] > max(gyro):  # the gyro bias the old core learned, with its covariance
-            new.set_gyro_bias_prior(np.asarray(est.bias_gyro_b, float), P[np.ix_(gyro, gyro)].copy())
+        if gyro_bias_prior is None and est.bias_gyro_b is not None and len(gyro) == 3 and P.shape[0] > max(gyro):
+            # the gyro bias the old core learned, with its covariance
+            gyro_bias_prior = (np.asarray(est.bias_gyro_b, float), P[np.ix_(gyro, gyro)].copy())
+        if gyro_bias_prior is not None and GyroBiasPrior in new.accepts:
+            new.update(GyroBiasPrior(*gyro_bias_prior, stamp_s=est.stamp_s))
     except Exception:
         new.close()
         raise

@@ -1,10 +1,12 @@
-"""The per-event loop shared by the offline runner (insalign-align, benchmarks) and the ROS alignment node.
+"""Bare filter loops: the reference oracles of the tests (not the way to run an alignment: that is
+``insalign_ros.align`` / the session, session/).
 
-:class:`EventRunner` feeds :class:`ImuSample` / :class:`GnssFix` events to an :class:`AlignmentCore` in time
-order: IMU samples stamped at or before the initialisation stamp are skipped (they cover intervals before
-the initial state), GNSS fixes older than the core's time are skipped (counted, with the reason).
-:func:`initial_guess` builds the initial state from a truth sample plus an Euler error (or a user guess).
-No ROS import.
+* :class:`EventRunner` / :func:`run_offline`: feeds ``ImuSample`` / ``GnssFix`` events to an initialised core, one at a
+  time (IMU samples at or before the initialisation stamp skipped, fixes older than it skipped; counted);
+  :func:`initial_guess` builds the initial state from a truth sample plus an Euler error.
+* :func:`run_static`: a static core with a zero-velocity update every ``round(rate / zupt_hz)`` samples.
+* :func:`run_offline_backtrack`: the backtracking driver (filters/backtrack.py) over a whole data set, the passes run
+  to completion at once.
 """
 
 from __future__ import annotations
@@ -14,10 +16,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core import earth
-from ..core.types import GnssFix, ImuSample
-from .base import AlignmentCore, AlignmentEstimate, UpdateResult
-from .measurements import GnssPosition
+from insalign_ros.core import earth
+from insalign_ros.core.types import GnssFix, ImuSample
+from insalign_ros.filters.backtrack import BacktrackingAligner
+from insalign_ros.filters.base import AlignmentCore, AlignmentEstimate, UpdateResult
+from insalign_ros.filters.measurements import GnssPosition, ZeroVelocity
 
 D2R = math.pi / 180.0
 
@@ -75,7 +78,8 @@ class EventRunner:
                 self.counters["imu_skipped_before_init"] += 1
                 return None
             self.counters["imu"] += 1
-            self.core.propagate(event)
+            self.core.propagate(np.array([event.stamp_s], float), np.asarray(event.omega_ib_b, float)[None],
+                                np.asarray(event.f_ib_b, float)[None])
             return None
         if isinstance(event, GnssFix):
             self.counters["gnss"] += 1
@@ -133,3 +137,54 @@ def run_offline(core, data, rpy_error_deg, output_period_s: float = 0.5, init_in
     runner = EventRunner(core, float(data.t_s[k]))
     ests = runner.run(data.events(start=k), output_period_s=output_period_s, progress=progress)
     return ests, runner
+
+
+def run_static(core: AlignmentCore, sc, az0_rad: float, sigma_R_m_s: float, zupt_hz: float = 10.0,
+               init_sigma_yaw_deg: float = 100.0, init_sigma_level_deg: float = 2.0, record_hz: float = 1.0):
+    """Run a static core on a ScenarioData from the true attitude turned by az0 about Up.
+
+    Returns (t_s, err_rad (K, 3): psi = heading_error_enu_rad(est, true) [E, N, U], sigma3_rad (K, 3)).
+    The zero-velocity update runs every round(rate/zupt_hz) IMU samples.
+    """
+    C0 = earth.C_b_n_from_rpy(0.0, 0.0, az0_rad) @ sc.C_b_n[0]
+    P0 = np.diag(np.radians([init_sigma_level_deg, init_sigma_level_deg, init_sigma_yaw_deg]) ** 2)
+    core.initialize(float(sc.t_s[0]), float(sc.lat_rad[0]), float(sc.lon_rad[0]), float(sc.h_m[0]), C0,
+                    np.zeros(3), P0, 0.01, 1.0)
+    rate = 1.0 / float(sc.t_s[1] - sc.t_s[0])
+    every = max(1, int(round(rate / zupt_hz)))
+    rec = max(1, int(round(rate / record_hz)))
+    ts, errs, sig = [], [], []
+    for k in range(1, sc.n):
+        core.propagate(sc.t_s[k:k + 1], sc.omega_ib_b[k:k + 1], sc.f_ib_b[k:k + 1])
+        if k % every == 0 and ZeroVelocity in core.accepts:
+            core.update(ZeroVelocity(float(sc.t_s[k]), sigma_R_m_s))
+        if k % rec == 0:
+            e = core.estimate()
+            ts.append(float(sc.t_s[k]))
+            errs.append(earth.heading_error_enu_rad(e.C_b_n, sc.C_b_n[k]))
+            sig.append(3.0 * np.sqrt(np.maximum(np.diag(e.P_att_n), 0.0)))
+    return np.array(ts), np.array(errs), np.array(sig)
+
+
+def run_offline_backtrack(core, data, rpy_error_deg, window_s: float, passes: int = 1, output_period_s: float = 1.0,
+                          init_index: int = 0, covariance: str = "reset"):
+    """Offline: initialise from the truth of ``data`` plus an Euler error, feed all events; at the end of the
+    window run the passes to completion at once (zero catch-up). Returns (estimates, aligner)."""
+    k = init_index
+    guess = initial_guess(data.t_s[k], data.lat_rad[k], data.lon_rad[k], data.h_m[k], data.C_b_n[k], data.v_n[k],
+                          rpy_error_deg, core.cfg)
+    guess.apply(core)
+    bt = BacktrackingAligner(core, float(data.t_s[k]), window_s, passes, covariance=covariance)
+    out = []
+    next_out = float(data.t_s[k])
+    for ev in data.events(start=k):
+        if isinstance(ev, ImuSample):
+            bt.propagate([ev.stamp_s], np.asarray(ev.omega_ib_b, float)[None], np.asarray(ev.f_ib_b, float)[None])
+        else:
+            bt.update(GnssPosition.of(ev))
+        if bt.busy:
+            bt.run_until_done()
+        if isinstance(ev, ImuSample) and ev.stamp_s >= next_out - 1e-9 and ev.stamp_s > data.t_s[k]:
+            out.append(bt.estimate())
+            next_out = ev.stamp_s + output_period_s
+    return out, bt
