@@ -315,16 +315,17 @@ def test_parked_then_driving_car_flags_when_its_heading_is_certain(seed):
 
 def test_a_car_parked_for_seconds_flags_when_its_heading_is_certain():
     """Issue 25, shortened: the simulated car parks 4.5 s, then drives (``vehicle: car``, 1-Hz fixes, seed 0). core
-    auto measures its gyro bias over that rest (gyro_rest_min_s 4 s), so the level stays under the flag's 1-deg
-    3-sigma and every criterion holds with the yaw, 8.7 s after the first motion (with the grade's 360 deg/h
-    turn-on bias instead: 18.7 s); the yaw error inside its 3-sigma."""
-    row = _bench().run("car", 0, "car", 120.0, until_s=20.0)
-    assert row["t_level_s"] <= 9.5 and row["t_criteria_s"] <= 9.5, row
+    auto measures its gyro bias over that rest (gyro_rest_min_s 4 s); the yaw criterion holds 8.7 s after the first
+    motion, the level's (1-deg 3-sigma) at 19.7 s: the constraint's vertical row, which made it 8.7 s, is left out
+    (it ties the pitch to the vehicle's direction of travel, which a real IMU's mounting does not follow: KITTI 0042,
+    docs/yaw_gsf.md); the yaw error inside its 3-sigma."""
+    row = _bench().run("car", 0, "car", 120.0, until_s=30.0)
+    assert row["t_yaw_s"] <= 9.5 and row["t_level_s"] <= 21.0 and row["t_criteria_s"] <= 21.0, row
     assert row["max_err_criteria_deg"] <= 2.0 and row["coverage"] == 1.0, row
 
 
 def test_the_non_holonomic_constraint_of_a_car_makes_the_heading_certain_sooner():
-    """``vehicle: car``: the session fuses the non-holonomic constraint (10 Hz, lateral 0.5 m/s, vertical 0.3 m/s)
+    """``vehicle: car``: the session fuses the non-holonomic constraint (10 Hz, lateral 0.5 m/s; no vertical row)
     into the in-motion core. Simulated car (moving from 1.8 s, 1-Hz fixes only), core iekf from the sensors, 45 s,
     seed 0: the yaw 3-sigma at the end is at least 2x smaller than without it (measured 1.15 vs 5.32 deg; the flag
     up at the end) and the error stays inside it; every constraint passes its gate (the simulated car does not slide)."""

@@ -29,7 +29,8 @@ _I3 = np.eye(3)
 
 
 class NonHolonomic(Measurement):
-    """Lateral and vertical velocity of the vehicle frame ~ 0 (a land vehicle neither slides nor jumps)."""
+    """Lateral and vertical velocity of the vehicle frame ~ 0 (a land vehicle neither slides nor jumps).
+    ``sigma_vertical_m_s`` = inf leaves the vertical row out (the lateral constraint alone)."""
 
     counter = "nhc"
     label = "non-holonomic constraint"
@@ -41,17 +42,22 @@ class NonHolonomic(Measurement):
         self.sigma_vertical_m_s = float(sigma_vertical_m_s)
         self.C_b_v = _I3.copy() if C_b_v is None else np.asarray(C_b_v, float)
 
+    @property
+    def rows(self) -> list:
+        """The rows of the vehicle frame constrained: y (lateral), and z (vertical) unless its sigma is inf."""
+        return [1] if math.isinf(self.sigma_vertical_m_s) else [1, 2]
+
     def check(self) -> str:
         s = (self.sigma_lateral_m_s, self.sigma_vertical_m_s)
-        if not all(math.isfinite(x) and x > 0 for x in s):
-            return f"sigmas {s} must be finite and > 0"
+        if not (math.isfinite(s[0]) and s[0] > 0 and s[1] > 0 and not math.isnan(s[1])):
+            return f"sigmas {s} must be > 0 (lateral finite; vertical inf: not constrained)"
         C = self.C_b_v
         if C.shape != (3, 3) or not np.all(np.isfinite(C)) or np.abs(C @ C.T - _I3).max() > 1e-6:
             return "C_b_v must be a 3x3 rotation matrix"
         return ""
 
     def noise(self) -> np.ndarray:
-        return np.diag([self.sigma_lateral_m_s ** 2, self.sigma_vertical_m_s ** 2])
+        return np.diag([self.sigma_lateral_m_s ** 2, self.sigma_vertical_m_s ** 2][:len(self.rows)])
 
 
 def _earth_relative_velocity_i(core) -> tuple[np.ndarray, np.ndarray]:
@@ -63,13 +69,13 @@ def _earth_relative_velocity_i(core) -> tuple[np.ndarray, np.ndarray]:
 
 @jacobian(NonHolonomic, "eci_left")
 def _nhc_eci_left(m: NonHolonomic, core):
-    """h = E C_b_v C^T u, E the (y, z) rows. With C = C_hat exp(phi), v = v_hat + C_hat nu, p = p_hat + C_hat rho:
+    """h = E C_b_v C^T u, E the (y, z) rows (y alone without the vertical). With C = C_hat exp(phi), v = v_hat + C_hat nu, p = p_hat + C_hat rho:
     h = h_hat + E C_b_v [b_x phi + nu - w_x rho], b = C_hat^T u_hat, w = C_hat^T Omega."""
     u, W = _earth_relative_velocity_i(core)
     Ct = core.C.T
     b, w = Ct @ u, Ct @ W
-    E = m.C_b_v[1:3]
-    H = np.zeros((2, core._n_states))
+    E = m.C_b_v[m.rows]
+    H = np.zeros((len(E), core._n_states))
     H[:, 0:3] = E @ lie.hat3(b)
     H[:, 3:6] = E
     H[:, 6:9] = -E @ lie.hat3(w)
@@ -80,8 +86,8 @@ def _nhc_eci_left(m: NonHolonomic, core):
 def _nhc_eci_ekf(m: NonHolonomic, core):
     """With C = exp(psi_x) C_hat, v = v_hat + dv, p = p_hat + dp: h = h_hat + E C_b_v C_hat^T [u_x psi + dv - Omega_x dp]."""
     u, W = _earth_relative_velocity_i(core)
-    A = m.C_b_v[1:3] @ core.C.T
-    H = np.zeros((2, core._n_states))
+    A = m.C_b_v[m.rows] @ core.C.T
+    H = np.zeros((len(A), core._n_states))
     H[:, 0:3] = A @ lie.hat3(u)
     H[:, 3:6] = A
     H[:, 6:9] = -A @ lie.hat3(W)
