@@ -55,6 +55,47 @@ def pytest_configure(config):
     _WARMUP["s" if not any(rcs) else "error"] = time.perf_counter() - t0 if not any(rcs) else f"exit codes {rcs}"
 
 
+#: measured wall time of the longest tests [s] (CI, 2 workers, loaded 2-core machine), by node id prefix: only the
+#: order of the run depends on it (longest first), never a result; a test not listed counts 10 s when it starts
+#: nodes over DDS (marker ``ros``), 0.5 s otherwise
+_LONG_TESTS_S = {
+    "test_node_ready.py::test_cold_numba_cache": 75.0,
+    "test_node_stamp_jitter.py::test_host_stamp_jitter_over_dds": 45.0,
+    "test_node_e2e.py::test_every_core_publishes_pose": 42.0,
+    "test_node_bad_input.py::test_bad_input_is_rejected": 37.0,
+    "test_node_driver_style.py::test_driver_style_stream_with_default_parameters": 25.0,
+    "test_node_ready.py::test_imu_only_once_aligned": 26.0,
+    "test_node_demo.py::test_demo_aligns": 24.0,
+    "test_sample_bag.py::test_the_sample_bag_replays": 24.0,
+    "test_node_outputs.py::test_imu_datum_and_reset_over_dds": 23.0,
+    "test_node_bag_replay.py::test_replayed_bag_reaches_aligned": 23.0,
+    "test_node_equivalence.py::test_lagged_fixes_over_dds": 20.0,
+    "test_sim_scenarios.py::test_closing_the_loop_noise_free": 15.0,
+}
+
+
+def _expected_s(item) -> float:
+    nodeid = item.nodeid.split("/")[-1]
+    for prefix, s in _LONG_TESTS_S.items():
+        if nodeid.startswith(prefix):
+            return s
+    return 10.0 if item.get_closest_marker("ros") is not None else 0.5
+
+
+def pytest_collection_modifyitems(config, items):
+    """Under pytest-xdist, the longest tests first on every worker: pytest-xdist's ``worksteal`` (scripts/test)
+    hands each worker one contiguous slice of the collection and lets an idle worker steal the tail of another's
+    queue, so the items are dealt round-robin by expected duration into one slice per worker, each slice longest
+    first. A long test left for the end (the collection's file order put the DDS tests there) kept one worker busy
+    for a minute while the other idled. Without xdist the order is pytest's."""
+    n = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "0") or 0)
+    if n < 2 or not items:
+        return
+    ranked = sorted(items, key=_expected_s, reverse=True)  # stable: file order among equals
+    slices = [ranked[i::n] for i in range(n)]
+    items[:] = [it for s in slices for it in s]
+
+
 def pytest_report_header(config):
     if "s" in _WARMUP:
         return f"numba kernels compiled before the workers started (cold cache): {_WARMUP['s']:.1f} s"

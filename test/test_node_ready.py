@@ -33,7 +33,14 @@ def _wait(pred, timeout_s: float, period_s: float = 0.05) -> bool:
 
 
 @pytest.mark.timeout(600)
-def test_cold_numba_cache_the_node_subscribes_when_ready_and_loses_nothing(tmp_path, ros_env):
+@pytest.mark.parametrize("core", [
+    # the static core compiles 4 of the default core's 10 kernels (a third of its compile time): the same
+    # warm-up-before-subscribe path as any core's (AlignmentNode.__init__ -> session.warmup.warm_up((core,)))
+    "pkf",
+    # the default core, what a first run compiles (75 s of a 10-min suite on a loaded 2-core machine): -m slow
+    pytest.param("auto", marks=pytest.mark.slow),
+])
+def test_cold_numba_cache_the_node_subscribes_when_ready_and_loses_nothing(tmp_path, ros_env, core):
     import rclpy
     from rclpy.node import Node
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -52,7 +59,8 @@ def test_cold_numba_cache_the_node_subscribes_when_ready_and_loses_nothing(tmp_p
     try:
         t_start = time.monotonic()
         # a reader queue of 1 s at 200 Hz: a first tick that compiled for seconds would overflow it
-        nodes.append(start_node(ALIGN, env, log_dir=tmp_path, params={"imu_timeout_s": 0.0, "imu_qos_depth": 200}))
+        nodes.append(start_node(ALIGN, env, log_dir=tmp_path, params={"imu_timeout_s": 0.0, "imu_qos_depth": 200,
+                                                                          "core": core}))
         # the driver: streams as soon as it sees a subscriber (as a real driver does not wait at all: then the
         # first messages are lost to DDS whatever the node does; that part is the driver's)
         assert _wait(lambda: pub.get_subscription_count() > 0 or not nodes[0].alive(), 500.0, 0.01)
