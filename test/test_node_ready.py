@@ -3,7 +3,8 @@ docs/nodes.md "Start-up and readiness", "~/imu and robot_localization", "Frames"
 
 - With an EMPTY numba cache the node compiles its kernels before it subscribes ("ready (kernels compiled in X s)"),
   so a driver that starts streaming as soon as it sees a subscriber loses nothing: every message sent at 200 Hz is
-  counted by the node (its /diagnostics).
+  counted by the node (its /diagnostics). The default run compiles the static core's kernels (pkf); the default
+  core's (auto, three times the compile time) is marked slow.
 - With the defaults no ~/imu message goes out before the first ~/aligned True, and every ~/imu message carries an
   attitude covariance inside the flag's bounds; ~/pose is in frame ``map``, ~/imu in ``base_link``; ordinary driver
   frame ids (``imu``, ``/gps``) pass without a warning; /diagnostics ``hardware_id`` names the IMU.
