@@ -70,7 +70,7 @@ _LONG_TESTS_S = {
     "test_node_outputs.py::test_imu_datum_and_reset_over_dds": 23.0,
     "test_node_bag_replay.py::test_replayed_bag_reaches_aligned": 23.0,
     "test_node_equivalence.py::test_lagged_fixes_over_dds": 20.0,
-    "test_sim_scenarios.py::test_closing_the_loop_noise_free": 15.0,
+    "test_sim_scenarios.py::test_closing_the_loop_noise_free": 5.0,
 }
 
 
