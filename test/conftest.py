@@ -55,22 +55,37 @@ def pytest_configure(config):
     _WARMUP["s" if not any(rcs) else "error"] = time.perf_counter() - t0 if not any(rcs) else f"exit codes {rcs}"
 
 
-#: measured wall time of the longest tests [s] (CI, 2 workers, loaded 2-core machine), by node id prefix: only the
-#: order of the run depends on it (longest first), never a result; a test not listed counts 10 s when it starts
-#: nodes over DDS (marker ``ros``), 0.5 s otherwise
+#: wall time of the longest tests [s] (scripts/test on 2 workers, cold cache, load average 4-13 on the 2-core machine;
+#: the cold-cache test was 75 s in CI on the default core) by node id prefix: only the order of the run depends on it
+#: (longest first), never a result; a test not listed counts 10 s when it starts nodes over DDS (marker ``ros``),
+#: 0.5 s otherwise
 _LONG_TESTS_S = {
-    "test_node_ready.py::test_cold_numba_cache": 75.0,
-    "test_node_stamp_jitter.py::test_host_stamp_jitter_over_dds": 45.0,
-    "test_node_e2e.py::test_every_core_publishes_pose": 42.0,
-    "test_node_bad_input.py::test_bad_input_is_rejected": 37.0,
-    "test_node_driver_style.py::test_driver_style_stream_with_default_parameters": 25.0,
-    "test_node_ready.py::test_imu_only_once_aligned": 26.0,
+    "test_node_ready.py::test_cold_numba_cache": 100.0,
+    "test_node_e2e.py::test_every_core_publishes_pose": 43.0,
+    "test_node_bad_input.py::test_bad_input_is_rejected": 35.0,
+    "test_node_stamp_jitter.py::test_host_stamp_jitter_over_dds": 35.0,
+    "test_sample_bag.py::test_the_sample_bag_replays": 30.0,
+    "test_node_equivalence.py::test_lagged_fixes_over_dds": 29.0,
+    "test_node_outputs.py::test_imu_datum_and_reset_over_dds": 29.0,
+    "test_align_fleet.py::test_fleet_on_two_workers": 29.0,
+    "test_node_ready.py::test_imu_only_once_aligned": 27.0,
     "test_node_demo.py::test_demo_aligns": 24.0,
-    "test_sample_bag.py::test_the_sample_bag_replays": 24.0,
-    "test_node_outputs.py::test_imu_datum_and_reset_over_dds": 23.0,
-    "test_node_bag_replay.py::test_replayed_bag_reaches_aligned": 23.0,
-    "test_node_equivalence.py::test_lagged_fixes_over_dds": 20.0,
-    "test_sim_scenarios.py::test_closing_the_loop_noise_free": 5.0,
+    "test_node_bag_replay.py::test_replayed_bag_reaches_aligned": 24.0,
+    "test_node_driver_style.py::test_driver_style_stream_with_default_parameters": 20.0,
+    "test_node_equivalence.py::test_node_over_dds_equals_the_offline_api": 20.0,
+    "test_imu_axes.py::test_imu_axes_over_dds": 19.0,
+    "test_node_e2e.py::test_ship_run_reaches_aligned": 18.0,
+    "test_coarse_rocking.py::test_three_sigma_covers_rocking": 17.0,
+    "test_session_fuzz.py::test_session_survives_any_fault": 15.0,
+    "test_node_bag_replay.py::test_paced_bag_replay": 16.0,
+    "test_first_run.py::test_read_only_install": 12.0,
+    "test_backtrack.py::test_driver_live_feed_budgeted": 12.0,
+    "test_backtrack.py::test_backward_and_catch_up_300s": 11.0,
+    "test_auto_mode.py::test_park_drive_navgrade_heading": 9.0,
+    "test_speed_paths.py::test_session_fast_path_matches_per_sample_over_300_s": 8.0,
+    "test_session.py::test_session_equals_the_per_event_runner": 7.0,
+    "test_lie.py::test_exp_log_round_trip_10000": 7.0,
+    "test_sim_scenarios.py::test_closing_the_loop_noise_free": 6.0,
 }
 
 
