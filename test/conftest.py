@@ -90,8 +90,6 @@ _LONG_TESTS_S = {
 
 
 def _expected_s(item) -> float:
-    if item.get_closest_marker("wallclock") is not None:  # last: it waits until the other worker's current test ends
-        return -1.0  # (a long DDS test at the start of the run), the shortest wait is among the last, shortest tests
     nodeid = item.nodeid.split("/")[-1]
     for prefix, s in _LONG_TESTS_S.items():
         if nodeid.startswith(prefix):
@@ -109,7 +107,9 @@ def pytest_collection_modifyitems(config, items):
     if n < 2 or not items:
         return
     ranked = sorted(items, key=_expected_s, reverse=True)  # stable: file order among equals
-    slices = [ranked[i::n] for i in range(n)]
+    # the shorter slices first: worksteal sends len(pending) // (workers left) to each worker in turn, so the
+    # slices then match its chunks exactly (one item off, a slice's last, shortest test would start another worker)
+    slices = sorted((ranked[i::n] for i in range(n)), key=len)
     items[:] = [it for s in slices for it in s]
 
 
