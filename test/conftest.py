@@ -97,6 +97,7 @@ def _expected_s(item) -> float:
     return 10.0 if item.get_closest_marker("ros") is not None else 0.5
 
 
+@pytest.hookimpl(trylast=True)  # after the -m deselection: the slices must be of the items that run
 def pytest_collection_modifyitems(config, items):
     """Under pytest-xdist, the longest tests first on every worker: pytest-xdist's ``worksteal`` (scripts/test)
     hands each worker one contiguous slice of the collection and lets an idle worker steal the tail of another's
