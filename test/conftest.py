@@ -12,8 +12,6 @@ import insalign_ros.session  # noqa: F401  registers the session-level core 'aut
 
 
 _WARMUP: dict = {}
-#: the cores, in two halves of similar compile time (in-motion ECI cores; the static and Earth-frame ones with `auto`)
-_WARMUP_HALVES = ("liekf,pi_liekf,iekf,ekf,liekf_backtrack", "auto,pkf,ekf10,coarse,earth_iekf")
 
 
 def _kernel_index_files() -> int:
@@ -32,7 +30,7 @@ def _kernel_index_files() -> int:
 def pytest_configure(config):
     """Under pytest-xdist (scripts/test) with a cold kernel cache (a fresh clone on an installed virtualenv: no
     ``*.nbi`` file yet), compile every core's numba kernels in the controller before the workers start, in two
-    processes at once (``python -m insalign_ros.session.warmup --cores ...``, half the cores each): otherwise both
+    processes at once (``python -m insalign_ros.session.warmup --jobs 2``, half the cores each): otherwise both
     workers compile the same kernels inside their first tests (60-100 s each, DDS tests waiting on a node that is not
     ready). With a warm cache (scripts/env.sh compiled them after installing) nothing is done.
     ``INSALIGN_TEST_WARMUP=1`` forces it, ``0`` skips it. The cold-start tests (test_first_run, test_node_ready) use
@@ -49,9 +47,9 @@ def pytest_configure(config):
     import time
 
     t0 = time.perf_counter()
-    procs = [subprocess.Popen([sys.executable, "-m", "insalign_ros.session.warmup", "--cores", half, "--quiet"])
-             for half in _WARMUP_HALVES]
-    rcs = [p.wait(timeout=1200) for p in procs]
+    # two processes of similar compile time (session/warmup.py GROUPS)
+    rcs = [subprocess.run([sys.executable, "-m", "insalign_ros.session.warmup", "--jobs", "2", "--quiet"],
+                          timeout=1200).returncode]
     _WARMUP["s" if not any(rcs) else "error"] = time.perf_counter() - t0 if not any(rcs) else f"exit codes {rcs}"
 
 
