@@ -85,8 +85,9 @@ def warm_up_once(cores: tuple[str, ...] = ("auto",), duration_s: float = 30.0) -
 
 
 #: ``--jobs 2``: every core in two processes of similar compile time (the in-motion ECI cores; ``auto`` with the
-#: static and Earth-frame ones). Measured cold at load 2 on 2 cores: 34 s against 57 s in one process; another split
-#: (the ECI family with ``auto`` last against the rest) compiled more on its longer side (46 against 39 CPU-s).
+#: static and Earth-frame ones). Measured cold on 2 cores at load 1-2: 60 s wall (112 CPU-s: a few kernels compiled
+#: on both sides) against 92 s (89 CPU-s) in one process; another split (the ECI family, then ``auto`` last, against
+#: the rest) compiled more on its longer side (46 against 39 CPU-s).
 #: A core missing here goes to the last group.
 GROUPS = (("liekf", "pi_liekf", "iekf", "ekf", "liekf_backtrack"), ("auto", "pkf", "ekf10", "coarse", "earth_iekf"))
 
