@@ -12,8 +12,6 @@ import insalign_ros.session  # noqa: F401  registers the session-level core 'aut
 
 
 _WARMUP: dict = {}
-#: the cores, in two halves of similar compile time (in-motion ECI cores; the static and Earth-frame ones with `auto`)
-_WARMUP_HALVES = ("liekf,pi_liekf,iekf,ekf,liekf_backtrack", "auto,pkf,ekf10,coarse,earth_iekf")
 
 
 def _kernel_index_files() -> int:
@@ -32,7 +30,7 @@ def _kernel_index_files() -> int:
 def pytest_configure(config):
     """Under pytest-xdist (scripts/test) with a cold kernel cache (a fresh clone on an installed virtualenv: no
     ``*.nbi`` file yet), compile every core's numba kernels in the controller before the workers start, in two
-    processes at once (``python -m insalign_ros.session.warmup --cores ...``, half the cores each): otherwise both
+    processes at once (``python -m insalign_ros.session.warmup --jobs 2``, half the cores each): otherwise both
     workers compile the same kernels inside their first tests (60-100 s each, DDS tests waiting on a node that is not
     ready). With a warm cache (scripts/env.sh compiled them after installing) nothing is done.
     ``INSALIGN_TEST_WARMUP=1`` forces it, ``0`` skips it. The cold-start tests (test_first_run, test_node_ready) use
@@ -49,10 +47,69 @@ def pytest_configure(config):
     import time
 
     t0 = time.perf_counter()
-    procs = [subprocess.Popen([sys.executable, "-m", "insalign_ros.session.warmup", "--cores", half, "--quiet"])
-             for half in _WARMUP_HALVES]
-    rcs = [p.wait(timeout=1200) for p in procs]
+    # two processes of similar compile time (session/warmup.py GROUPS)
+    rcs = [subprocess.run([sys.executable, "-m", "insalign_ros.session.warmup", "--jobs", "2", "--quiet"],
+                          timeout=1200).returncode]
     _WARMUP["s" if not any(rcs) else "error"] = time.perf_counter() - t0 if not any(rcs) else f"exit codes {rcs}"
+
+
+#: wall time of the longest tests [s] (scripts/test on 2 workers, cold cache, load average 4-13 on the 2-core machine;
+#: the cold-cache test was 75 s in CI on the default core) by node id prefix: only the order of the run depends on it
+#: (longest first), never a result; a test not listed counts 10 s when it starts nodes over DDS (marker ``ros``),
+#: 0.5 s otherwise
+_LONG_TESTS_S = {
+    "test_node_ready.py::test_cold_numba_cache": 100.0,
+    "test_node_e2e.py::test_every_core_publishes_pose": 43.0,
+    "test_node_bad_input.py::test_bad_input_is_rejected": 35.0,
+    "test_node_stamp_jitter.py::test_host_stamp_jitter_over_dds": 35.0,
+    "test_sample_bag.py::test_the_sample_bag_replays": 30.0,
+    "test_node_equivalence.py::test_lagged_fixes_over_dds": 29.0,
+    "test_node_outputs.py::test_imu_datum_and_reset_over_dds": 29.0,
+    "test_align_fleet.py::test_fleet_on_two_workers": 29.0,
+    "test_node_ready.py::test_imu_only_once_aligned": 27.0,
+    "test_node_demo.py::test_demo_aligns": 24.0,
+    "test_node_bag_replay.py::test_replayed_bag_reaches_aligned": 24.0,
+    "test_node_driver_style.py::test_driver_style_stream_with_default_parameters": 20.0,
+    "test_node_equivalence.py::test_node_over_dds_equals_the_offline_api": 20.0,
+    "test_imu_axes.py::test_imu_axes_over_dds": 19.0,
+    "test_node_e2e.py::test_ship_run_reaches_aligned": 18.0,
+    "test_coarse_rocking.py::test_three_sigma_covers_rocking": 17.0,
+    "test_session_fuzz.py::test_session_survives_any_fault": 15.0,
+    "test_node_bag_replay.py::test_paced_bag_replay": 16.0,
+    "test_first_run.py::test_read_only_install": 12.0,
+    "test_backtrack.py::test_driver_live_feed_budgeted": 12.0,
+    "test_backtrack.py::test_backward_and_catch_up_300s": 11.0,
+    "test_auto_mode.py::test_park_drive_navgrade_heading": 9.0,
+    "test_speed_paths.py::test_session_fast_path_matches_per_sample_over_300_s": 8.0,
+    "test_session.py::test_session_equals_the_per_event_runner": 7.0,
+    "test_lie.py::test_exp_log_round_trip_10000": 7.0,
+    "test_sim_scenarios.py::test_closing_the_loop_noise_free": 6.0,
+}
+
+
+def _expected_s(item) -> float:
+    nodeid = item.nodeid.split("/")[-1]
+    for prefix, s in _LONG_TESTS_S.items():
+        if nodeid.startswith(prefix):
+            return s
+    return 10.0 if item.get_closest_marker("ros") is not None else 0.5
+
+
+@pytest.hookimpl(trylast=True)  # after the -m deselection: the slices must be of the items that run
+def pytest_collection_modifyitems(config, items):
+    """Under pytest-xdist, the longest tests first on every worker: pytest-xdist's ``worksteal`` (scripts/test)
+    hands each worker one contiguous slice of the collection and lets an idle worker steal the tail of another's
+    queue, so the items are dealt round-robin by expected duration into one slice per worker, each slice longest
+    first. A long test left for the end (the collection's file order put the DDS tests there) kept one worker busy
+    for a minute while the other idled. Without xdist the order is pytest's."""
+    n = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "0") or 0)
+    if n < 2 or not items:
+        return
+    ranked = sorted(items, key=_expected_s, reverse=True)  # stable: file order among equals
+    # the shorter slices first: worksteal sends len(pending) // (workers left) to each worker in turn, so the
+    # slices then match its chunks exactly (one item off, a slice's last, shortest test would start another worker)
+    slices = sorted((ranked[i::n] for i in range(n)), key=len)
+    items[:] = [it for s in slices for it in s]
 
 
 def pytest_report_header(config):

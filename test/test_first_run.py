@@ -169,3 +169,18 @@ def test_the_demo_waits_for_the_node_subscription_not_for_a_time():
     t0 = time.monotonic()
     assert _wait_ready(_fake_mon(_FakeGraph(None)), _FakeProc(), None, t0, 0.3, out) is None
     assert time.monotonic() - t0 < 5.0
+
+
+def test_warm_up_jobs_split_every_core_once_into_the_measured_groups():
+    """``python -m insalign_ros.session.warmup --jobs 2`` (scripts/env.sh, the test suite's cold start): every core
+    exactly once, in the two groups of similar compile time; one group for one job or one core."""
+    from insalign_ros.filters.registry import core_names
+    from insalign_ros.session.warmup import GROUPS, core_groups
+
+    groups = core_groups(("all",), 2)
+    flat = [c for g in groups for c in g]
+    assert len(groups) == 2 and sorted(flat) == sorted(set(core_names()) | {"auto"}), groups
+    assert groups[0] == [c for c in GROUPS[0] if c in flat] and set(GROUPS[1]) <= set(groups[1]), groups
+    assert core_groups(("all",), 1) == [flat] or sorted(core_groups(("all",), 1)[0]) == sorted(flat)
+    assert core_groups(("auto",), 2) == [["auto"]]
+    assert core_groups(("liekf", "pkf", "iekf"), 3) == [["liekf"], ["pkf"], ["iekf"]]

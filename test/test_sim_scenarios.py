@@ -26,7 +26,10 @@ def _integrate(sc):
     return worst_att, pos_err
 
 
-@pytest.mark.parametrize("name,duration,pos_tol", [("ship", 300.0, 0.5), ("car", 300.0, 0.5), ("static", 1200.0, 0.05)])
+# static: 300 s and 3 mm keep the sensitivity of the former 1200 s and 5 cm (a quarter of the Python loop's time): a
+# gravity or Earth-rate mismatch dg between simulator and mechanization grows the position error as dg t^2 / 2 (well
+# inside the 84-min Schuler period), 5 cm at 1200 s <=> dg < 7e-8 m/s^2 <=> 3 mm at 300 s (measured: 2e-6 m at 300 s)
+@pytest.mark.parametrize("name,duration,pos_tol", [("ship", 300.0, 0.5), ("car", 300.0, 0.5), ("static", 300.0, 0.003)])
 def test_closing_the_loop_noise_free(name, duration, pos_tol):
     sc = make_scenario(name, seed=3, duration_s=duration, noise=False)
     assert sc.n == int(round(duration * sc.imu_spec.rate_hz)) + 1
