@@ -101,6 +101,38 @@ def _flag_intervals(log: str):
     return out
 
 
+def _stream_and_collect(drv, mon, node, d, nearest: bool):
+    """Wait for the node, stream ``d`` as the driver, wait until the node has taken it; return the node's log, its
+    poses and diagnostics, the pose stamps [s from T0_NS], the yaw error against the truth [deg] (at the truth sample
+    nearest the output stamp when ``nearest``, else the first at or after it), the flag intervals and the flag per
+    pose."""
+    end = time.monotonic() + 180.0  # imports and the kernels' warm-up on a loaded machine
+    while drv.pub_imu.get_subscription_count() < 1 or drv.pub_fix.get_subscription_count() < 1 \
+            or mon.node.count_publishers("/alignment_node/pose") < 1 or mon.diag_count < 1:
+        assert time.monotonic() < end, "alignment_node did not come up"
+        time.sleep(0.05)
+    drv.stream()
+    assert mon.wait_for(lambda m: int(m.diag.get("buffered_imu", "1")) == 0
+                        and int(m.diag.get("imu_received", "0")) > 0.9 * d.n, 90.0), mon.diag
+    time.sleep(1.5)
+    log = node.output()
+    with mon.lock:
+        poses, diag = list(mon.poses), dict(mon.diag)
+    t = np.array([(p.header.stamp.sec * 1_000_000_000 + p.header.stamp.nanosec - T0_NS) * 1e-9 for p in poses])
+    q = np.array([[p.pose.pose.orientation.x, p.pose.pose.orientation.y, p.pose.pose.orientation.z,
+                   p.pose.pose.orientation.w] for p in poses])
+    k = np.clip(np.searchsorted(d.t_s, t - 0.002), 0, d.n - 1)  # the truth at the (jittered) output stamp
+    if nearest:
+        k1 = np.clip(k + 1, 0, d.n - 1)
+        k = np.where(np.abs(d.t_s[k1] - t) < np.abs(d.t_s[k] - t), k1, k)
+    yaw_err = np.degrees([earth.euler_error_rad(C, d.C_b_n[i])[2] for C, i in zip(Rotation.from_quat(q).as_matrix(), k)])
+    intervals = _flag_intervals(log)
+    flag = np.zeros(len(t), bool)
+    for a, b in intervals:
+        flag |= (t >= a - 1e-6) & (t < b - 1e-6)
+    return log, poses, diag, t, yaw_err, intervals, flag
+
+
 @pytest.mark.timeout(400)
 @pytest.mark.parametrize("scenario,duration_s,overrides,bound_deg,grade", [
     ("car", 150.0, {"heading_deg": -120.0}, 1.0, None),  # (a) already moving at 15 m/s at start-up
@@ -131,29 +163,8 @@ def test_driver_style_stream_with_default_parameters(tmp_path, ros_env, scenario
     mon = AlignmentMonitor(keep_poses=100000)
     drv = Driver(d)
     try:
-        end = time.monotonic() + 180.0  # imports and the kernels' warm-up on a loaded machine
-        while drv.pub_imu.get_subscription_count() < 1 or drv.pub_fix.get_subscription_count() < 1 \
-                or mon.node.count_publishers("/alignment_node/pose") < 1 or mon.diag_count < 1:
-            assert time.monotonic() < end, "alignment_node did not come up"
-            time.sleep(0.05)
-        drv.stream()
-        assert mon.wait_for(lambda m: int(m.diag.get("buffered_imu", "1")) == 0
-                            and int(m.diag.get("imu_received", "0")) > 0.9 * d.n, 90.0), mon.diag
-        time.sleep(1.5)
-        log = node.output()
-        with mon.lock:
-            poses, diag = list(mon.poses), dict(mon.diag)
-        t = np.array([(p.header.stamp.sec * 1_000_000_000 + p.header.stamp.nanosec - T0_NS) * 1e-9 for p in poses])
-        q = np.array([[p.pose.pose.orientation.x, p.pose.pose.orientation.y, p.pose.pose.orientation.z,
-                       p.pose.pose.orientation.w] for p in poses])
-        k = np.clip(np.searchsorted(d.t_s, t - 0.002), 0, d.n - 1)  # the truth at the (jittered) output stamp
-        k = np.where(np.abs(d.t_s[np.clip(k + 1, 0, d.n - 1)] - t) < np.abs(d.t_s[k] - t), np.clip(k + 1, 0, d.n - 1), k)
-        yaw_err = np.degrees([earth.euler_error_rad(C, d.C_b_n[i])[2]
-                              for C, i in zip(Rotation.from_quat(q).as_matrix(), k)])
-        flag = np.zeros(len(t), bool)
-        for a, b in _flag_intervals(log):
-            flag |= (t >= a - 1e-6) & (t < b - 1e-6)
-        print(f"{scenario} (default parameters{' + imu_grade ' + grade if grade else ''}, core {diag.get('core')}): {len(t)} poses, flag intervals {_flag_intervals(log)}, final yaw error {yaw_err[-1]:+.3f} "
+        log, poses, diag, t, yaw_err, intervals, flag = _stream_and_collect(drv, mon, node, d, nearest=True)
+        print(f"{scenario} (default parameters{' + imu_grade ' + grade if grade else ''}, core {diag.get('core')}): {len(t)} poses, flag intervals {intervals}, final yaw error {yaw_err[-1]:+.3f} "
               f"deg, received {diag.get('imu_received')}/{d.n} Imu, gaps {diag.get('imu_gaps')}, "
               f"gnss accepted {diag.get('gnss_accepted')}/{len(d.gnss_t_s)}, stale {diag.get('gnss_stale')}")
         assert "from sensors" in log and "Imu frame_id 'imu' seen" in log, log[-2000:]
@@ -194,28 +205,7 @@ def test_vehicle_car_flags_seconds_after_the_first_motion_over_dds(tmp_path, ros
     mon = AlignmentMonitor(keep_poses=100000)
     drv = Driver(d)
     try:
-        end = time.monotonic() + 180.0
-        while drv.pub_imu.get_subscription_count() < 1 or drv.pub_fix.get_subscription_count() < 1 \
-                or mon.node.count_publishers("/alignment_node/pose") < 1 or mon.diag_count < 1:
-            assert time.monotonic() < end, "alignment_node did not come up"
-            time.sleep(0.05)
-        drv.stream()
-        assert mon.wait_for(lambda m: int(m.diag.get("buffered_imu", "1")) == 0
-                            and int(m.diag.get("imu_received", "0")) > 0.9 * d.n, 90.0), mon.diag
-        time.sleep(1.5)
-        log = node.output()
-        with mon.lock:
-            poses, diag = list(mon.poses), dict(mon.diag)
-        t = np.array([(p.header.stamp.sec * 1_000_000_000 + p.header.stamp.nanosec - T0_NS) * 1e-9 for p in poses])
-        q = np.array([[p.pose.pose.orientation.x, p.pose.pose.orientation.y, p.pose.pose.orientation.z,
-                       p.pose.pose.orientation.w] for p in poses])
-        k = np.clip(np.searchsorted(d.t_s, t - 0.002), 0, d.n - 1)
-        yaw_err = np.degrees([earth.euler_error_rad(C, d.C_b_n[i])[2]
-                              for C, i in zip(Rotation.from_quat(q).as_matrix(), k)])
-        intervals = _flag_intervals(log)
-        flag = np.zeros(len(t), bool)
-        for a, b in intervals:
-            flag |= (t >= a - 1e-6) & (t < b - 1e-6)
+        log, poses, diag, t, yaw_err, intervals, flag = _stream_and_collect(drv, mon, node, d, nearest=False)
         print(f"{scenario} vehicle car over DDS: first motion {t_motion:.2f} s, flag intervals {intervals}, "
               f"nhc accepted {diag.get('nhc_accepted')} rejected {diag.get('nhc_rejected')}, "
               f"final yaw error {yaw_err[-1]:+.3f} deg")

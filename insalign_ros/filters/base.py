@@ -57,6 +57,12 @@ class AlignmentEstimate:
     reason: str = ""
 
 
+def bias_indices(state_names, block: str) -> list[int]:
+    """Indices of the gyro-bias (``block`` "bg") or accelerometer-bias ("ba") error states in a core's state order
+    (named ``bg_x``.. or ``dbg_x``..); empty when the core keeps no such block."""
+    return [i for i, n in enumerate(state_names) if n.rstrip("_xyz").lstrip("d") == block]
+
+
 class AlignmentCore(ABC):
     """Base class of every alignment estimator.
 
@@ -207,11 +213,9 @@ class AlignmentCore(ABC):
         self.flush()
         a = list(self.att_index)
         self.P[a, a] += var_att_rad2
-        block = {"bg": [], "ba": []}
-        for i, n in enumerate(self.state_names):
-            block.get(n.rstrip("_xyz").lstrip("d"), []).append(i)
-        for idx, var in ((self.vel_index, var_v_m2_s2), (self.pos_index, var_p_m2), (block["bg"] or None, var_bg_rad2_s2),
-                         (block["ba"] or None, var_ba_m2_s4)):
+        bg, ba = bias_indices(self.state_names, "bg"), bias_indices(self.state_names, "ba")
+        for idx, var in ((self.vel_index, var_v_m2_s2), (self.pos_index, var_p_m2), (bg or None, var_bg_rad2_s2),
+                         (ba or None, var_ba_m2_s4)):
             if idx is not None and var:
                 i = list(idx)
                 self.P[i, i] += var

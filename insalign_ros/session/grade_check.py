@@ -14,6 +14,7 @@ from collections import deque
 import numpy as np
 
 from ..core.units import G0_M_S2, deg_h_to_rad_s, mg_to_m_s2
+from ..filters.base import bias_indices
 from ..filters.imu_grade import get_grade
 
 
@@ -57,8 +58,8 @@ class GradeCheck:
         names = est.state_names
         blocks = []
         for kind, b, unit, scale in (("gyro", est.bias_gyro_b, "deg/h", math.degrees(1.0) * 3600.0),
-                                     ("accelerometer", est.bias_acc_b, "mg", 1e3 / 9.80665)):
-            idx = [i for i, n in enumerate(names) if n.rstrip("_xyz").lstrip("d") == ("bg" if kind == "gyro" else "ba")]
+                                     ("accelerometer", est.bias_acc_b, "mg", 1e3 / G0_M_S2)):
+            idx = bias_indices(names, "bg" if kind == "gyro" else "ba")
             if b is None or len(idx) != 3:
                 continue
             blocks.append((kind, np.asarray(b, float), np.array([est.P[i, i] for i in idx]), unit, scale))
