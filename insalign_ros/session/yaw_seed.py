@@ -79,12 +79,27 @@ class YawSeed:
 
     # ------------------------------------------------------------------ data
     def imu(self, t: float, w, f) -> None:
-        if not self.done:
+        if not self.done and not self._settled():
             self.gsf.propagate_arrays([t], [w], [f])
 
     def imu_arrays(self, T, W, F) -> None:
-        if not self.done:
+        if not self.done and not self._settled():
             self.gsf.propagate_arrays(T, W, F)
+
+    def _settled(self) -> bool:
+        """Stop the GSF (it costs a third of a default run) once it can no longer seed anything: the core is static
+        for good (pkf, ekf10, coarse: no in-motion core to seed), or the aligned flag is up (the core's yaw 3-sigma
+        is within the aligned threshold; a seed needs a GSF 1-sigma SEED_RATIO times below the core's)."""
+        sess = self.s
+        core = sess.core
+        if core is None:
+            return False
+        if GnssPosition not in core.accepts and not isinstance(core, AutoCore):
+            self.done, self.seeded_by = True, "not used (a static core)"
+        elif sess.flag.aligned:
+            self.done, self.seeded_by = True, self.seeded_by or "the core itself"
+            sess.log("info", "yaw_seed", f"t={sess.processed_t:.2f} s: aligned flag up before the GSF seeded; GSF stopped")
+        return self.done
 
     def fix(self, fix: GnssFix) -> None:
         """A fix: with the previous one, a velocity (unless the velocity topic gives them)."""
