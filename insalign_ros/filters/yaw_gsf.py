@@ -507,23 +507,23 @@ class YawGsf:
             return True
         self._sync()
         D = np.array(self._cum) - cum  # shared level-frame delta velocity from the stamp to now
-        R = _rz2(self._delta)
-        dens = np.ones(c.n_models)
-        psi_s, fwd = self._shared_yaw(), math.atan2(self._fwd_b[1], self._fwd_b[0])
-        for k in range(c.n_models):
-            RD = R[k] @ D
-            H = np.zeros((2, 3))
-            H[:, :2] = np.eye(2)
-            H[:, 2] = -(_J @ RD)
-            dens[k] = self._kalman(k, v2 - (self._x[k] - RD), H, R2)
-            if c.side_slip_sigma_deg > 0:  # a wheeled vehicle's course is its forward axis' yaw, now
-                vx, vy = self._x[k]
-                v_sq = vx * vx + vy * vy
-                if v_sq >= max(c.valid_speed_m_s ** 2, 9.0 * float(np.max(np.diag(R2)))):
-                    Hc = np.array([[-vy / v_sq, vx / v_sq, -1.0]])
-                    r_c = math.radians(c.side_slip_sigma_deg) ** 2 + 0.04 / v_sq  # slip, 0.2 m/s across
-                    y = _wrap(self._delta[k] + psi_s + fwd - math.atan2(vy, vx))  # 0 - h(x)
-                    dens[k] *= self._kalman(k, np.array([float(y)]), Hc, np.array([[r_c]]))
+        N = c.n_models
+        RD = _rz2(self._delta) @ D  # (N, 2): the delta velocity in each model's frame
+        H = np.zeros((N, 2, 3))
+        H[:, 0, 0] = H[:, 1, 1] = 1.0
+        H[:, :, 2] = -(RD @ _J.T)
+        dens = self._kalman(np.ones(N, bool), v2 - (self._x - RD), H, np.broadcast_to(R2, (N, 2, 2)))
+        if c.side_slip_sigma_deg > 0:  # a wheeled vehicle's course is its forward axis' yaw, now
+            psi_s, fwd = self._shared_yaw(), math.atan2(self._fwd_b[1], self._fwd_b[0])
+            vx, vy = self._x[:, 0], self._x[:, 1]
+            v_sq = vx * vx + vy * vy
+            on = v_sq >= max(c.valid_speed_m_s ** 2, 9.0 * float(np.max(np.diag(R2))))
+            if on.any():
+                vs = np.where(on, v_sq, 1.0)
+                Hc = np.stack([-vy / vs, vx / vs, -np.ones(N)], -1)[:, None, :]
+                r_c = math.radians(c.side_slip_sigma_deg) ** 2 + 0.04 / vs  # slip, 0.2 m/s across
+                y = _wrap(self._delta + psi_s + fwd - np.arctan2(vy, vx))  # 0 - h(x)
+                dens = dens * self._kalman(on, y[:, None], Hc, r_c[:, None, None])
         w = self._w * dens
         if np.all(np.isfinite(w)) and w.sum() > 0:  # PX4 floors before normalizing; the floor is relative here
             w = np.maximum(w / w.sum(), c.min_weight)
@@ -535,29 +535,38 @@ class YawGsf:
             self._initialise(v2, R2)
         return True
 
-    def _kalman(self, k, y, H, Rm):
-        """Update model k with the innovation y = z - h(x), H, Rm (innovation clipped at innovation_clip_sigma,
-        Joseph form); returns the Gaussian density of the (clipped) innovation (nan if S is not positive)."""
+    def _kalman(self, on, y, H, Rm):
+        """Update the models ``on`` (N,) bool, all at once, with the innovations y = z - h(x) (N, m), H (N, m, 3), Rm
+        (N, m, m) (innovation clipped at innovation_clip_sigma, Joseph form); returns each model's Gaussian density
+        of its (clipped) innovation (nan if S is not positive; 1 for the models not ``on``)."""
         c = self.cfg
-        P = self._P[k]
-        S = H @ P @ H.T + Rm
-        det = float(np.linalg.det(S))
-        if not det > 0:
-            return float("nan")
+        P = self._P
+        Ht = np.transpose(H, (0, 2, 1))
+        S = H @ P @ Ht + Rm
+        det = np.linalg.det(S)
+        ok = on & (det > 0)
+        dens = np.where(on, np.nan, 1.0)
+        if not ok.any():
+            return dens
+        S = np.where(ok[:, None, None], S, np.eye(S.shape[1]))
         Si = np.linalg.inv(S)
-        nis = float(y @ Si @ y)
-        if nis > c.innovation_clip_sigma ** 2:
-            y = y * math.sqrt(c.innovation_clip_sigma ** 2 / nis)
-            nis = c.innovation_clip_sigma ** 2
-        K = P @ H.T @ Si
-        dx = K @ y
+        nis = np.einsum("ni,nij,nj->n", y, Si, y)
+        clip2 = c.innovation_clip_sigma ** 2
+        big = nis > clip2
+        y = np.where(big[:, None], y * np.sqrt(clip2 / np.where(big, nis, 1.0))[:, None], y)
+        nis = np.minimum(nis, clip2)
+        K = P @ Ht @ Si
+        dx = (K @ y[:, :, None])[:, :, 0]
         IKH = np.eye(3) - K @ H
-        P = IKH @ P @ IKH.T + K @ Rm @ K.T
-        self._P[k] = 0.5 * (P + P.T)
-        self._x[k] += dx[:2]
-        self._delta[k] = float(_wrap(self._delta[k] + dx[2]))
-        self.last_nis[k] = nis
-        return math.exp(-0.5 * nis) / ((2.0 * math.pi) ** (0.5 * len(y)) * math.sqrt(det))
+        Pn = IKH @ P @ np.transpose(IKH, (0, 2, 1)) + K @ Rm @ np.transpose(K, (0, 2, 1))
+        m = ok[:, None, None]
+        self._P = np.where(m, 0.5 * (Pn + np.transpose(Pn, (0, 2, 1))), P)
+        self._x = np.where(ok[:, None], self._x + dx[:, :2], self._x)
+        self._delta = np.where(ok, _wrap(self._delta + dx[:, 2]), self._delta)
+        self.last_nis = np.where(ok, nis, self.last_nis)
+        m_dim = y.shape[1]
+        dens[ok] = (np.exp(-0.5 * nis) / ((2.0 * math.pi) ** (0.5 * m_dim) * np.sqrt(np.where(ok, det, 1.0))))[ok]
+        return dens
 
     def _track_speed(self, stamp, v2, R2):
         """Speed and longitudinal acceleration for the AHRS's motion corrections, the quiet-interval count of the
