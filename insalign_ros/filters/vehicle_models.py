@@ -19,9 +19,10 @@ Constructors:
   relative to Earth, as for the constraint above): the wheels read the forward speed times a scale factor (tyre
   radius, pressure, load). The cores keep no scale state: the session estimates it (session/wheel_scale.py) and
   passes its estimate ``scale`` and 1-sigma ``sigma_scale`` (a fraction); the noise is
-  ``var + (sigma_scale * speed / scale)^2`` (the scale's uncertainty as measurement noise, a Schmidt "consider"
-  term without the cross-covariance: the cores are not over-confident in the speed). The lever arm from the IMU to
-  the wheels is neglected, as for the constraint.
+  ``var + (sigma_scale * speed / scale)^2`` (the scale's uncertainty as measurement noise). The scale's error is
+  one bias shared by every sample: a caller fusing at a high rate must inflate ``sigma_scale`` so that the bias is not
+  averaged down (the session counts it once per 10 s of data: session/fusion.py, WHEEL_SCALE_MEMORY_S). The lever
+  arm from the IMU to the wheels is neglected, as for the constraint.
 """
 
 from __future__ import annotations

@@ -14,7 +14,8 @@ gate (1 dof, p = 1e-3: a slipping wheel, a multipath fix) is not used. Windows t
 correlated errors (telescoping): treating them as independent is conservative.
 
 The session passes the estimate and its 1-sigma to the WheelSpeed model (filters/vehicle_models.py), whose noise
-carries (sigma_s * speed)^2. docs/vehicle_models.md, "Wheel speed".
+carries (sigma_s * speed)^2 (counted once per session/fusion.WHEEL_SCALE_MEMORY_S). docs/inmotion_cores.md,
+"Wheel speed".
 """
 
 from __future__ import annotations
