@@ -74,6 +74,16 @@ def test_no_window_across_a_gnss_gap_or_a_stop():
     assert st.windows == 0 and st.scale == 1.0 and abs(st.sigma - 0.05) < 1e-12
 
 
+def test_a_car_without_odometry_holds_a_bounded_number_of_fixes():
+    sess = SimpleNamespace(cfg=SessionConfig(), core_params={}, counters=defaultdict(int))
+    st = W.WheelScale(sess)
+    est = SimpleNamespace(C_b_n=np.eye(3), P_att_n=np.eye(3) * 1e-6, lat_rad=0.8, lon_rad=0.1)
+    p = earth.geodetic_to_ecef(0.8, 0.1, 0.0)
+    for k in range(3600):
+        st.on_fix(GnssFix(float(k), p, np.eye(3)), est)
+    assert len(st._fixes) == W.MAX_PENDING_FIXES and st._fixes[-1][0] == 3599.0
+
+
 def test_simulated_gnss_outage_removes_fixes_velocities_and_headings_only():
     from insalign_ros.sim.scenarios import make_scenario
 

@@ -38,6 +38,8 @@ MIN_DIST_M = 30.0
 MAX_YAW_3SIGMA_DEG = 6.0
 #: chi-square gate (1 dof, p = 1e-3) of a window's scale against the estimate
 GATE = 10.83
+#: fixes held for the wheel integration to reach (it reaches them within MAX_WHEEL_GAP_S while wheel speeds come)
+MAX_PENDING_FIXES = 50
 #: random walk of the scale [1/sqrt(s)] (tyre pressure and load change it slowly: 0.6 % in an hour)
 RANDOM_WALK = 1e-4
 
@@ -85,6 +87,8 @@ class WheelScale:
         if np.any(lever):
             p_e = p_e - earth.C_n_e(est.lat_rad, est.lon_rad) @ (est.C_b_n @ lever)
         self._fixes.append((t, p_e, np.asarray(fix.R_e, float)))
+        if len(self._fixes) > MAX_PENDING_FIXES:  # no wheel speed comes (a car without odometry): bounded memory
+            del self._fixes[:-MAX_PENDING_FIXES]
 
     def on_wheel(self, ws, est) -> None:
         """One wheel speed (core.types.WheelSpeed) with the core's estimate at its stamp: integrate, close windows."""
