@@ -18,10 +18,10 @@ from insalign_ros.session.config import SessionConfig
 
 
 def _straight_drive(scale_true: float, sigma_fix_m: float, seed: int, duration_s: float = 200.0,
-                    speed_m_s: float = 10.0, yaw_deg: float = 30.0, yaw_err_deg: float = 3.0):
+                    speed_m_s: float = 10.0, yaw_deg: float = 30.0, yaw_err_deg: float = 3.0, gap_s=(-1.0, -1.0)):
     """A car driving straight at ``speed_m_s`` along ENU yaw ``yaw_deg``: 10-Hz wheel speeds reading ``scale_true``
     x the speed (no noise), 1-Hz fixes with white noise ``sigma_fix_m``; the core's attitude off by ``yaw_err_deg``
-    (a constant rotation: |D| does not see it). Returns the stage after the drive."""
+    (a constant rotation: |D| does not see it); no fix in ``gap_s``. Returns the stage after the drive."""
     rng = np.random.default_rng(seed)
     sess = SimpleNamespace(cfg=SessionConfig(wheel_scale_sigma=0.05), core_params={}, counters=defaultdict(int))
     st = W.WheelScale(sess)
@@ -34,7 +34,7 @@ def _straight_drive(scale_true: float, sigma_fix_m: float, seed: int, duration_s
     R_e = Cne @ (sigma_fix_m ** 2 * np.eye(3)) @ Cne.T
     for k in range(int(duration_s * 10) + 1):
         t = 0.1 * k
-        if k % 10 == 0:
+        if k % 10 == 0 and not gap_s[0] <= t < gap_s[1]:
             p = p0 + Cne @ (speed_m_s * t * u + rng.normal(0.0, sigma_fix_m, 3))
             st.on_fix(GnssFix(t, p, R_e), est)
         st.on_wheel(WheelSpeed(t, scale_true * speed_m_s, 1e-4), est)
@@ -68,9 +68,19 @@ def test_scale_from_a_straight_drive_matches_the_closed_form_and_its_sigma():
     assert abs(_straight_drive(1.02, 1e-3, 0).scale - 1.02) < 1e-4
 
 
-def test_no_window_across_a_gnss_gap_or_a_stop():
-    """No scale measurement across missing fixes; a window where the car moved under MIN_DIST_M is not used."""
-    st = _straight_drive(1.02, 1.0, 0, duration_s=30.0, speed_m_s=0.5)  # 15 m in 30 s
+def test_no_window_across_a_gnss_gap():
+    """Fixes missing from 50 to 80 s: the window opened at 40 s is dropped, the next opens at the first fix after the
+    gap: windows 0-20, 20-40, then 80-100 ... 180-200 (eight), the scale as good as without the gap."""
+    st = _straight_drive(1.02, 1.0, 0, gap_s=(50.0, 80.0))
+    assert st.windows == 8 and abs(st.scale - 1.02) < 3.0 * st.sigma
+
+
+def test_a_slow_robot_measures_its_scale_over_longer_windows():
+    """Under MIN_DIST_M in WINDOW_S the window stays open until the vehicle has moved that far: a robot at 1 m/s
+    closes a window every 30 s (six in 200 s), one at 0.2 m/s none (24 m in MAX_WINDOW_S, then a new window)."""
+    st = _straight_drive(1.02, 1.0, 0, speed_m_s=1.0)
+    assert st.windows == 6 and abs(st.scale - 1.02) < 3.0 * st.sigma and st.sigma < 0.02
+    st = _straight_drive(1.02, 1.0, 0, speed_m_s=0.2)
     assert st.windows == 0 and st.scale == 1.0 and abs(st.sigma - 0.05) < 1e-12
 
 

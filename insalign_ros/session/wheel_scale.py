@@ -6,7 +6,8 @@ Its measurement compares distances, not speeds: over a window of at least WINDOW
 axis in ENU, D = int w C_b_n e_x dt, against the fixes' displacement dp (antenna lever arm removed): s_obs = |D| / |dp|.
 |D| does not depend on a constant attitude error (a rotation of D), so the scale is measured while the yaw is still
 being found; the window is used only if the core's yaw 3-sigma stays under MAX_YAW_3SIGMA_DEG (a correction within
-the window bends D) and the vehicle moved at least MIN_DIST_M. Why not the core's forward speed against the wheel's:
+the window bends D) and the vehicle moved at least MIN_DIST_M (a slow robot's window stays open until it has, for
+at most MAX_WINDOW_S). Why not the core's forward speed against the wheel's:
 the core fuses the wheel speed, so once the scale's sigma is small its velocity follows the wheels and the comparison
 pulls the scale towards itself; the fixes are independent of the wheels. The noise of s_obs is that of |dp| along
 the track (the fixes' covariances) and of the integrated wheel noise; a window whose innovation fails a chi-square
@@ -32,8 +33,10 @@ WINDOW_S = 20.0
 MAX_FIX_GAP_S = 2.5
 #: wheel samples further apart than this [s] restart the window (odometry dropped out)
 MAX_WHEEL_GAP_S = 1.0
-#: the window is used only if the vehicle moved at least this far [m] (a 1-m fix noise is 3 % of 30 m)
+#: the window is used only if the vehicle moved at least this far [m] (a 1-m fix noise is 3 % of 30 m); a slower
+#: vehicle's window stays open until it has, for at most MAX_WINDOW_S
 MIN_DIST_M = 30.0
+MAX_WINDOW_S = 120.0
 #: and the core's yaw 3-sigma stayed under this [deg] in the window
 MAX_YAW_3SIGMA_DEG = 6.0
 #: chi-square gate (1 dof, p = 1e-3) of a window's scale against the estimate
@@ -112,8 +115,7 @@ class WheelScale:
             a = tf
             if self._win is None:
                 self._open(fix)
-            elif tf - self._win[0] >= WINDOW_S:
-                self._close(fix)
+            elif tf - self._win[0] >= WINDOW_S and self._close(fix):
                 self._open(fix)
         self._integrate(a, t, t0, d0, t, d, ws.var_m2_s2)
 
@@ -132,17 +134,19 @@ class WheelScale:
         self._acc += 0.5 * (b - a) * (da + db)
         self._acc_var += var * (b - a) ** 2
 
-    def _close(self, fix) -> None:
+    def _close(self, fix) -> bool:
+        """The window up to ``fix`` as a scale measurement; False: kept open (a slow vehicle has not moved
+        MIN_DIST_M yet, the window is younger than MAX_WINDOW_S)."""
         t_a, p_a, R_a = self._win
         t_b, p_b, R_b = fix
         if self._yaw3_max > MAX_YAW_3SIGMA_DEG:
-            return
+            return True
         lat, lon, _ = earth.ecef_to_geodetic(p_a)
         Cne = earth.C_n_e(lat, lon)
         dp = Cne.T @ (p_b - p_a)
         L, Dn = float(np.linalg.norm(dp)), float(np.linalg.norm(self._acc))
         if L < MIN_DIST_M or Dn < 0.5 * MIN_DIST_M:
-            return
+            return t_b - t_a >= MAX_WINDOW_S
         u = dp / L
         var_L = float(u @ (Cne.T @ (R_a + R_b) @ Cne) @ u)
         s_obs = Dn / L
@@ -154,13 +158,14 @@ class WheelScale:
         if r * r / S > GATE:
             self.windows_rejected += 1
             self.s.counters["wheel_scale_rejected"] += 1
-            return
+            return True
         K = self.P / S
         self.scale += K * r
         self.P *= 1.0 - K
         self.t_updated = t_b
         self.windows += 1
         self.s.counters["wheel_scale_windows"] += 1
+        return True
 
     def diagnostics(self) -> dict:
         return {"wheel_scale": f"{self.scale:.5f}", "wheel_scale_sigma": f"{self.sigma:.5f}",
