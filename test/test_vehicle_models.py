@@ -13,7 +13,7 @@ import pytest
 from insalign_ros.core import earth
 from insalign_ros.filters import registry
 from insalign_ros.filters.measurements import GnssPosition
-from insalign_ros.filters.vehicle_models import GnssHeading, NonHolonomic
+from insalign_ros.filters.vehicle_models import GnssHeading, NonHolonomic, WheelSpeed
 from insalign_ros.sim.scenarios import make_scenario
 
 
@@ -41,7 +41,8 @@ def test_jacobians_match_a_finite_difference_of_the_cores_retraction(name):
     d = make_scenario("car", seed=0, duration_s=10.0)
     core = _moving_core(name, d, yaw_err_deg=3.0)
     C_b_v = _rot(2, math.radians(4.0)) @ _rot(0, math.radians(-2.0))  # a mounting 4 deg yaw, 2 deg roll off
-    models = [NonHolonomic(core.t_s, 0.1, 0.3, C_b_v), GnssHeading(core.t_s, 0.7, 0.01, (0.6, 0.8, 0.1))]
+    models = [NonHolonomic(core.t_s, 0.1, 0.3, C_b_v), GnssHeading(core.t_s, 0.7, 0.01, (0.6, 0.8, 0.1)),
+              WheelSpeed(core.t_s, 3.0, 0.01, 1.02, 0.05, C_b_v)]
     eps = 1e-6
     for m in models:
         assert not m.check()
@@ -59,14 +60,35 @@ def test_jacobians_match_a_finite_difference_of_the_cores_retraction(name):
         assert np.abs(H_fd - H).max() < 1e-4 * scale + 1e-7, (name, type(m).__name__, H_fd - H)
 
 
+@pytest.mark.parametrize("name", ["liekf", "ekf"])
+def test_wheel_speed_predicts_the_scaled_forward_speed_of_the_truth(name):
+    """On a core at the true state (simulated car at 10 s, moving), h = scale * (body x velocity relative to Earth):
+    a wheel reading 2 % high with scale 1.02 has an innovation under 1 mm/s; with scale 1 it is 2 % of the speed.
+    The noise adds (sigma_scale * speed / scale)^2 to the wheel's variance."""
+    d = make_scenario("car", seed=0, duration_s=12.0, noise=False)
+    n = int(np.searchsorted(d.t_s, 10.0))
+    core = _moving_core(name, d, n=n + 1)
+    v_x = float(d.C_b_n[n][:, 0] @ d.v_n[n])
+    assert v_x > 5.0 and abs(core.t_s - d.t_s[n]) < 1e-9
+    z, H, N = WheelSpeed(core.t_s, 1.02 * v_x, 0.01, 1.02, 0.01).terms(core)
+    # the core integrated noise-free samples for 10 s from the truth: its velocity is the truth's to ~1 mm/s
+    assert abs(z[0]) < 5e-3, z
+    z1, _, _ = WheelSpeed(core.t_s, 1.02 * v_x, 0.01).terms(core)
+    assert abs(z1[0] - 0.02 * v_x) < 5e-3, (z1, v_x)
+    assert abs(N[0, 0] - (0.01 + (0.01 * v_x) ** 2)) < 1e-12
+
+
 def test_bad_vehicle_measurements_are_rejected_and_counted():
     d = make_scenario("car", seed=0, duration_s=5.0)
     core = _moving_core("liekf", d, n=100)
     P0 = core.P.copy()
     for m in (NonHolonomic(core.t_s, 0.0, 0.3), NonHolonomic(core.t_s, 0.1, 0.3, 2.0 * np.eye(3)),
-              GnssHeading(core.t_s, math.nan, 0.01), GnssHeading(core.t_s, 0.1, 0.01, (0.0, 0.0, 0.0))):
+              GnssHeading(core.t_s, math.nan, 0.01), GnssHeading(core.t_s, 0.1, 0.01, (0.0, 0.0, 0.0)),
+              WheelSpeed(core.t_s, math.nan, 0.01), WheelSpeed(core.t_s, 1.0, 0.0), WheelSpeed(core.t_s, 1.0, 0.01, 0.0),
+              WheelSpeed(core.t_s, 1.0, 0.01, 1.0, 0.0, 2.0 * np.eye(3))):
         assert not core.update(m).accepted
     assert core.counters["nhc_rejected"] == 2 and core.counters["gnss_heading_rejected"] == 2
+    assert core.counters["wheel_speed_rejected"] == 4
     assert np.array_equal(core.P, P0)
 
 

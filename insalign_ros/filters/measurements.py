@@ -15,7 +15,7 @@ Constructors (stamps [s] are data time, arrays are copied to float):
 * ``GyroBiasPrior(b_g_b, P_b_g_b)``: a direct observation of the gyro bias [rad/s, body FLU] with its 3x3
   covariance [rad^2/s^2] (the bias measured at rest, or learned by a core being replaced), fused right after
   ``initialize`` by the cores that keep the gyro bias block.
-* ``NonHolonomic`` and ``GnssHeading``: filters/vehicle_models.py (issue 25).
+* ``NonHolonomic``, ``GnssHeading`` and ``WheelSpeed``: filters/vehicle_models.py (issue 25).
 
 Error conventions a core declares (``AlignmentCore.convention``), with the state layout the models rely on:
 

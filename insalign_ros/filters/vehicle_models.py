@@ -14,6 +14,15 @@ Constructors:
   ENU [rad] (from East, counter-clockwise, REP 103: a driver's heading from North clockwise converts as
   ``yaw = pi/2 - heading``), its 1-sigma [rad], and the baseline's direction in the body frame (FLU, any length;
   primary -> secondary antenna). The local level's dependence on the position error (~1.6e-7 rad/m) is neglected.
+* ``WheelSpeed(stamp_s, speed_m_s, var_m2_s2, scale=1, sigma_scale=0, C_b_v=I)``: the wheel odometry's speed along
+  the vehicle's x axis [m/s] and its variance [m^2/s^2], read as ``h = scale * e_x^T C_b_v C^T u`` (u the velocity
+  relative to Earth, as for the constraint above): the wheels read the forward speed times a scale factor (tyre
+  radius, pressure, load). The cores keep no scale state: the session estimates it (session/wheel_scale.py) and
+  passes its estimate ``scale`` and 1-sigma ``sigma_scale`` (a fraction); the noise is
+  ``var + (sigma_scale * speed / scale)^2`` (the scale's uncertainty as measurement noise). The scale's error is
+  one bias shared by every sample: a caller fusing at a high rate must inflate ``sigma_scale`` so that the bias is not
+  averaged down (the session counts it once per 10 s of data: session/fusion.py, WHEEL_SCALE_MEMORY_S). The lever
+  arm from the IMU to the wheels is neglected, as for the constraint.
 """
 
 from __future__ import annotations
@@ -148,3 +157,66 @@ def _heading_eci_ekf(m: GnssHeading, core):
     Cin = _n_from_i(core)
     c = core.C @ m.baseline_b
     return _yaw_terms(m, Cin @ c, -Cin @ lie.hat3(c), core)
+
+
+class WheelSpeed(Measurement):
+    """Wheel odometry: the speed along the vehicle's x axis [m/s] (negative: reversing) with its variance
+    [m^2/s^2], read as ``scale`` times the vehicle-frame forward velocity relative to Earth. Own NIS gate: chi-square
+    1 dof, p = 1e-3 (a wheel that slips or locks is rejected); no fading."""
+
+    counter = "wheel_speed"
+    label = "wheel speed"
+    fading = False
+    nis_gate = 10.83
+
+    def __init__(self, stamp_s: float, speed_m_s: float, var_m2_s2: float, scale: float = 1.0,
+                 sigma_scale: float = 0.0, C_b_v=None):
+        self.stamp_s = float(stamp_s)
+        self.speed_m_s = float(speed_m_s)
+        self.var_m2_s2 = float(var_m2_s2)
+        self.scale = float(scale)
+        self.sigma_scale = float(sigma_scale)
+        self.C_b_v = _I3.copy() if C_b_v is None else np.asarray(C_b_v, float)
+
+    def check(self) -> str:
+        if not (math.isfinite(self.speed_m_s) and math.isfinite(self.var_m2_s2) and self.var_m2_s2 > 0):
+            return f"speed {self.speed_m_s!r} and variance {self.var_m2_s2!r} must be finite, variance > 0"
+        if not (math.isfinite(self.scale) and self.scale > 0 and math.isfinite(self.sigma_scale)
+                and self.sigma_scale >= 0):
+            return f"scale {self.scale!r} must be finite and > 0, sigma_scale {self.sigma_scale!r} finite and >= 0"
+        C = self.C_b_v
+        if C.shape != (3, 3) or not np.all(np.isfinite(C)) or np.abs(C @ C.T - _I3).max() > 1e-6:
+            return "C_b_v must be a 3x3 rotation matrix"
+        return ""
+
+    def noise(self) -> np.ndarray:
+        """The wheel's variance plus the scale's: (sigma_scale * speed / scale)^2 [m^2/s^2]."""
+        return np.array([[self.var_m2_s2 + (self.sigma_scale * self.speed_m_s / self.scale) ** 2]])
+
+
+@jacobian(WheelSpeed, "eci_left")
+def _wheel_eci_left(m: WheelSpeed, core):
+    """h = k e_x^T C_b_v C^T u (k the scale); with C = C_hat exp(phi), v = v_hat + C_hat nu, p = p_hat + C_hat rho:
+    h = h_hat + k e_x^T C_b_v [b_x phi + nu - w_x rho], b = C_hat^T u_hat, w = C_hat^T Omega (as the constraint)."""
+    u, W = _earth_relative_velocity_i(core)
+    Ct = core.C.T
+    b, w = Ct @ u, Ct @ W
+    e = m.scale * m.C_b_v[0]
+    H = np.zeros((1, core._n_states))
+    H[0, 0:3] = e @ lie.hat3(b)
+    H[0, 3:6] = e
+    H[0, 6:9] = -e @ lie.hat3(w)
+    return np.array([m.speed_m_s - e @ b]), H, m.noise()
+
+
+@jacobian(WheelSpeed, "eci_ekf")
+def _wheel_eci_ekf(m: WheelSpeed, core):
+    """With C = exp(psi_x) C_hat, v = v_hat + dv, p = p_hat + dp: h = h_hat + k e_x^T C_b_v C_hat^T [u_x psi + dv -
+    Omega_x dp]."""
+    u, W = _earth_relative_velocity_i(core)
+    a = m.scale * (m.C_b_v[0] @ core.C.T)
+    H = np.zeros((1, core._n_states))
+    H[0, 0:3] = a @ lie.hat3(u)
+    H[0, 3:6] = a
+    H[0, 6:9] = -a @ lie.hat3(W)
+    return np.array([m.speed_m_s - a @ u]), H, m.noise()

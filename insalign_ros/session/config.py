@@ -48,6 +48,12 @@ class SessionConfig:
         "unknown",
         'car | wheeled_robot | boat | aircraft | unknown (safe for every platform): what the yaw from GNSS velocity '
         'may assume (cars and wheeled robots drive along their x axis)')
+    #: wheel speed (``vehicle`` car | wheeled_robot): prior 1-sigma of the odometry's scale factor (a fraction; the
+    #: prior mean is 1), estimated against the GNSS fixes while they come (session/wheel_scale.py)
+    wheel_scale_sigma: float = param(
+        0.05,
+        'wheel speed (vehicle car | wheeled_robot): prior 1-sigma of the odometry scale factor (0.05: 5 %), '
+        'estimated against the GNSS fixes. Read-only after start', range=(1e-4, 0.5), read_only=True)
     #: dual-antenna GNSS heading: yaw of the antenna baseline (primary -> secondary) in the body frame FLU [deg]
     gnss_heading_baseline_yaw_deg: float = param(
         0.0,

@@ -14,9 +14,11 @@ from ..filters.measurements import GnssPosition, ZeroVelocity
 from ..filters.measurements import GnssVelocity as GnssVelocityModel
 from ..filters.vehicle_models import GnssHeading as GnssHeadingModel
 from ..filters.vehicle_models import NonHolonomic  # (importing it registers the vehicle models' Jacobians)
+from ..filters.vehicle_models import WheelSpeed as WheelSpeedModel
 from .guard import fix_point
 from .heading_check import HeadingCheck
 from .outputs import Output
+from .wheel_scale import WheelScale
 
 
 #: the non-holonomic constraint of a land vehicle (``vehicle``): rate [Hz data time], lateral and vertical 1-sigma
@@ -36,6 +38,11 @@ NHC_OFF_S = 10.0
 #: failed the gate (a boat declared a car; an IMU mounted off the vehicle's axes): the constraint stays off
 NHC_MISFIT_FRACTION = 0.3
 NHC_MISFIT_MIN = 100
+#: wheel speed: the scale factor's error is one bias shared by every wheel speed, not white noise; fused at 10 Hz
+#: as white noise it would average down and make the core's forward velocity over-confident (simulated car, seed
+#: 2, scale prior 5 %: the divergence guard's CUSUM tripped 90 s in). Its variance is counted once per this span of
+#: data [s] (the filter's memory of the forward velocity between fixes): (sigma_s * speed)^2 x span / interval
+WHEEL_SCALE_MEMORY_S = 10.0
 
 
 class Fusion:
@@ -44,9 +51,10 @@ class Fusion:
     def __init__(self, session) -> None:
         self.s = session
         self.heading_check = HeadingCheck(session)  # the dual-antenna heading against the IMU (kept across resets)
+        self.wheel_scale = WheelScale(session)  # the wheel odometry's scale factor (the vehicle's: kept across resets)
 
     def reset(self) -> None:
-        pass
+        self.wheel_scale.restart()
 
     def propagate(self, t_s, omega_ib_b, f_ib_b) -> None:
         """IMU samples as arrays (one sample: length 1) to the core, or to the backtracking driver that records
@@ -91,10 +99,34 @@ class Fusion:
             self.fuse_heading(b.heading.pop(0))
 
     # -- the fusion of the vehicle's own sensors through their measurement models (filters/vehicle_models.py)
+    def wheel_speed_used(self) -> bool:
+        """Wheel speeds are fused: ``vehicle`` car or wheeled_robot and a core that accepts the WheelSpeed model."""
+        sess = self.s
+        return (sess.cfg.vehicle in NHC_SIGMA_M_S and sess.core is not None and sess.bt is None
+                and WheelSpeedModel in sess.core.accepts)
+
     def fuse_wheel_speed(self, ws) -> None:
-        """One wheel speed (core.types.WheelSpeed) at its stamp: no measurement model yet (a speed along the vehicle's
-        x axis needs a scale-factor state): counted as unused."""
-        self.s.counters["wheel_speed_unused"] += 1
+        """One wheel speed (core.types.WheelSpeed: along the vehicle's x axis [m/s]) at its stamp, for ``vehicle`` car
+        or wheeled_robot: the scale stage integrates it (session/wheel_scale.py), then the core fuses it as the
+        WheelSpeed model with the scale's estimate and 1-sigma (its own NIS gate, 1 dof); else counted as unused. At a
+        stop it reads 0: the forward velocity is held at 0 (the constraint keeps the lateral one), which is the
+        only stop evidence taken from it (no zero-velocity update: the in-motion cores get none from the session)."""
+        sess = self.s
+        c = sess.counters
+        if not self.wheel_speed_used():
+            c["wheel_speed_unused"] += 1
+            return
+        sc = self.wheel_scale
+        dt = sc.interval_s(ws.stamp_s)
+        sc.on_wheel(ws, sess.outputs.estimate())
+        sess._est_memo = None
+        sigma_s = sc.sigma * math.sqrt(max(1.0, WHEEL_SCALE_MEMORY_S / dt))
+        res = sess.core.update(WheelSpeedModel(ws.stamp_s, ws.speed_m_s, ws.var_m2_s2, sc.scale, sigma_s))
+        if res.accepted:
+            c["wheel_speed_fused"] += 1
+            return
+        c["wheel_speed_filter_rejected"] += 1
+        sess.last_reject = f"wheel_speed: {res.reason}"
 
     def fuse_heading(self, heading) -> None:
         """One dual-antenna GNSS heading (core.types.GnssHeading: the baseline's ENU yaw along the body x axis) at its
@@ -215,6 +247,9 @@ class Fusion:
         if res.accepted:
             sess.counters["gnss_accepted"] += 1
             sess.last_accepted_fix_t = fix.stamp_s
+            if sess.cfg.vehicle in NHC_SIGMA_M_S and sess.bt is None:
+                sess._est_memo = None
+                self.wheel_scale.on_fix(fix, sess.outputs.estimate())  # a window boundary of the wheel scale
             sess.grade_check.on_fix(res.nis, len(res.innovation) or 3)  # does the imu_grade fit the innovations?
         else:
             sess.counters["gnss_filter_rejected"] += 1

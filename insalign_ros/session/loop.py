@@ -101,6 +101,8 @@ class Loop:
             t_end = b.fix_t[0]
         if b.vel_t and b.vel_t[0] < t_end:
             t_end = b.vel_t[0]
+        if b.wheel_t and b.wheel_t[0] < t_end and sess.fusion.wheel_speed_used():
+            t_end = b.wheel_t[0]  # a wheel speed is fused at its stamp (a 0.1-s delay at 2 m/s^2 is 0.2 m/s)
         if sess.next_zupt_t < t_end and sess.fusion.zupt_due(math.inf):  # the session schedules zero-velocity updates
             t_end = sess.next_zupt_t
         t_nhc = max(sess.next_nhc_t, sess.nhc_off_until_t)  # ... and the vehicle's non-holonomic constraint

@@ -89,6 +89,9 @@ class Monitor:
             parts.append(sess.nhc_misfit)
         if sess.fusion.heading_check.note:
             parts.append(sess.fusion.heading_check.note)
+        if sess.counters["wheel_speed_fused"]:
+            w = sess.fusion.wheel_scale
+            parts.append(f"wheel speed fused, scale {w.scale:.4f} +- {w.sigma:.4f} (1-sigma, {w.windows} GNSS windows)")
         if not sess.aligned and "3-sigma" in sess.flag.reason and sess.cfg.imu_grade == DEFAULT_IMU_GRADE:
             # the conservative default prior is often why the 3-sigma stays up: say what the user can do
             parts.append(f"imu_grade is the conservative default {DEFAULT_IMU_GRADE!r}: give your IMU's grade "
@@ -128,6 +131,9 @@ class Monitor:
             d["gnss_age_s"] = f"{sess.processed_t - sess.last_accepted_fix_t:.2f}"
         if sess.loop._median_dt is not None:
             d["imu_period_median_ms"] = f"{sess.loop._median_dt * 1e3:.3f}"
+        d["wheel_speed"] = ("fused" if sess.fusion.wheel_speed_used() else
+                            "unused (vehicle car | wheeled_robot and an in-motion core fuse it)")
+        d.update(sess.fusion.wheel_scale.diagnostics())  # the odometry's scale factor (session/wheel_scale.py)
         d.update(sess.yaw_seed.diagnostics())  # vehicle, what it assumes, what seeded the yaw (session/yaw_seed.py)
         d["buffered_imu"] = str(len(sess.buf.imu))
         d["buffered_fixes"] = str(len(sess.buf.fix_t))

@@ -67,6 +67,8 @@ COUNTERS = COUNTERS + VEL_COUNTERS
 AUX_COUNTERS = tuple(f"{topic}_{what}" for topic in ("wheel_speed", "gnss_heading")
                      for what in ("received", "rejected", "invalid", "duplicate", "stale", "future", "fused", "unused"))
 COUNTERS = COUNTERS + AUX_COUNTERS + ("gnss_heading_filter_rejected",)
+#: wheel speed: rejected by the WheelSpeed model's NIS gate; scale-factor windows fused and rejected (wheel_scale.py)
+COUNTERS += ("wheel_speed_filter_rejected", "wheel_scale_windows", "wheel_scale_rejected")
 #: the non-holonomic constraint of ``vehicle`` car / wheeled_robot (session/fusion.py): fused, gated, switched off
 COUNTERS += ("nhc_accepted", "nhc_rejected", "nhc_switched_off", "nhc_misfit")
 

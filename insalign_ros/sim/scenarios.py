@@ -45,6 +45,9 @@ _COMMON = {
     "gnss_lever_x_m": (0.0, "m", "antenna forward of the IMU (0: at the IMU, as in the paper)"),
     "gnss_lever_y_m": (0.0, "m", "antenna left of the IMU"),
     "gnss_lever_z_m": (0.0, "m", "antenna above the IMU"),
+    # a GNSS outage (tunnel, underpass): no fix, GNSS velocity or GNSS heading stamped in [start, start + duration)
+    "gnss_outage_start_s": (0.0, "s", "start of a GNSS outage (with gnss_outage_duration_s)"),
+    "gnss_outage_duration_s": (0.0, "s", "GNSS outage length; 0: none (the draws of a seed do not change)"),
     # the vehicle's own sensors (drawn after everything else, only when on: a seed's other signals do not change)
     "wheel_speed_sigma_m_s": (0.0, "m/s", "wheel speed (along the body x axis) 1-sigma; 0: none"),
     "wheel_rate_hz": (10.0, "Hz", "wheel odometry rate (must divide the IMU rate)"),
@@ -547,6 +550,16 @@ def make_scenario(name: str, seed: int = 0, duration_s: float | None = None, noi
     vel_idx = idx if sig_v > 0 else idx[:0]
     vel_n = v_ant_n[sl][vel_idx] + (rng.normal(0.0, sig_v, (len(vel_idx), 3)) if noise else 0.0)
     aux = _vehicle_signals(params, traj, sl, t_s, idx, spec.rate_hz, rng, noise)
+    if params["gnss_outage_duration_s"] < 0:
+        raise ValueError(f"gnss_outage_duration_s must be >= 0, got {params['gnss_outage_duration_s']}")
+    # the outage removes what was drawn (every other signal of the seed stays as without it)
+    t0_out, t1_out = params["gnss_outage_start_s"], params["gnss_outage_start_s"] + params["gnss_outage_duration_s"]
+    up = ~((t_s[idx] >= t0_out) & (t_s[idx] < t1_out))
+    idx, gnss_p_e, R_e = idx[up], gnss_p_e[up], R_e[up]
+    if sig_v > 0:
+        vel_idx, vel_n = vel_idx[up], vel_n[up]
+    if "heading_t_s" in aux:  # at the fix stamps
+        aux.update({k: aux[k][up] for k in ("heading_t_s", "heading_yaw_rad", "heading_var_rad2")})
     return ScenarioData(
         name=name, seed=int(seed), t0_s=0.0, t_s=t_s, omega_ib_b=omega, f_ib_b=f,
         C_b_n=traj.C_b_n[sl], lat_rad=traj.lat_rad[sl], lon_rad=traj.lon_rad[sl], h_m=traj.h_m[sl],
