@@ -437,7 +437,8 @@ def median(x: list) -> float:
 
 
 def dist3(a: list, b: list) -> float:
-    """|a - b| of two 3-vectors given as lists of floats: ``float(np.linalg.norm(a - b))`` bit for bit (the same
-    sum in the same order; test_speed_paths), without numpy's per-call overhead."""
+    """|a - b| of two 3-vectors given as lists of floats: ``float(np.linalg.norm(a - b))`` to the last bit or two
+    (the same sum; numpy's BLAS dot may fuse or reorder it on some CPUs; test_speed_paths), without numpy's per-call
+    overhead."""
     x, y, z = a[0] - b[0], a[1] - b[1], a[2] - b[2]
     return math.sqrt(x * x + y * y + z * z)
