@@ -31,10 +31,12 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "test"))  # reference_loops.run_on_arrays: the GSF on recorded arrays
 
 from insalign_ros.core import earth  # noqa: E402
-from insalign_ros.filters.yaw_gsf import YawGsf, YawGsfConfig, run_on_arrays, velocity_from_fixes  # noqa: E402
+from insalign_ros.filters.yaw_gsf import YawGsf, YawGsfConfig, velocity_from_fixes  # noqa: E402
 from insalign_ros.sim.scenarios import make_scenario  # noqa: E402
+from reference_loops import run_on_arrays  # noqa: E402
 
 DATA = Path("/work/shared/data")
 VEL_SIGMA_M_S = 0.1

@@ -188,3 +188,33 @@ def run_offline_backtrack(core, data, rpy_error_deg, window_s: float, passes: in
             out.append(bt.estimate())
             next_out = ev.stamp_s + output_period_s
     return out, bt
+
+
+def run_on_arrays(gsf, t_s, omega_ib_b, f_ib_b, vel_t_s, vel_n, vel_R_n, vel_arrival_s=None,
+                  C_b_n_level=None) -> dict:
+    """Drive a ``YawGsf`` (filters/yaw_gsf.py) through recorded arrays in time order and record it after every velocity.
+
+    vel_arrival_s (k,): when each velocity becomes available (default: its stamp); a velocity from the difference of
+    two fixes is stamped at the middle of the interval and arrives with the second fix. The IMU is propagated up to
+    the arrival, then the velocity is fused at its stamp. Returns arrays over the velocities: t_s (arrival), yaw_rad,
+    sigma_rad, valid, accepted.
+    """
+    t_s = np.asarray(t_s, float)
+    vel_t_s = np.asarray(vel_t_s, float)
+    arr = vel_t_s if vel_arrival_s is None else np.asarray(vel_arrival_s, float)
+    out = {k: np.full(len(vel_t_s), np.nan) for k in ("t_s", "yaw_rad", "sigma_rad")}
+    out["valid"] = np.zeros(len(vel_t_s), bool)
+    out["accepted"] = np.zeros(len(vel_t_s), bool)
+    i = 0
+    for k in np.argsort(arr, kind="stable"):
+        j = int(np.searchsorted(t_s, arr[k], side="right"))
+        if j > i:
+            gsf.propagate_arrays(t_s[i:j], omega_ib_b[i:j], f_ib_b[i:j],
+                                 None if C_b_n_level is None else C_b_n_level[i:j])
+            i = j
+        out["accepted"][k] = gsf.update_velocity(float(vel_t_s[k]), vel_n[k], vel_R_n[k])
+        out["t_s"][k] = arr[k]
+        out["yaw_rad"][k] = gsf.yaw_rad
+        out["sigma_rad"][k] = math.sqrt(gsf.yaw_var_rad2)
+        out["valid"][k] = gsf.valid
+    return out

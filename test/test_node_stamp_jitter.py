@@ -73,10 +73,14 @@ def _run(tmp_path, ros_env, d, jitter_s, drop):
         if drop is not None:
             keep = ~((d.t_s > drop[0]) & (d.t_s < drop[1]))
             drv.imu_keep = keep
-        drv.stream(msgs_per_s=d.imu_spec.rate_hz * 5.0)
+        # 3x real time: at 5x, under a loaded suite (two workers busy), the node fell behind and did not drain in 120 s
+        drv.stream(msgs_per_s=d.imu_spec.rate_hz * 3.0)
         n_sent = int(drv.imu_keep.sum()) if drop is not None else d.n
-        assert mon.wait_for(lambda m: int(m.diag.get("buffered_imu", "1")) == 0
-                            and int(m.diag.get("imu_received", "0")) >= 0.99 * n_sent, 120.0), mon.diag
+        ok = mon.wait_for(lambda m: int(m.diag.get("buffered_imu", "1")) == 0
+                          and int(m.diag.get("imu_received", "0")) >= 0.99 * n_sent, 180.0)
+        with mon.lock:
+            seen = {k: mon.diag.get(k) for k in ("imu_received", "buffered_imu", "imu_gaps", "state")}
+        assert ok, f"sent {n_sent}: {seen}"
         time.sleep(1.0)
         with mon.lock:
             diag = dict(mon.diag)

@@ -20,8 +20,9 @@ import pytest
 
 from insalign_ros.core import earth
 from insalign_ros.core.types import ImuSample
-from insalign_ros.filters.yaw_gsf import YawGsf, YawGsfConfig, run_on_arrays, velocity_from_fixes
+from insalign_ros.filters.yaw_gsf import YawGsf, YawGsfConfig, velocity_from_fixes
 from insalign_ros.sim.scenarios import make_scenario
+from reference_loops import run_on_arrays
 
 HEADINGS_DEG = np.arange(0.0, 360.0, 45.0)
 VEL_SIGMA_M_S = 0.1

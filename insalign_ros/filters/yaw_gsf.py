@@ -19,9 +19,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core import earth
+from ..core.quat import from_C as _quat_from_C, from_rotvec as _quat_from_rotvec, mul as _quat_mul
+from ..core.quat import normalize as _quat_normalize, to_C as _quat_to_C
 from ..core.types import ImuSample
-
 from ..core.units import G0_M_S2  # the one standard gravity
+
 _J = np.array([[0.0, -1.0], [1.0, 0.0]])  # d/dyaw of Rz2(yaw) = J Rz2(yaw)
 
 
@@ -100,42 +102,6 @@ def _rz2(a):
 
 def _wrap(a):
     return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi
-
-
-def _quat_to_C(q):
-    w, x, y, z = q
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
-
-
-def _quat_mul(a, b):
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return (aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw)
-
-
-def _quat_from_rotvec(r0, r1, r2):
-    a = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
-    if a < 1e-9:
-        return (1.0, 0.5 * r0, 0.5 * r1, 0.5 * r2)
-    s = math.sin(0.5 * a) / a
-    return (math.cos(0.5 * a), r0 * s, r1 * s, r2 * s)
-
-
-def _quat_normalize(q):
-    w, x, y, z = q
-    n = 1.0 / math.sqrt(w * w + x * x + y * y + z * z)
-    return (w * n, x * n, y * n, z * n)
-
-
-def _quat_from_C(C):
-    from scipy.spatial.transform import Rotation  # scipy is a core dependency (used once per alignment)
-
-    x, y, z, w = Rotation.from_matrix(C).as_quat()
-    return (w, x, y, z)
 
 
 class _Accumulator:
@@ -629,33 +595,3 @@ def velocity_from_fixes(t_s, p_e, R_e, max_dt_s: float = 2.5):
         v_n[m] = C @ (p_e[i + 1] - p_e[i]) / dt[i]
         R_n[m] = C @ (R_e[i] + R_e[i + 1]) @ C.T / dt[i] ** 2
     return t_mid, v_n, R_n
-
-
-def run_on_arrays(gsf: YawGsf, t_s, omega_ib_b, f_ib_b, vel_t_s, vel_n, vel_R_n, vel_arrival_s=None,
-                  C_b_n_level=None) -> dict:
-    """Drive ``gsf`` through recorded arrays in time order and record it after every velocity.
-
-    vel_arrival_s (k,): when each velocity becomes available (default: its stamp); a velocity from the difference of
-    two fixes is stamped at the middle of the interval and arrives with the second fix. The IMU is propagated up to
-    the arrival, then the velocity is fused at its stamp. Returns arrays over the velocities: t_s (arrival), yaw_rad,
-    sigma_rad, valid, accepted.
-    """
-    t_s = np.asarray(t_s, float)
-    vel_t_s = np.asarray(vel_t_s, float)
-    arr = vel_t_s if vel_arrival_s is None else np.asarray(vel_arrival_s, float)
-    out = {k: np.full(len(vel_t_s), np.nan) for k in ("t_s", "yaw_rad", "sigma_rad")}
-    out["valid"] = np.zeros(len(vel_t_s), bool)
-    out["accepted"] = np.zeros(len(vel_t_s), bool)
-    i = 0
-    for k in np.argsort(arr, kind="stable"):
-        j = int(np.searchsorted(t_s, arr[k], side="right"))
-        if j > i:
-            gsf.propagate_arrays(t_s[i:j], omega_ib_b[i:j], f_ib_b[i:j],
-                                 None if C_b_n_level is None else C_b_n_level[i:j])
-            i = j
-        out["accepted"][k] = gsf.update_velocity(float(vel_t_s[k]), vel_n[k], vel_R_n[k])
-        out["t_s"][k] = arr[k]
-        out["yaw_rad"][k] = gsf.yaw_rad
-        out["sigma_rad"][k] = math.sqrt(gsf.yaw_var_rad2)
-        out["valid"][k] = gsf.valid
-    return out
