@@ -18,6 +18,9 @@ from insalign_ros.core import earth
 pytestmark = pytest.mark.ros
 
 ALIGN = "insalign_ros.nodes.alignment_node"
+#: after the driver's writer sees the node's reader, the reader's side of the match may still be under way, and a
+#: best-effort reader drops what arrives before it (imu_sim_node's match_settle_s): wait this long [s] first
+MATCH_SETTLE_S = 0.5
 T0_NS = 1_700_000_000 * 1_000_000_000  # a wall-clock-like epoch, as a host-stamped driver would give
 
 
@@ -111,6 +114,7 @@ def _stream_and_collect(drv, mon, node, d, nearest: bool):
             or mon.node.count_publishers("/alignment_node/pose") < 1 or mon.diag_count < 1:
         assert time.monotonic() < end, "alignment_node did not come up"
         time.sleep(0.05)
+    time.sleep(MATCH_SETTLE_S)
     drv.stream()
     assert mon.wait_for(lambda m: int(m.diag.get("buffered_imu", "1")) == 0
                         and int(m.diag.get("imu_received", "0")) > 0.9 * d.n, 90.0), mon.diag

@@ -15,7 +15,7 @@ import pytest
 
 from insalign_ros.cli.bringup import start_node, stop_nodes
 
-from test_node_driver_style import ALIGN, T0_NS, Driver
+from test_node_driver_style import ALIGN, MATCH_SETTLE_S, T0_NS, Driver
 
 pytestmark = pytest.mark.ros
 
@@ -69,6 +69,7 @@ def _run(tmp_path, ros_env, d, jitter_s, drop):
         while drv.pub_imu.get_subscription_count() < 1 or mon.diag_count < 1:
             assert time.monotonic() < end, "alignment_node did not come up"
             time.sleep(0.05)
+        time.sleep(MATCH_SETTLE_S)
         cpu0 = _cpu_s(node.popen.pid)
         if drop is not None:
             keep = ~((d.t_s > drop[0]) & (d.t_s < drop[1]))
