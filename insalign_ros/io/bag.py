@@ -35,7 +35,7 @@ from scipy.spatial.transform import Rotation
 from ..core import units
 from .bag_vehicle import read_vehicle_topics, vehicle_events  # /wheel/odom, /gps/heading
 from ..core.recording import ImuSpec, ScenarioData
-from . import validation
+from . import cdr_fast, validation
 from .topics import INVALID_SUFFIX, VEL_TYPE, listing, resolve_topics
 
 log = logging.getLogger(__name__)
@@ -239,6 +239,19 @@ TRUTH_POSE = {"geometry_msgs/msg/PoseStamped": lambda m: m.pose,
               "nav_msgs/msg/Odometry": lambda m: m.pose.pose}
 
 
+#: message types read from their CDR bytes (io/cdr_fast.py) in a ROS 2 bag
+FAST_CDR = {"sensor_msgs/msg/Imu": cdr_fast.imu, "geometry_msgs/msg/PoseStamped": cdr_fast.pose_stamped}
+
+
+def _truth_problem(p: tuple, q: tuple) -> str | None:
+    """Why a truth pose (position (x, y, z), orientation (x, y, z, w)) is unusable, or None."""
+    if not all(math.isfinite(x) for x in q) or abs(math.sqrt(sum(x * x for x in q)) - 1.0) > 1e-6:
+        return "orientation not a unit quaternion"
+    if not all(math.isfinite(x) for x in p):
+        return "non-finite position"
+    return None
+
+
 def _stamp_ns(msg) -> int:
     return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
@@ -321,7 +334,29 @@ def _read_messages(path, wanted: dict, invalid: dict, truth_topic: str, meta_top
         conns = [c for c in r.connections if c.topic == meta_topic or (
             c.topic in streams and (streams[c.topic][0] != "truth" or c.msgtype in TRUTH_POSE)
             and (streams[c.topic][0] != "vel" or c.msgtype == VEL_TYPE))]
+        fast = {c.topic: FAST_CDR.get(c.msgtype) for c in conns if r.is2 and c.topic != meta_topic}
         for conn, _, raw in r.messages(connections=conns):
+            dec = fast[conn.topic](raw) if fast.get(conn.topic) else None  # io/cdr_fast.py
+            if dec is not None:  # Imu or PoseStamped, read from its bytes
+                kind, ok = streams[conn.topic]
+                t_ns, frame, a, b = dec
+                frames[conn.topic].add(frame)
+                reason = validation.check_stamp(t_ns * 1e-9, prev[kind])
+                if kind == "imu":
+                    reason = reason or validation.check_imu(a, b)
+                    if not reason:
+                        g = got["imu"]
+                        g["t"].append(t_ns), g["w"].append(a), g["f"].append(b), g["ok"].append(ok)
+                else:
+                    reason = reason or _truth_problem(a, b)
+                    if not reason:
+                        g = got["truth"]
+                        g["t"].append(t_ns), g["p"].append(a), g["q"].append(b)
+                if reason:
+                    rejected[conn.topic][reason] += 1
+                else:
+                    prev[kind] = t_ns * 1e-9
+                continue
             msg = r.deserialize(raw, conn.msgtype)
             if conn.topic == meta_topic:
                 if meta is None:
@@ -336,8 +371,8 @@ def _read_messages(path, wanted: dict, invalid: dict, truth_topic: str, meta_top
             reason = validation.check_stamp(t_ns * 1e-9, prev[kind])
             g = got[kind]
             if kind == "imu":
-                w = np.array([msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z])
-                f = np.array([msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z])
+                w = (msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z)
+                f = (msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z)
                 reason = reason or validation.check_imu(w, f)
                 if not reason:
                     g["t"].append(t_ns), g["w"].append(w), g["f"].append(f), g["ok"].append(ok)
@@ -365,13 +400,10 @@ def _read_messages(path, wanted: dict, invalid: dict, truth_topic: str, meta_top
             else:
                 pose = TRUTH_POSE[conn.msgtype](msg)
                 p, q = pose.position, pose.orientation
-                qa = np.array([q.x, q.y, q.z, q.w])
-                if not np.all(np.isfinite(qa)) or abs(np.linalg.norm(qa) - 1.0) > 1e-6:
-                    reason = reason or "orientation not a unit quaternion"
-                if not np.all(np.isfinite([p.x, p.y, p.z])):
-                    reason = reason or "non-finite position"
+                p, q = (p.x, p.y, p.z), (q.x, q.y, q.z, q.w)
+                reason = reason or _truth_problem(p, q)
                 if not reason:
-                    g["t"].append(t_ns), g["p"].append((p.x, p.y, p.z)), g["q"].append(qa)
+                    g["t"].append(t_ns), g["p"].append(p), g["q"].append(q)
             if reason:
                 rejected[conn.topic][reason] += 1
             else:

@@ -35,6 +35,12 @@ def check_stamp(t_s: float, prev_t_s: float | None) -> str | None:
 
 
 def check_vector(v, name: str, max_norm: float) -> str | None:
+    if type(v) is tuple and len(v) == 3:  # three floats (the bag reader's fast path): no numpy per sample
+        x, y, z = v
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+            return f"{name}: non-finite value"
+        n = math.sqrt(x * x + y * y + z * z)
+        return f"{name}: magnitude {n:.3g} > {max_norm:.3g}" if n > max_norm else None
     a = np.asarray(v, dtype=float)
     if a.shape != (3,):
         return f"{name}: shape {a.shape} != (3,)"
