@@ -245,9 +245,11 @@ FAST_CDR = {"sensor_msgs/msg/Imu": cdr_fast.imu, "geometry_msgs/msg/PoseStamped"
 
 def _truth_problem(p: tuple, q: tuple) -> str | None:
     """Why a truth pose (position (x, y, z), orientation (x, y, z, w)) is unusable, or None."""
-    if not all(math.isfinite(x) for x in q) or abs(math.sqrt(sum(x * x for x in q)) - 1.0) > 1e-6:
+    x, y, z, w = q
+    n2 = x * x + y * y + z * z + w * w  # nan or inf when a component is
+    if not abs(math.sqrt(n2) - 1.0) <= 1e-6:
         return "orientation not a unit quaternion"
-    if not all(math.isfinite(x) for x in p):
+    if not (math.isfinite(p[0]) and math.isfinite(p[1]) and math.isfinite(p[2])):
         return "non-finite position"
     return None
 
@@ -565,7 +567,7 @@ def read_bag(path, imu_topic: str | None = IMU_TOPIC, gps_topic: str | None = GP
         params=params, imu_valid=np.array(imu["ok"], bool), gnss_valid=np.array(gps["ok"], bool),
         gnss_vel_t_s=rel(vel["t"]) if vel["t"] else None, gnss_vel_n=np.array(vel["v"]) if vel["t"] else None,
         gnss_vel_R_n=np.array(vel["R"]) if vel["t"] else None, **truth,
-        **read_vehicle_topics(path, off, rep["warnings"], typestore()))  # /wheel/odom, /gps/heading (io/bag_vehicle.py)
+        **read_vehicle_topics(path, off, rep["warnings"], typestore(), rep["bag_topics"]))  # /wheel/odom, /gps/heading
 
 
 def _truth_at_imu(t_s, tr_t_s, tr_p_n, tr_q, ref, warnings: list) -> dict:

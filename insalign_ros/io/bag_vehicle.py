@@ -68,14 +68,17 @@ def vehicle_events(ts, data: ScenarioData, off_ns: int, stamp) -> tuple[list, di
     return out, types
 
 
-def read_vehicle_topics(path, off_ns: int, warnings: list, ts) -> dict:
+def read_vehicle_topics(path, off_ns: int, warnings: list, ts, bag_topics: dict | None = None) -> dict:
     """The ScenarioData fields of ``/wheel/odom`` (nav_msgs/Odometry) and ``/gps/heading`` (sensor_msgs/Imu) when
-    the bag has them with these types (stamps relative to ``off_ns``; ``ts`` the bag's typestore); {} otherwise."""
+    the bag has them with these types (stamps relative to ``off_ns``; ``ts`` the bag's typestore); {} otherwise.
+    ``bag_topics`` (topic -> type, when the caller has read them): a bag with neither is not opened again."""
     from pathlib import Path
 
     from rosbags.highlevel import AnyReader
 
     want = {WHEEL_TOPIC: WHEEL_TYPE, HEADING_TOPIC: HEADING_TYPE}
+    if bag_topics is not None and not any(bag_topics.get(t) == m for t, m in want.items()):
+        return {}
     got = {WHEEL_TOPIC: ([], [], []), HEADING_TOPIC: ([], [], [])}
     skipped = {WHEEL_TOPIC: 0, HEADING_TOPIC: 0}
     with AnyReader([Path(path)], default_typestore=ts) as r:
