@@ -287,9 +287,11 @@ def velocity_n_from_positions(t_s: np.ndarray, lat_rad, lon_rad, h_m) -> np.ndar
     ECEF positions over t_s [s], rotated into the local ENU frame of each sample."""
     x, y, z = pymap3d.geodetic2ecef(lat_rad, lon_rad, h_m, deg=False)
     v_e = np.gradient(np.column_stack([x, y, z]), np.asarray(t_s, float), axis=0, edge_order=2)
-    from ..core import earth
-
-    return np.array([earth.C_e_n(a, b) @ v for a, b, v in zip(lat_rad, lon_rad, v_e)])
+    sl, cl = np.sin(lat_rad), np.cos(lat_rad)  # the rows of earth.C_e_n, for all samples at once
+    so, co = np.sin(lon_rad), np.cos(lon_rad)
+    ve, vn, vu = v_e[:, 0], v_e[:, 1], v_e[:, 2]
+    return np.column_stack([-so * ve + co * vn, -sl * co * ve - sl * so * vn + cl * vu,
+                            cl * co * ve + cl * so * vn + sl * vu])
 
 
 def _streams(names: dict, invalid: dict, truth_topic: str) -> dict:
