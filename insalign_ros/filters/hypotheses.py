@@ -230,11 +230,11 @@ class YawHypothesisBank(AlignmentCore):
         if len(self.hyps) == 1:
             return est
         w = self.weights
+        others = [k for k in range(len(self.hyps)) if k != b]
+        # one scipy call for all the hypotheses (the same rotation vectors as one call each)
+        D = Rotation.from_matrix(np.array([self.hyps[k].estimate().C_b_n @ est.C_b_n.T for k in others])).as_rotvec()
         spread = np.zeros((3, 3))
-        for k, h in enumerate(self.hyps):
-            if k == b:
-                continue
-            d = Rotation.from_matrix(h.estimate().C_b_n @ est.C_b_n.T).as_rotvec()
+        for d, k in zip(D, others):
             spread += w[k] * np.outer(d, d)
         est.P_att_n = est.P_att_n + spread
         sig_yaw3 = 3.0 * math.degrees(math.sqrt(max(est.P_att_n[2, 2], 0.0)))

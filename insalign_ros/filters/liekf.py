@@ -297,10 +297,11 @@ class BatchedEciCore(AlignmentCore):
             status, reason = AlignmentStatus.ALIGNED, f"3-sigma yaw {sig_yaw3:.2f} deg"
         else:
             status, reason = AlignmentStatus.CONVERGING, f"3-sigma yaw {sig_yaw3:.2f} deg"
+        b_g, b_a = self._bias_out()
         return AlignmentEstimate(
             stamp_s=self.t_s, C_b_n=C_b_n, v_n=np.asarray(v_n), lat_rad=lat, lon_rad=lon, h_m=h, P_att_n=P_att,
-            P=self.P.copy(), state_names=self.state_names, bias_gyro_b=self._bias_out()[0],
-            bias_acc_b=self._bias_out()[1], status=status, reason=reason,
+            P=self.P.copy(), state_names=self.state_names, bias_gyro_b=b_g, bias_acc_b=b_a, status=status,
+            reason=reason,
         )
 
     def _bias_out(self):
