@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core import earth
+from .align import SIGMA3_UNKNOWN_DEG
 from .bringup import isolated_ros_env, start_node, stop_nodes, wait_for_exit
 
 QOS_CHOICES = ("sensor_data", "reliable")  # as insalign_ros/nodes/qos.py (not imported: it needs rclpy)
@@ -300,7 +301,8 @@ def _status_line(mon, t0: float) -> str:
         s3 = mon.euler_3sigma[1] if mon.euler_3sigma is not None else None
         state = d.get("state", "starting")
         yaw = f"yaw err {e[2]:+7.2f} deg" if e is not None else "yaw err    -   "
-        sig = f"3-sigma {s3[2]:6.2f} deg" if s3 is not None else "3-sigma   -   "
+        sig = "3-sigma   -   " if s3 is None else (  # above 180 deg a 3-sigma says nothing about an angle
+            f"3-sigma {s3[2]:6.2f} deg" if s3[2] <= SIGMA3_UNKNOWN_DEG else "3-sigma unknown   ")
         return (f"[{time.monotonic() - t0:5.1f} s] {state:<16} | {yaw} | {sig} | IMU rx {d.get('imu_received', 0):>6} "
                 f"rej {d.get('imu_rejected', 0):>3} | GNSS {d.get('gnss_accepted', 0):>4}   ")
 
