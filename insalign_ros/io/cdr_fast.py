@@ -35,19 +35,22 @@ def _header(raw: bytes):
     return sec * 1_000_000_000 + nsec, frame, 4 + ((12 + n + 7) & ~7)
 
 
+def _fields(raw: bytes, layout: struct.Struct):
+    """(stamp [ns], frame_id, the doubles of ``layout`` after the header) of a message that is exactly the header and
+    ``layout``, or None."""
+    h = _header(raw)
+    if h is None or len(raw) != h[2] + layout.size:
+        return None
+    return h[0], h[1], layout.unpack_from(raw, h[2])
+
+
 def imu(raw: bytes):
     """(stamp [ns], frame_id, angular_velocity (x, y, z), linear_acceleration (x, y, z)) of an Imu, or None."""
-    h = _header(raw)
-    if h is None or len(raw) != h[2] + _IMU.size:
-        return None
-    v = _IMU.unpack_from(raw, h[2])
-    return h[0], h[1], v[13:16], v[25:28]
+    m = _fields(raw, _IMU)
+    return None if m is None else (m[0], m[1], m[2][13:16], m[2][25:28])
 
 
 def pose_stamped(raw: bytes):
     """(stamp [ns], frame_id, position (x, y, z), orientation (x, y, z, w)) of a PoseStamped, or None."""
-    h = _header(raw)
-    if h is None or len(raw) != h[2] + _POSE.size:
-        return None
-    v = _POSE.unpack_from(raw, h[2])
-    return h[0], h[1], v[0:3], v[3:7]
+    m = _fields(raw, _POSE)
+    return None if m is None else (m[0], m[1], m[2][0:3], m[2][3:7])
