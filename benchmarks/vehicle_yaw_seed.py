@@ -23,6 +23,7 @@ import argparse
 import json
 import math
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -32,9 +33,9 @@ sys.path.insert(0, str(ROOT))
 
 from insalign_ros.session.flag import AlignedCriteria  # noqa: E402
 from insalign_ros.session.offline import align, truncate  # noqa: E402
-from insalign_ros.sim.scenarios import make_scenario  # noqa: E402
+from insalign_ros.sim.scenarios import SCENARIOS, make_scenario  # noqa: E402
 
-DURATION_S = {"car": 120.0, "park_drive": 150.0}
+DURATION_S = {"car": 120.0, "park_drive": 150.0, "ship": 180.0}
 DEFAULT_PARK_S = 90.0
 
 
@@ -56,16 +57,21 @@ def _first_stays(t: np.ndarray, ok: np.ndarray, t0: float) -> float:
 
 
 def run(name: str, seed: int, vehicle: str, duration_s: float, vel_sigma: float = 0.0,
-        hold_s: float | None = None, until_s: float | None = None, park_s: float | None = None) -> dict:
+        hold_s: float | None = None, until_s: float | None = None, park_s: float | None = None,
+        scenario_over: dict | None = None, gyro_bias_deg_h: float | None = None, **session_params) -> dict:
     over = {"gnss_vel_sigma_m_s": vel_sigma} if vel_sigma > 0 else {}
+    over.update(scenario_over or {})
+    imu = None
+    if gyro_bias_deg_h is not None:
+        imu = replace(SCENARIOS[name].imu, gyro_bias_deg_h=gyro_bias_deg_h)
     if park_s is not None and name == "park_drive":  # a shorter park (the person gets in half way)
         over.update(park_s=park_s, door_at_s=0.5 * park_s)
         duration_s = duration_s - DEFAULT_PARK_S + park_s
-    data = make_scenario(name, seed=seed, duration_s=duration_s, **over)
+    data = make_scenario(name, seed=seed, duration_s=duration_s, imu=imu, **over)
     if until_s is not None:  # the same drive (the car's manoeuvres scale with duration_s), cut short
         data = truncate(data, first_motion_s(name, data) + until_s)
     crit = {} if hold_s is None else {"hold_s": hold_s}
-    r = align(data, vehicle=vehicle, criteria=crit)
+    r = align(data, vehicle=vehicle, criteria=crit, **session_params)
     t0 = first_motion_s(name, data)
     up = r.aligned & (r.t_s >= t0)
     t_flag = float(r.t_s[np.argmax(up)] - t0) if up.any() else math.nan
@@ -113,6 +119,11 @@ def main(argv=None) -> int:
     ap.add_argument("--hold-s", type=float, default=None, help="the flag's hold_s (default: the criteria's 5 s)")
     ap.add_argument("--decompose", action="store_true", help="also print where the delay goes")
     ap.add_argument("--json", default=None, help="write every run's row to this file")
+    ap.add_argument("--set", action="append", default=[], metavar="PARAM=VALUE",
+                    help="a scenario parameter (e.g. speed_m_s=4 for the ship); repeatable")
+    ap.add_argument("--gyro-bias-deg-h", type=float, default=None,
+                    help="the simulated gyro bias 1-sigma [deg/h] (default: the scenario's IMU)")
+    ap.add_argument("--imu-grade", default=None, help="the session's imu_grade (default: SessionConfig's)")
     a = ap.parse_args(argv)
     vel = f", GNSS velocity {a.gnss_vel_sigma:g} m/s" if a.gnss_vel_sigma > 0 else ", fixes only"
     print(f"| scenario{vel} | vehicle | runs | flag after first motion [s] median / max | never flagged | "
@@ -120,11 +131,13 @@ def main(argv=None) -> int:
           + (" level 3-sigma < bound [s] | yaw 3-sigma < bound [s] | all criteria (hold 0) [s] | max abs(yaw err) "
              "while the criteria hold [deg] |" if a.decompose else ""))
     print("|---|---|---|---|---|---|---|---|" + ("---|---|---|---|" if a.decompose else ""))
+    over = {k: float(v) for k, v in (kv.split("=", 1) for kv in a.set)}
+    sess = {"imu_grade": a.imu_grade} if a.imu_grade else {}
     every = []
     for name in a.scenarios.split(","):
         for veh in a.vehicles.split(","):
             rows = [run(name, s, veh, a.duration or DURATION_S[name], a.gnss_vel_sigma, a.hold_s,
-                        a.until, a.park_s)
+                        a.until, a.park_s, over, a.gyro_bias_deg_h, **sess)
                     for s in range(a.first_seed, a.first_seed + a.seeds)]
             for row in rows:
                 print("  ", row, file=sys.stderr, flush=True)

@@ -159,6 +159,42 @@ def test_ship_converges_with_a_given_level_and_is_never_valid_with_its_own_ahrs(
         assert out["accepted"].sum() > 40 and not out["valid"].any()
 
 
+def test_set_level_at_each_velocity_makes_the_ship_valid_as_a_given_level_does():
+    """``set_level`` (the session gives the core's level at each GNSS input, session/yaw_seed.py) replaces the AHRS
+    tilt once per velocity; between them the AHRS integrates the gyro only. With the true level and a 0.3-deg tilt
+    sigma the ship reaches ``valid`` within 30 s with the final error inside 1 deg (and 3 sigma), as with the
+    level given at every sample."""
+    d = make_scenario("ship", seed=2, duration_s=60.0, heading_deg=120.0, gnss_vel_sigma_m_s=VEL_SIGMA_M_S)
+    gsf = YawGsf(YawGsfConfig(vehicle_moves_along_forward_axis=False))
+    rpy = earth.rpy_from_C_b_n(d.C_b_n)
+    i, t_valid = 0, math.inf
+    for k, tv in enumerate(d.gnss_vel_t_s):
+        j = int(np.searchsorted(d.t_s, tv, side="right"))
+        gsf.propagate_arrays(d.t_s[i:j], d.omega_ib_b[i:j], d.f_ib_b[i:j])
+        i = j
+        gsf.set_level(rpy[j - 1, 0], rpy[j - 1, 1], math.radians(0.3) ** 2)
+        gsf.update_velocity(float(tv), d.gnss_vel_n[k], d.gnss_vel_R_n[k])
+        if gsf.valid and t_valid == math.inf:
+            t_valid = float(tv)
+    err = math.degrees(float(earth.wrap_angle_rad(gsf.yaw_rad - rpy[i - 1, 2])))
+    sig = math.degrees(math.sqrt(gsf.yaw_var_rad2))
+    print(f"ship, level set at each velocity: valid at {t_valid:.0f} s, final error {err:.2f} deg (sigma {sig:.2f})")
+    assert t_valid <= 30.0
+    assert abs(err) <= min(1.0, 3.0 * sig)
+    assert gsf.tilt_var_rad2 >= math.radians(0.3) ** 2  # the tilt variance grows between calls, never shrinks
+
+
+def test_session_gives_the_gsf_the_core_level_and_stops_it_on_a_ship():
+    """On the ship (fix differences, vehicle unknown) the GSF's own AHRS is never valid; with the core's level it
+    becomes confident, finds the core's yaw as good as its own and stops (it no longer costs the whole run)."""
+    from insalign_ros.session.offline import align
+
+    r = align("ship", core="iekf", duration_s=60.0, seed=0)
+    d = r.diagnostics
+    assert int(d["gsf_core_levels"]) > 0
+    assert d["yaw_seeded_by"] != "not yet (the yaw bank)", d["yaw_seeded_by"]
+
+
 def test_bad_input_is_rejected_without_a_crash_and_late_velocities_beyond_the_history_are_refused():
     gsf = YawGsf()
     f_rest = np.array([0.0, 0.0, 9.81])

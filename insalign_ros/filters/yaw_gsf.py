@@ -160,6 +160,7 @@ class YawGsf:
         self._last_vel = None  # (stamp, speed, var, v2, R2) of the last velocity
         self._quiet = 0  # consecutive velocity intervals without horizontal acceleration
         self._init_wait_s, self._dt_last, self._tilt_var = 0.0, 0.0, 0.0
+        self._level_given = False  # the tilt comes from set_level (the AHRS integrates the gyro between them)
         self._along_used = False  # the longitudinal acceleration comes from a precise velocity interval
         self._kin_sigma_m_s2 = 0.0  # sigma of the last interval's horizontal acceleration from the velocities
         self._started = False
@@ -213,6 +214,20 @@ class YawGsf:
             return 0.0
         C = _quat_to_C(self._q)
         return math.atan2(C[1, 0], C[0, 0])
+
+    def set_level(self, roll_rad: float, pitch_rad: float, tilt_var_rad2: float) -> None:
+        """The tilt (roll, pitch of body -> ENU) and its variance [rad^2] from elsewhere (the session's core): they
+        replace the AHRS tilt, and from now on the AHRS only integrates the gyro between calls (no accelerometer
+        correction: on a ship in waves it never finds a quiet moment). The AHRS yaw is kept."""
+        yaw = self._shared_yaw()
+        self._q = _quat_from_C(earth.C_b_n_from_rpy(roll_rad, pitch_rad, yaw))
+        self._tilt_var = float(tilt_var_rad2)
+        self._level_given = True
+
+    @property
+    def tilt_var_rad2(self) -> float:
+        """Variance of the AHRS tilt [rad^2] (inf before it is aligned)."""
+        return float(self._tilt_var) if self._q is not None else float("inf")
 
     # ------------------------------------------------------------------ IMU
     def propagate(self, sample: ImuSample, C_b_n_level: np.ndarray | None = None):
@@ -368,6 +383,10 @@ class YawGsf:
 
     def _ahrs(self, wx, wy, wz, dt):
         c = self.cfg
+        if self._level_given:  # the tilt comes from set_level: the gyro between calls, the variance grows
+            self._tilt_var += math.radians(c.tilt_drift_deg_sqrt_s) ** 2 * dt
+            self._q = _quat_normalize(_quat_mul(self._q, _quat_from_rotvec(wx * dt, wy * dt, wz * dt)))
+            return
         b = self._b_g
         wx, wy, wz = wx - b[0], wy - b[1], wz - b[2]
         qw, qx, qy, qz = self._q

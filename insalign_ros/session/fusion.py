@@ -239,6 +239,7 @@ class Fusion:
                                           f"{fix.stamp_s - sess.guard._hold_since:.1f} s: fusing fixes")
             sess.guard._hold_since = None
         res = (sess.bt if sess.bt is not None else core).update(fix)
+        sess._est_memo = None
         if res is None:
             return
         sess.last_nis = res.nis
@@ -248,7 +249,6 @@ class Fusion:
             sess.counters["gnss_accepted"] += 1
             sess.last_accepted_fix_t = fix.stamp_s
             if sess.cfg.vehicle in NHC_SIGMA_M_S and sess.bt is None:
-                sess._est_memo = None
                 self.wheel_scale.on_fix(fix, sess.outputs.estimate())  # a window boundary of the wheel scale
             sess.grade_check.on_fix(res.nis, len(res.innovation) or 3)  # does the imu_grade fit the innovations?
         else:

@@ -58,7 +58,6 @@ class DivergenceGuard:
         dt = sess.loop._median_dt
         t2 = float(fix.stamp_s)
         v_n = np.asarray(sess.outputs.estimate().v_n, float)[:2]
-        sess._est_memo = None  # the fix is fused next: the guard's checks after it must see the new estimate
         prev, self._floor_prev = self._floor_prev, (t2, v_n)
         if dt is None or not dt > 0 or prev is None:
             return 0.0

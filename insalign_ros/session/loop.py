@@ -344,6 +344,7 @@ class Loop:
         parts = np.array_split(np.arange(n_mid + 1), min(5, n_mid + 1))
         for part in parts:
             sess.core.inflate_navigation(var_att / len(parts), var_v / len(parts), 0.0)
+            sess._est_memo = None
             for k in part[part < n_mid]:
                 sess.fusion.propagate(t_mid[k:k + 1], Y_mid[k:k + 1, :3], Y_mid[k:k + 1, 3:])
                 sess.fusion.apply_fixes_until(float(t_mid[k]), [])

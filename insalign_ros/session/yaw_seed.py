@@ -51,6 +51,10 @@ SEED_RATIO = 2.0
 #: the GSF seeds once ``valid`` but for its yaw 1-sigma, which may be up to this [deg] (a bank of 8 hypotheses is
 #: worth about 13 deg per hypothesis)
 SEED_MAX_SIGMA_DEG = 5.0
+#: the core's level replaces the GSF's AHRS tilt when its 1-sigma is this many times below the AHRS's, and at most
+#: LEVEL_MAX_SIGMA_DEG [deg] (the AHRS's own tilt after a quiet start is 0.5 deg)
+LEVEL_RATIO = 1.0
+LEVEL_MAX_SIGMA_DEG = 1.0
 #: the GSF's variance is inflated by this factor for the seed (the core starts no tighter than the GSF claims)
 SEED_VAR_FACTOR = 1.5
 
@@ -75,7 +79,7 @@ class YawSeed:
         self.seeded_by = ""  # what gave the in-motion core its yaw (the status)
         self._prev_fix: GnssFix | None = None
         self._have_topic = False
-        self.counters = {"gsf_velocities": 0, "gsf_seeds": 0}
+        self.counters = {"gsf_velocities": 0, "gsf_seeds": 0, "gsf_core_levels": 0}
 
     # ------------------------------------------------------------------ data
     def imu(self, t: float, w, f) -> None:
@@ -119,9 +123,31 @@ class YawSeed:
         self._update(float(vel.stamp_s), vel.v_n, vel.R_n)
 
     def _update(self, t: float, v_n, R_n) -> None:
+        self._level_from_core()
         if self.gsf.update_velocity(t, v_n, R_n):
             self.counters["gsf_velocities"] += 1
         self.check()
+
+    def _level_from_core(self) -> None:
+        """Give the GSF the core's level when it is better than the GSF's own AHRS tilt (LEVEL_RATIO): a ship in
+        waves never gives the accelerometer-only AHRS a quiet moment, while the core's level (static levelling, the
+        in-motion core's fixes) is known to a fraction of a degree. The core is at the GSF's last IMU sample (both
+        are fed the same samples before a GNSS input is fused)."""
+        sess = self.s
+        if sess.core is None or sess.bt is not None:
+            return
+        try:
+            est = sess.outputs.estimate()
+        except Exception:  # noqa: BLE001 - a core that cannot give an estimate gives no level either
+            return
+        P = np.asarray(est.P_att_n, float)
+        var = max(float(P[0, 0]), float(P[1, 1]))
+        if not (math.isfinite(var) and var <= (LEVEL_MAX_SIGMA_DEG * D2R) ** 2
+                and var * LEVEL_RATIO ** 2 < self.gsf.tilt_var_rad2 and np.all(np.isfinite(est.C_b_n))):
+            return
+        r, p, _ = earth.rpy_from_C_b_n(np.asarray(est.C_b_n, float))
+        self.gsf.set_level(float(r), float(p), var)
+        self.counters["gsf_core_levels"] += 1
 
     # ------------------------------------------------------------------ seeding
     def check(self) -> None:
