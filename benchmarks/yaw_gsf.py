@@ -34,7 +34,8 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "test"))  # reference_loops.run_on_arrays: the GSF on recorded arrays
 
 from insalign_ros.core import earth  # noqa: E402
-from insalign_ros.filters.yaw_gsf import YawGsf, YawGsfConfig, velocity_from_fixes  # noqa: E402
+from insalign_ros.core.earth import velocity_from_fixes  # noqa: E402
+from insalign_ros.filters.yaw_gsf import YawGsf, YawGsfConfig  # noqa: E402
 from insalign_ros.sim.scenarios import make_scenario  # noqa: E402
 from reference_loops import run_on_arrays  # noqa: E402
 

@@ -20,7 +20,8 @@ import pytest
 
 from insalign_ros.core import earth
 from insalign_ros.core.types import ImuSample
-from insalign_ros.filters.yaw_gsf import YawGsf, YawGsfConfig, velocity_from_fixes
+from insalign_ros.core.earth import velocity_from_fixes
+from insalign_ros.filters.yaw_gsf import YawGsf, YawGsfConfig
 from insalign_ros.sim.scenarios import make_scenario
 from reference_loops import run_on_arrays
 

@@ -590,27 +590,3 @@ class YawGsf:
         dy = _wrap(yaws - self._yaw)
         self._var = float(np.sum(self._w * (self._P[:, 2, 2] + dy ** 2)))
 
-
-def velocity_from_fixes(t_s, p_e, R_e, max_dt_s: float = 2.5):
-    """ENU velocity from successive GNSS fixes, for users without a velocity topic.
-
-    t_s (n,) [s], p_e (n, 3) ECEF [m], R_e (n, 3, 3) ECEF covariances [m^2] -> (t_mid (m,), v_n (m, 3) [m/s],
-    R_n (m, 3, 3) [m^2/s^2]): for each pair of consecutive fixes 0 < dt <= max_dt_s, the ECEF difference over dt
-    rotated into ENU at the mid-point, stamped at the middle of the interval (the average velocity over an interval
-    is the velocity at its middle to second order), with the covariance ``C_e_n (R_1 + R_2) C_e_n' / dt^2``
-    (independent fixes; successive differences share a fix, so neighbouring velocities are correlated -1/2, which
-    the caller should know when it fuses them as independent).
-    """
-    t_s, p_e, R_e = np.asarray(t_s, float), np.asarray(p_e, float), np.asarray(R_e, float)
-    dt = np.diff(t_s)
-    ok = (dt > 0) & (dt <= max_dt_s) & np.all(np.isfinite(p_e[1:]), 1) & np.all(np.isfinite(p_e[:-1]), 1)
-    idx = np.flatnonzero(ok)
-    t_mid = 0.5 * (t_s[idx] + t_s[idx + 1])
-    v_n = np.zeros((len(idx), 3))
-    R_n = np.zeros((len(idx), 3, 3))
-    for m, i in enumerate(idx):
-        lat, lon, _ = earth.ecef_to_geodetic(0.5 * (p_e[i] + p_e[i + 1]))
-        C = earth.C_e_n(lat, lon)
-        v_n[m] = C @ (p_e[i + 1] - p_e[i]) / dt[i]
-        R_n[m] = C @ (R_e[i] + R_e[i + 1]) @ C.T / dt[i] ** 2
-    return t_mid, v_n, R_n

@@ -20,6 +20,10 @@ from . import catalog
 from .guard import extrapolation_excess, fix_point
 from .truth import TruthSample
 
+#: a static core's first initialisation with one fix waits for a second one when the gyros turn faster than this
+#: about the vertical [rad/s] (0.5 deg/s: 70 times the Earth's rate; a parked vehicle does not turn)
+TURN_WAIT_RAD_S = math.radians(0.5)
+
 D2R = math.pi / 180.0
 
 
@@ -184,8 +188,11 @@ class Initialiser:
                 v_prev = C_en @ (np.asarray(f1.p_e) - np.asarray(f0.p_e)) / dt0
                 a_est = float(np.linalg.norm(v0 - v_prev)) / (0.5 * (dt + dt0)) + 0.5  # + margin for noise/jerk
             s_p = math.sqrt(max(float(np.trace(f2.R_e)) / 3.0, 0.0))
-            if self.after_restart:  # restart: the turn rate the gyros measure times the speed, and a GNSS velocity
-                a_est = max(a_est, self._turn_accel(t, float(np.linalg.norm(v0[:2]))))
+            # the turn rate the gyros measure times the speed (a car initialised in a turn: the fixes' second
+            # difference, up to a second old, does not see the centripetal acceleration yet)
+            speed = float(np.linalg.norm(v0[:2])) if self.after_restart else self._fix_speed(recent)
+            if self.after_restart or speed > 0.0:
+                a_est = max(a_est, self._turn_accel(t, speed))
             sig_v = math.sqrt(2.0) * s_p / dt + a_est * (0.5 * dt + (t - f2.stamp_s))
             if self.after_restart:
                 v0, sig_v = self._gnss_velocity(t, v0, sig_v, a_est)
@@ -193,6 +200,16 @@ class Initialiser:
                 v0, sig_v, a_est = np.zeros(3), sig_v0, 0.0  # a static core at rest: as a first initialisation
         else:
             v0, sig_v, a_est = np.zeros(3), sig_v0, 0.0
+            if (used is not None and len(recent) < 2 and t - used.stamp_s < 2.0 and not self.after_restart
+                    and self._turn_rate(t) > TURN_WAIT_RAD_S):
+                # turning with one fix: wait up to 2 s for a second one, which tells a vehicle turning on the spot
+                # from one driving through a turn (its accelerometers' mean is tilted by the centripetal acceleration)
+                sess.status = AlignmentStatus.WAITING_FOR_GNSS
+                sess.reason = "waiting for a second GNSS fix (is the vehicle moving?)"
+                return
+            speed = self._fix_speed(recent)
+            if speed > 0.0:  # a static core's first initialisation while the fixes say the vehicle drives: its level
+                a_est = self._turn_accel(t, speed)  # is the accelerometers' mean with the centripetal acceleration in it
         win = [(w_, f_) for (tt, w_, f_) in self.pre_init if tt > t - cfg.init_level_window_s]
         if len(win) < 5:
             sess.status = AlignmentStatus.WAITING_FOR_DATA
@@ -225,14 +242,34 @@ class Initialiser:
             f"velocity 1-sigma "
             f"{sig_v:.2f} m/s, heading unknown: {params.get('yaw_hypotheses', 1)} hypotheses)"))
 
+    @staticmethod
+    def _fix_speed(recent: list) -> float:
+        """The horizontal speed [m/s] between the last two of ``recent`` fixes when it is above 0.5 m/s and three
+        times its own noise; else 0 (at rest, or the fixes cannot tell)."""
+        if len(recent) < 2:
+            return 0.0
+        f1, f2 = recent[-2], recent[-1]
+        _, v_n, R_n = earth.velocity_from_fixes([f1.stamp_s, f2.stamp_s], [f1.p_e, f2.p_e], [f1.R_e, f2.R_e])
+        if not len(v_n):
+            return 0.0
+        speed = float(np.linalg.norm(v_n[0, :2]))
+        return speed if speed > max(0.5, 3.0 * math.sqrt(max(float(R_n[0, 0, 0] + R_n[0, 1, 1]), 0.0))) else 0.0
+
     def _turn_accel(self, t: float, speed_m_s: float) -> float:
         """A bound of the centripetal acceleration [m/s^2] over the level window: the mean turn rate the gyros
         measure times the speed from the fixes, plus 0.5 m/s^2 for its change (a car entering a turn at 15 m/s
         reaches 4.7 m/s^2 in 2 s, which the fixes' second difference, 1 s old, does not see yet)."""
-        win = [w_ for (tt, w_, _) in self.pre_init if tt > t - self.s.cfg.init_level_window_s]
+        return self._turn_rate(t) * speed_m_s + 0.5
+
+    def _turn_rate(self, t: float) -> float:
+        """|mean angular rate about the vertical| [rad/s] over the level window (the roll and pitch rates of a rolling
+        hull or a rough road are not turns); 0 without samples."""
+        win = [(w_, f_) for (tt, w_, f_) in self.pre_init if tt > t - self.s.cfg.init_level_window_s]
         if not win:
             return 0.0
-        return float(np.linalg.norm(np.mean(np.asarray(win, float), axis=0))) * speed_m_s + 0.5
+        w_mean = np.mean(np.asarray([w_ for w_, _ in win], float), axis=0)
+        f_mean = np.mean(np.asarray([f_ for _, f_ in win], float), axis=0)
+        return abs(float(w_mean @ f_mean)) / max(float(np.linalg.norm(f_mean)), 1e-6)
 
     def _gnss_velocity(self, t: float, v0: np.ndarray, sig_v: float, a_est: float) -> tuple[np.ndarray, float]:
         """The newest GNSS velocity stamped within 1 s before ``t`` when it is tighter than the fixes' difference:

@@ -23,7 +23,7 @@ import numpy as np
 from ..core import earth
 from ..core.types import GnssFix, GnssVelocity
 from ..filters import registry
-from ..filters.yaw_gsf import YawGsf, YawGsfConfig, velocity_from_fixes
+from ..filters.yaw_gsf import YawGsf, YawGsfConfig
 from ..filters.measurements import GnssPosition, GyroBiasPrior
 from .auto import AutoCore
 
@@ -112,7 +112,7 @@ class YawSeed:
         prev, self._prev_fix = self._prev_fix, fix
         if self._have_topic or prev is None:
             return
-        t_mid, v_n, R_n = velocity_from_fixes([prev.stamp_s, fix.stamp_s], [prev.p_e, fix.p_e], [prev.R_e, fix.R_e])
+        t_mid, v_n, R_n = earth.velocity_from_fixes([prev.stamp_s, fix.stamp_s], [prev.p_e, fix.p_e], [prev.R_e, fix.R_e])
         if len(t_mid):
             self._update(float(t_mid[0]), v_n[0], R_n[0])
 
