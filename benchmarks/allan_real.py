@@ -32,10 +32,9 @@ FIELDS = ("gyro_arw_deg_sqrt_h", "gyro_bias_instability_deg_h", "acc_vrw_m_s_sqr
 
 
 def shared_data_dir() -> Path | None:
-    for p in Path(__file__).resolve().parents:
-        if (p / "shared" / "data").is_dir():
-            return p / "shared" / "data"
-    return None
+    from insalign_ros.io.datasets import shared_data_dir as find
+
+    return find(__file__)
 
 
 def acceptance(seeds: int) -> None:

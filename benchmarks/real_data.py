@@ -56,11 +56,8 @@ YAW_WRONG_DEG = 3.0
 
 
 def shared_data_dir() -> Path | None:
-    """../shared/data next to the clone (the first ancestor holding shared/data), None when absent."""
-    for p in Path(__file__).resolve().parents:
-        if (p / "shared" / "data").is_dir():
-            return p / "shared" / "data"
-    return None
+    """$INSALIGN_DATA, else ../shared/data next to the clone (io/datasets.shared_data_dir); None when absent."""
+    return DS.shared_data_dir(__file__)
 
 
 @dataclass

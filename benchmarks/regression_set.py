@@ -28,14 +28,9 @@ SCENARIOS = {"ship": 60.0, "car": 60.0, "static": 40.0, "park_drive": 60.0, "two
 
 def _data_root() -> Path:
     """../shared/data beside the checkout (or beside any folder above it: worktrees), or $INSALIGN_DATA."""
-    import os
+    from insalign_ros.io.datasets import shared_data_dir
 
-    if os.environ.get("INSALIGN_DATA"):
-        return Path(os.environ["INSALIGN_DATA"])
-    for up in Path(__file__).resolve().parents:
-        if (up / "shared" / "data").is_dir():
-            return up / "shared" / "data"
-    return Path("/nonexistent")
+    return shared_data_dir(__file__) or Path("/nonexistent")
 
 
 KITTI = _data_root() / "kitti_raw_oxts_sync"

@@ -26,10 +26,10 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "benchmarks")]
-#: the shared data next to the checkout (the benchmarks' default); a git worktree one level deeper finds it one up
-DATA = next((p / "shared" / "data" / "kitti_raw_oxts_sync" for p in (ROOT.parent, ROOT.parent.parent)
-             if (p / "shared" / "data" / "kitti_raw_oxts_sync").exists()),
-            ROOT.parent / "shared" / "data" / "kitti_raw_oxts_sync")
+from insalign_ros.io.datasets import shared_data_dir  # noqa: E402
+
+#: the shared data ($INSALIGN_DATA, else next to the checkout or above a worktree inside it)
+DATA = (shared_data_dir(__file__) or ROOT.parent / "shared" / "data") / "kitti_raw_oxts_sync"
 
 
 @dataclass

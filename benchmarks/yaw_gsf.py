@@ -36,10 +36,11 @@ sys.path.insert(0, str(ROOT / "test"))  # reference_loops.run_on_arrays: the GSF
 from insalign_ros.core import earth  # noqa: E402
 from insalign_ros.core.earth import velocity_from_fixes  # noqa: E402
 from insalign_ros.filters.yaw_gsf import YawGsf, YawGsfConfig  # noqa: E402
+from insalign_ros.io.datasets import shared_data_dir  # noqa: E402
 from insalign_ros.sim.scenarios import make_scenario  # noqa: E402
 from reference_loops import run_on_arrays  # noqa: E402
 
-DATA = Path("/work/shared/data")
+DATA = shared_data_dir(__file__) or Path("../shared/data")
 VEL_SIGMA_M_S = 0.1
 EXTRA_CFG: dict = {}  # --cfg key=value: YawGsfConfig overrides for every run
 SIDE_SLIP_DEG = 3.0  # the optional lateral-velocity constraint of wheeled vehicles (YawGsfConfig.side_slip_sigma_deg)

@@ -18,13 +18,13 @@ import yaml
 
 from insalign_ros.eval import allan as A
 from insalign_ros.filters.imu_grade import GRADES, ImuGrade
+from insalign_ros.io.datasets import shared_data_dir
 
 #: a MEMS IMU whose bias instability the Allan curve of 1 h shows as a flat region: white-noise/flicker crossovers
 #: (N / 0.664 B)^2 at 7 s (gyro) and 7 s (accelerometer), floor flat from ~20 s to the fitted limit 400 s
 TRUE = ImuGrade("allan_test", gyro_arw_deg_sqrt_h=0.3, gyro_bias_deg_h=100.0, gyro_bias_instability_deg_h=10.0,
                 acc_vrw_m_s_sqrt_h=0.05, acc_bias_mg=1.0, acc_bias_instability_mg=0.05)
-SHARED = next((p / "shared" / "data" for p in Path(__file__).resolve().parents if (p / "shared" / "data").is_dir()),
-              Path("../shared/data"))
+SHARED = shared_data_dir(__file__) or Path("../shared/data")
 KITTI_STATIC = SHARED / "kitti_raw_oxts_sync" / "2011_09_28_drive_0016_oxts"
 
 

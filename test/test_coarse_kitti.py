@@ -16,8 +16,9 @@ import pytest
 from insalign_ros.core import earth
 from insalign_ros.filters.base import AlignmentStatus
 from insalign_ros.filters.coarse import NO_HEADING, CoarseAlignment, CoarseConfig
+from insalign_ros.io.datasets import shared_data_dir
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti_raw_oxts_sync"
+DATA = (shared_data_dir(__file__) or Path("../shared/data")) / "kitti_raw_oxts_sync"
 DRIVE = DATA / "2011_09_28_drive_0016_oxts"
 #: drive -> rows of its stationary part (0057: speed < 0.02 m/s until row ~280, driving from ~290)
 STATIC_ROWS = {"2011_09_28_drive_0016": None, "2011_09_26_drive_0057": 270}

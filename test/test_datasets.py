@@ -12,16 +12,10 @@ from scipy.spatial.transform import Rotation
 
 from insalign_ros.core import earth
 from insalign_ros.io import datasets as DS
+from insalign_ros.io.datasets import shared_data_dir
 
 
-def _shared() -> Path | None:
-    for p in Path(__file__).resolve().parents:
-        if (p / "shared" / "data").is_dir():
-            return p / "shared" / "data"
-    return None
-
-
-SHARED = _shared()
+SHARED = shared_data_dir(__file__)
 
 
 def _need(name: str) -> Path:
@@ -165,3 +159,14 @@ def test_car_two_line_records_frd_axes_and_backward_mount():
     assert abs(med) < 10.0
     # at rest-like level: gravity up in FLU
     assert np.mean(data.f_ib_b[:, 2]) == pytest.approx(9.6, abs=0.3)
+
+
+def test_shared_data_dir_takes_the_environment_first_then_an_ancestor(tmp_path, monkeypatch):
+    (tmp_path / "shared" / "data").mkdir(parents=True)
+    deep = tmp_path / "clone" / "test" / "x.py"
+    monkeypatch.delenv("INSALIGN_DATA", raising=False)
+    assert shared_data_dir(deep) == tmp_path / "shared" / "data"  # ../shared/data beside the clone
+    monkeypatch.setenv("INSALIGN_DATA", str(tmp_path / "elsewhere"))
+    assert shared_data_dir(deep) is None  # named but absent: no silent fallback to another copy
+    (tmp_path / "elsewhere").mkdir()
+    assert shared_data_dir(deep) == tmp_path / "elsewhere"

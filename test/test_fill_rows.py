@@ -11,9 +11,10 @@ from insalign_ros.io.bag import GPS_INVALID_TOPIC, IMU_INVALID_TOPIC, IMU_TOPIC,
 from insalign_ros.io.kitti import (IDX, convert_drive, fill_rows, gnss_indices, oxts_rows_from_scenario,
                                    write_drive)
 from insalign_ros.sim.scenarios import make_scenario
+from insalign_ros.io.datasets import shared_data_dir
 
 T0_NS = int(np.datetime64("2011-09-30T12:00:00.000000000", "ns").astype(np.int64))
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti_raw_oxts_sync"
+SHARED = (shared_data_dir(__file__) or Path("../shared/data")) / "kitti_raw_oxts_sync"
 BLOCK = slice(140, 155)  # 15 rows = 1.5 s, in the first turn of the car (yaw rate 0.2-0.35 rad/s)
 
 

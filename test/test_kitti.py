@@ -13,10 +13,11 @@ from insalign_ros.io.bag import read_bag
 from insalign_ros.io.kitti import (IDX, KittiError, convert_drive, oxts_rows_from_scenario, read_drive,
                                    write_drive)
 from insalign_ros.sim.scenarios import make_scenario
+from insalign_ros.io.datasets import shared_data_dir
 
 T0_NS = int(np.datetime64("2011-10-03T14:34:18.654292160", "ns").astype(np.int64))
 # read-only shared data next to the clone (never copied into the repo); the tests that need it skip without it
-REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti_raw_oxts_sync" / "2011_10_03_drive_0042_oxts"
+REAL = (shared_data_dir(__file__) or Path("../shared/data")) / "kitti_raw_oxts_sync" / "2011_10_03_drive_0042_oxts"
 
 
 @pytest.fixture(scope="module")

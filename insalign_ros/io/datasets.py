@@ -52,6 +52,21 @@ COG_MIN_SPEED_M_S = 1.0  #: the course over ground is a reference only above thi
 KITTI_REF_SIGMA_DEG = (0.03, 0.03, 0.1)
 
 
+def shared_data_dir(start: Path | str | None = None) -> Path | None:
+    """The shared real recordings (read-only, never copied into a checkout): ``$INSALIGN_DATA`` when set, else the
+    first ``shared/data`` beside ``start`` or one of its ancestors (default: this package's location, which finds
+    ``../shared/data`` beside a clone and beside a worktree inside it); None when there is none."""
+    import os
+
+    env = os.environ.get("INSALIGN_DATA")
+    if env:
+        return Path(env) if Path(env).is_dir() else None
+    for p in Path(start or __file__).resolve().parents:
+        if (p / "shared" / "data").is_dir():
+            return p / "shared" / "data"
+    return None
+
+
 class DatasetError(ValueError):
     """The recording cannot be read (message says why)."""
 
