@@ -108,3 +108,36 @@ def test_ecef_to_geodetic_closed_form_round_trip_and_agrees_with_pymap3d():
         if abs(hh) < 1e4:
             ref = pymap3d.ecef2geodetic(*E.geodetic_to_ecef(la, lo, hh), deg=False)
             assert abs(got[0] - float(ref[0])) < 1e-14 and abs(got[2] - float(ref[2])) < 1e-7
+
+
+def _rolling_body(accel_n=(0.0, 0.0, 0.0), T=3.0, dt=0.01):
+    """A body rolling 10 deg at 5 s, pitching 3 +- 2 deg at 7 s and turning 2 deg/s, accelerating by ``accel_n``
+    (ENU, constant) under g = 9.8 up: exact rates (the rotation between samples) and specific forces."""
+    from scipy.spatial.transform import Rotation
+
+    t = np.arange(0.0, T + 1e-9, dt)
+    rpy = np.stack([np.radians(10 * np.sin(2 * np.pi * t / 5)), np.radians(3 + 2 * np.cos(2 * np.pi * t / 7)),
+                    np.radians(2 * t)], 1)
+    C = np.array([E.C_b_n_from_rpy(*x) for x in rpy])
+    F = np.einsum("kji,j->ki", C, np.array([0.0, 0.0, 9.8]) + np.asarray(accel_n))
+    W = np.zeros_like(F)
+    for k in range(1, len(t)):
+        W[k] = Rotation.from_matrix(C[k - 1].T @ C[k]).as_rotvec() / dt
+    return t, W, F, rpy
+
+
+def test_level_from_window_turns_every_sample_into_the_last_body_frame():
+    t, W, F, rpy = _rolling_body()
+    r, p, sig = E.level_from_window(t, W, F, 0.0)
+    assert abs(r - rpy[-1, 0]) < 1e-9 and abs(p - rpy[-1, 1]) < 1e-9  # exact: no acceleration, exact rates
+    assert sig == pytest.approx(math.radians(1.0), rel=1e-6)  # the accelerometer-bias term alone
+    r0, p0, _ = E.level_from_specific_force(F, 0.0)  # the plain mean averages the roll away: degrees off
+    assert max(abs(r0 - rpy[-1, 0]), abs(p0 - rpy[-1, 1])) > math.radians(3.0)
+
+
+def test_level_from_window_sigma_covers_a_mean_acceleration_it_is_told():
+    a = 1.5  # [m/s^2] East: tilts the level by atan(a / g) = 8.7 deg
+    t, W, F, rpy = _rolling_body(accel_n=(a, 0.0, 0.0))
+    r, p, sig = E.level_from_window(t, W, F, a)
+    err = math.hypot(r - rpy[-1, 0], p - rpy[-1, 1])
+    assert math.radians(8.0) < err <= 1.05 * sig  # a 1-sigma bound of the magnitude: the error is at most ~1 sigma

@@ -260,6 +260,31 @@ def level_from_specific_force(f_ib_b: np.ndarray, accel_m_s2: float) -> tuple[fl
     return math.atan2(fm[1], fm[2]), math.atan2(-fm[0], math.hypot(fm[1], fm[2])), sig
 
 
+def level_from_window(t_s, omega_ib_b, f_ib_b, accel_sigma_m_s2: float) -> tuple[float, float, float]:
+    """(roll, pitch, level 1-sigma) [rad] at the last of a window of IMU samples (t_s (N,) [s], rates [rad/s] and
+    specific forces [m/s^2], each the mean over the interval ending at its stamp) of a body that may rotate and
+    accelerate: every specific force turned into the body frame of the last sample by the gyros (their rotation over
+    the window; a gyro bias of b turns it by b T), so that their mean is up tilted by the mean acceleration over the
+    window, whose 1-sigma the caller bounds (``accel_sigma_m_s2``: e.g. the change of the GNSS velocity over the
+    window over its length). 1-sigma as :func:`level_from_specific_force`, with the noise of the mean in place of the
+    samples' spread (the acceleration they carry is in the bound)."""
+    t = np.asarray(t_s, float)
+    W = np.asarray(omega_ib_b, float)
+    F = np.asarray(f_ib_b, float)
+    n = t.shape[0]
+    Fr = np.empty_like(F)
+    Q = np.eye(3)  # body(k) -> body(last)
+    Fr[n - 1] = F[n - 1]
+    for k in range(n - 2, -1, -1):
+        Q = Q @ Rotation.from_rotvec(W[k + 1] * (t[k + 1] - t[k])).as_matrix().T  # undo the step k -> k + 1
+        Fr[k] = Q @ F[k]
+    fm = Fr.mean(axis=0)
+    g = max(float(np.linalg.norm(fm)), 1.0)
+    noise = float(np.linalg.norm(Fr.std(axis=0))) / g / math.sqrt(max(n, 1))
+    sig = math.sqrt(math.radians(1.0) ** 2 + (accel_sigma_m_s2 / g) ** 2 + noise ** 2)
+    return math.atan2(fm[1], fm[2]), math.atan2(-fm[0], math.hypot(fm[1], fm[2])), sig
+
+
 def wrap_angle_rad(a):
     """Wrap angle(s) to (-pi, pi]."""
     return -((-np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi)

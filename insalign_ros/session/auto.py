@@ -47,6 +47,8 @@ NO_REST_LEVEL_SIGMA_DEG = 5.0
 NO_REST_SIGMA_V_M_S = 20.0
 #: ... the vehicle acceleration [m/s^2] assumed when the fixes do not give it (the session's init_accel_m_s2)
 NO_REST_ACC_M_S2 = 1.0
+#: ... the level comes from the IMU window over which the fixes' velocity change is known when they span this [s]
+LEVEL_WINDOW_MIN_S = 2.0
 #: in motion above this speed [m/s] the motion detector is not run (checked every SPEED_CHECK_PERIOD_S [s])
 DETECTOR_SKIP_SPEED_M_S = 3.0
 SPEED_CHECK_PERIOD_S = 0.5
@@ -97,6 +99,7 @@ class AutoCore(AlignmentCore):
         self.detector_skipped = False
         self._next_speed_check_t = -math.inf
         self._fixes: deque = deque()  # (t, p_e, R_e) of the fixes seen while static (GNSS speed for the detector)
+        self._level_fixes: deque = deque(maxlen=8)  # ... the last ones (the velocity change over the level window)
         self._fix_hist: deque = deque(maxlen=FIX_NOISE_N)  # (t, p_e) of the last fixes (_fix_noise_m)
         self._next_hold_t = -math.inf
         self._zupt_support = [0, 0]  # zero-velocity updates asked while static, accepted by the static core
@@ -386,6 +389,8 @@ class AutoCore(AlignmentCore):
             self._fixes.popleft() if t - self._fixes[0][0] > 3.0 * GNSS_SPEED_BASE_S else self._fixes.pop()
         old = [f for f in self._fixes if t - f[0] >= GNSS_SPEED_BASE_S]
         self._fixes.append((t, p, R))
+        if not self._level_fixes or t > self._level_fixes[-1][0]:
+            self._level_fixes.append((t, p, R))
         if not old or self.detector is None:
             return
         t0, p0, R0 = old[-1]
@@ -414,16 +419,45 @@ class AutoCore(AlignmentCore):
         return float(1.4826 * np.median(np.abs(r)) / math.sqrt(6.0))
 
     def _moving_level(self, t: float) -> tuple[np.ndarray, float]:
-        """Moving from the start: C_b_n (yaw 0) levelled from the mean specific force of the last second of IMU
-        samples and its honest level 1-sigma [rad], as the session's sensors initialisation of an in-motion core:
-        1 deg (accelerometer bias) + the vehicle acceleration (second difference of the fixes seen + 0.5 m/s^2, else
-        ``NO_REST_ACC_M_S2``) over g + the spread."""
+        """Moving from the start: C_b_n (yaw 0) levelled at ``t`` and its honest level 1-sigma [rad]. From the IMU
+        samples since the first of the fixes' velocities (earth.level_from_window: rotation-compensated) when the
+        fixes span LEVEL_WINDOW_MIN_S: the mean acceleration over that window is the change of the fixes' horizontal
+        velocity over it, known to their noise; else, as the session's sensors initialisation of an in-motion core,
+        the last second: 1 deg (accelerometer bias) + the vehicle acceleration (second difference of the fixes seen +
+        0.5 m/s^2, else ``NO_REST_ACC_M_S2``) over g + the spread."""
+        win = self._window_level(t)
+        if win is not None:
+            return win
         a = NO_REST_ACC_M_S2
         fx = list(self._fixes)
         if len(fx) >= 3 and fx[-1][0] - fx[-3][0] <= 3.0:
             (t0, p0, _), (t1, p1, _), (t2, p2, _) = fx[-3:]
             a = float(np.linalg.norm((p2 - p1) / (t2 - t1) - (p1 - p0) / (t1 - t0))) / (0.5 * (t2 - t0)) + 0.5
         roll, pitch, sig = earth.level_from_specific_force([f for (ts, _, f) in self.hist if ts > t - 1.0], a)
+        return earth.C_b_n_from_rpy(roll, pitch, 0.0), sig
+
+    def _window_level(self, t: float) -> tuple[np.ndarray, float] | None:
+        """(C_b_n with yaw 0, level 1-sigma [rad]) from the samples since the middle of the first fix interval held,
+        the acceleration bound sqrt(|dv|^2 + var(dv)) / T from the first and the last fix interval's horizontal
+        velocities (dv) plus NO_REST_ACC_M_S2 over the time after the last interval; None when the fixes span less
+        than LEVEL_WINDOW_MIN_S or the IMU history does not reach back."""
+        fx = [f for f in self._level_fixes if f[0] <= t]
+        if len(fx) < 3 or fx[-1][0] - fx[0][0] < LEVEL_WINDOW_MIN_S:
+            return None
+        (ta, pa, Ra), (tb, pb, Rb) = fx[0], fx[1]
+        (tc, pc, Rc), (td, pd, Rd) = fx[-2], fx[-1]
+        lat, lon, _ = earth.ecef_to_geodetic(pd)
+        H = earth.C_e_n(lat, lon)[:2]  # ECEF -> horizontal E, N
+        dv = H @ ((pd - pc) / (td - tc) - (pb - pa) / (tb - ta))
+        var = (np.trace(H @ (Ra + Rb) @ H.T) / (tb - ta) ** 2 + np.trace(H @ (Rc + Rd) @ H.T) / (td - tc) ** 2)
+        t_first, t_last = 0.5 * (ta + tb), 0.5 * (tc + td)
+        T = t - t_first
+        rows = [r for r in self.hist if r[0] >= t_first]
+        if T <= 0.0 or len(rows) < 5 or self.hist[0][0] > t_first + 0.1:
+            return None
+        a_sig = math.sqrt(float(dv @ dv) + max(float(var), 0.0)) / T + NO_REST_ACC_M_S2 * max(t - t_last, 0.0) / T
+        roll, pitch, sig = earth.level_from_window([r[0] for r in rows], [r[1] for r in rows], [r[2] for r in rows],
+                                                   a_sig)
         return earth.C_b_n_from_rpy(roll, pitch, 0.0), sig
 
     def _gnss_velocity_n(self, lat_rad: float, lon_rad: float) -> tuple[np.ndarray, float] | None:
