@@ -3,7 +3,7 @@
 test.
 
 Each repetition runs, for checkout A then checkout B (each in its own Python process with its tree first on
-``sys.path``; its numba cache warmed by a first untimed pass), ``ia.align(data, core=...)`` with the default
+``sys.path``; its numba cache warmed by a first untimed pass), ``ia.align(data, core=...)`` (after one untimed run of the same) with the default
 configuration (initialisation from the sensors, default outputs) on the same simulated data, and reports IMU samples
 per second; the table gives the best of the repetitions per checkout and the ratio B/A. The machine's load average
 goes with the table (the machine is shared: only the ratio means something).
@@ -30,7 +30,7 @@ data = {s: ia.simulate(s, seed=1, duration_s=duration) for s in {s for _, s in r
 out = {}
 for core, scen in rows:
     d = data[scen]
-    ia.align(d, core=core, duration_s=5.0)  # compile / load the kernels untimed
+    ia.align(d, core=core)  # untimed: every kernel the run uses compiled or loaded (a 5-s run missed some)
     t0 = time.perf_counter()
     ia.align(d, core=core)
     out[f"{core}:{scen}"] = d.n / (time.perf_counter() - t0)

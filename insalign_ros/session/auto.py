@@ -178,8 +178,27 @@ class AutoCore(AlignmentCore):
         if backward:
             raise NotImplementedError("auto does not support backward propagation")
         T, W, F = np.asarray(t_s, float), np.asarray(omega_ib_b, float), np.asarray(f_ib_b, float)
-        for k in range(T.shape[0]):
+        k, n = 0, T.shape[0]
+        while k < n:
+            if self.motion is not None and self.state == "in motion" and self.detector_skipped:
+                # driving, the detector skipped: nothing is decided before the next speed check; one block
+                j = k + int(np.searchsorted(T[k:], self._next_speed_check_t, side="left"))
+                if j > k:
+                    self._cruise(T[k:j], W[k:j], F[k:j])
+                    k = j
+                    continue
             self._row(T[k:k + 1], W[k:k + 1], F[k:k + 1])
+            k += 1
+
+    def _cruise(self, T: np.ndarray, W: np.ndarray, F: np.ndarray) -> None:
+        """Rows of :meth:`_row` while in motion with the detector skipped, as one block (the same samples in the same
+        order to the in-motion core; the history the hand-over and the level window read)."""
+        self.hist.extend(zip(T.tolist(), W, F))
+        t = float(T[-1])
+        while self.hist and self.hist[0][0] < t - 6.0:
+            self.hist.popleft()
+        self._t = t
+        self.motion.propagate(T, W, F)
 
     def _row(self, T: np.ndarray, W: np.ndarray, F: np.ndarray) -> None:
         t, w, f = float(T[0]), W[0], F[0]
