@@ -36,6 +36,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from insalign_ros.cli.bringup import (isolated_ros_env, ros_args, start_node, start_process, stop_nodes,  # noqa: E402
                                      wait_for_exit)
 
+#: the cost run's CPU share is also measured over consecutive intervals this long [s wall] (the median)
+INTERVAL_S = 10.0
 TICK = os.sysconf("SC_CLK_TCK")
 #: the cost run's CPU share is measured from this long after the stream starts [s wall]
 WARM_S = 10.0
@@ -132,7 +134,14 @@ def run_case(core, rate_hz, rate_factor, duration_s, qos, log_dir, executor="eve
                                     "--format", "raw", "--rate", "200", "--nonblocking", "--output", str(profile),
                                     "--duration", str(max(1, int(duration_s / rate_factor - warm - 2)))],
                                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        rc = wait_for_exit(sim, duration_s / rate_factor + 60.0)
+        # the CPU time every INTERVAL_S of wall time while the stream runs (the median of those shares)
+        marks, deadline = [(t0, c0)], t0 + duration_s / rate_factor + 60.0
+        while sim.popen.poll() is None and time.monotonic() < deadline:
+            time.sleep(max(0.0, min(INTERVAL_S - (time.monotonic() - marks[-1][0]), deadline - time.monotonic())))
+            if time.monotonic() - marks[-1][0] >= INTERVAL_S - 1e-3 and sim.popen.poll() is None:
+                marks.append((time.monotonic(), _cpu_s(pid)))
+        rc = wait_for_exit(sim, 60.0)
+        shares = [(b[1] - a[1]) / (b[0] - a[0]) for a, b in zip(marks, marks[1:])]
         if spy is not None:
             spy.wait(30)
         c1, t1, th1 = _cpu_s(pid), time.monotonic(), _threads(pid)
@@ -156,6 +165,8 @@ def run_case(core, rate_hz, rate_factor, duration_s, qos, log_dir, executor="eve
                 "cb_median_us": float(d.get("imu_callback_median_us", "nan")),
                 "cb_p99_us": float(d.get("imu_callback_p99_us", "nan")),
                 "cpu_share": (c1 - c0) / (t1 - t0), "wall_s": t1 - t0, "python_thread_share": py_share,
+                "cpu_share_median_interval": float(np.median(shares)) if shares else float("nan"),
+                "cpu_share_intervals": len(shares),
                 "other_threads_share": other_share, "python_thread_switches_per_s": wakeups,
                 "cpu_share_with_start": (c1 - cs) / (t1 - ts),
                 "session_samples_per_s": int(d.get("session_samples", 0)) / proc_s if proc_s > 0 else float("nan"),
@@ -198,9 +209,9 @@ def main(argv=None) -> int:
     print(f"node logs in {log_dir}", flush=True)
     if not args.skip_cost:
         print(f"\n| core | truth topic | code | executor | Imu msgs/s (real time) | CPU share of one core (from "
-              f"{WARM_S:g} s on) | Python thread / other threads | Python thread switches/s | with the first seconds | "
+              f"{WARM_S:g} s on) | median of {INTERVAL_S:g}-s intervals (n) | Python thread / other threads | Python thread switches/s | with the first seconds | "
               "Imu handling median / p99 [us] |")
-        print("|---|---|---|---|---|---|---|---|---|---|")
+        print("|---|---|---|---|---|---|---|---|---|---|---|")
         truths = {"on": [True], "off": [False], "both": [True, False]}[args.truth]
         cases = [(c, "events", tr) for c in args.cores for tr in truths]
         cases += [] if args.no_single else [(args.cores[0], "single", truths[0])]
@@ -219,7 +230,8 @@ def main(argv=None) -> int:
                 ratio = f" ({r['cpu_share'] / ref_share:.2f}x the ref)" if args.ref and not ref else ""
                 print(f"| {core} | {'yes' if tr else 'no (defaults)'} | {'ref' if ref else 'this'} | {ex} | "
                       f"{r['msgs_per_s']:.0f} | "
-                      f"{100 * r['cpu_share']:.1f} %{ratio} | {100 * r['python_thread_share']:.1f} / "
+                      f"{100 * r['cpu_share']:.1f} %{ratio} | {100 * r['cpu_share_median_interval']:.1f} % "
+                      f"({r['cpu_share_intervals']}) | {100 * r['python_thread_share']:.1f} / "
                       f"{100 * r['other_threads_share']:.1f} % | {r['python_thread_switches_per_s']:.0f} | "
                       f"{100 * r['cpu_share_with_start']:.1f} % | "
                       f"{r['cb_median_us']:.0f} / {r['cb_p99_us']:.0f} |", flush=True)
