@@ -100,6 +100,7 @@ class AutoCore(AlignmentCore):
         self._next_speed_check_t = -math.inf
         self._fixes: deque = deque()  # (t, p_e, R_e) of the fixes seen while static (GNSS speed for the detector)
         self._level_fixes: deque = deque(maxlen=8)  # ... the last ones (the velocity change over the level window)
+        self._vels: deque = deque(maxlen=16)  # (t, v_n, R_n) of the GNSS velocities seen while static
         self._fix_hist: deque = deque(maxlen=FIX_NOISE_N)  # (t, p_e) of the last fixes (_fix_noise_m)
         self._next_hold_t = -math.inf
         self._zupt_support = [0, 0]  # zero-velocity updates asked while static, accepted by the static core
@@ -456,20 +457,28 @@ class AutoCore(AlignmentCore):
         return earth.C_b_n_from_rpy(roll, pitch, 0.0), sig
 
     def _window_level(self, t: float) -> tuple[np.ndarray, float] | None:
-        """(C_b_n with yaw 0, level 1-sigma [rad]) from the samples since the middle of the first fix interval held,
-        the acceleration bound sqrt(|dv|^2 + var(dv)) / T from the first and the last fix interval's horizontal
-        velocities (dv) plus NO_REST_ACC_M_S2 over the time after the last interval; None when the fixes span less
-        than LEVEL_WINDOW_MIN_S or the IMU history does not reach back."""
-        fx = [f for f in self._level_fixes if f[0] <= t]
-        if len(fx) < 3 or fx[-1][0] - fx[0][0] < LEVEL_WINDOW_MIN_S:
+        """(C_b_n with yaw 0, level 1-sigma [rad]) from the samples since the first horizontal velocity held: the
+        GNSS velocities' when they span LEVEL_WINDOW_MIN_S, else the middle of the first fix interval's; the
+        acceleration bound sqrt(|dv|^2 + var(dv)) / T from the first and the last velocity (dv) plus NO_REST_ACC_M_S2
+        over the time after the last one; None when neither spans LEVEL_WINDOW_MIN_S or the IMU history does not
+        reach back."""
+        lo = self.hist[0][0] if self.hist else t  # within the IMU history
+        vs = [v for v in self._vels if lo <= v[0] <= t]
+        fx = [f for f in self._level_fixes if lo <= f[0] <= t]
+        if len(vs) >= 2 and vs[-1][0] - vs[0][0] >= LEVEL_WINDOW_MIN_S:  # GNSS velocities: the change directly
+            (t_first, va, Rva), (t_last, vb, Rvb) = vs[0], vs[-1]
+            dv = (vb - va)[:2]
+            var = float(np.trace(Rva[:2, :2] + Rvb[:2, :2]))
+        elif len(fx) >= 3 and fx[-1][0] - fx[0][0] >= LEVEL_WINDOW_MIN_S:
+            (ta, pa, Ra), (tb, pb, Rb) = fx[0], fx[1]
+            (tc, pc, Rc), (td, pd, Rd) = fx[-2], fx[-1]
+            lat, lon, _ = earth.ecef_to_geodetic(pd)
+            H = earth.C_e_n(lat, lon)[:2]  # ECEF -> horizontal E, N
+            dv = H @ ((pd - pc) / (td - tc) - (pb - pa) / (tb - ta))
+            var = (np.trace(H @ (Ra + Rb) @ H.T) / (tb - ta) ** 2 + np.trace(H @ (Rc + Rd) @ H.T) / (td - tc) ** 2)
+            t_first, t_last = 0.5 * (ta + tb), 0.5 * (tc + td)
+        else:
             return None
-        (ta, pa, Ra), (tb, pb, Rb) = fx[0], fx[1]
-        (tc, pc, Rc), (td, pd, Rd) = fx[-2], fx[-1]
-        lat, lon, _ = earth.ecef_to_geodetic(pd)
-        H = earth.C_e_n(lat, lon)[:2]  # ECEF -> horizontal E, N
-        dv = H @ ((pd - pc) / (td - tc) - (pb - pa) / (tb - ta))
-        var = (np.trace(H @ (Ra + Rb) @ H.T) / (tb - ta) ** 2 + np.trace(H @ (Rc + Rd) @ H.T) / (td - tc) ** 2)
-        t_first, t_last = 0.5 * (ta + tb), 0.5 * (tc + td)
         T = t - t_first
         rows = [r for r in self.hist if r[0] >= t_first]
         if T <= 0.0 or len(rows) < 5 or self.hist[0][0] > t_first + 0.1:
@@ -493,7 +502,14 @@ class AutoCore(AlignmentCore):
         v_n = earth.C_n_e(lat_rad, lon_rad).T @ ((p1 - p0) / dt)
         sig = math.sqrt(max(np.trace(R1 + R0) / 3.0, 0.0)) / dt
         age = max(0.0, (self._t or t1) - t1) + dt
-        return v_n, math.hypot(sig, NO_REST_ACC_M_S2 * age)
+        v_n, sig = v_n, math.hypot(sig, NO_REST_ACC_M_S2 * age)
+        if self._vels:  # a GNSS velocity stamped within 1 s when it is tighter (as the sensors initialisation's)
+            tv, vv, Rv = self._vels[-1]
+            age_v = max(0.0, (self._t or tv) - tv)
+            sig_v = math.hypot(math.sqrt(max(float(np.max(np.diag(Rv))), 0.0)), NO_REST_ACC_M_S2 * age_v)
+            if age_v <= 1.0 and sig_v < sig:
+                return vv.copy(), sig_v
+        return v_n, sig
 
     @property
     def accepts(self) -> frozenset:
@@ -512,6 +528,9 @@ class AutoCore(AlignmentCore):
         """Static: a GNSS velocity (not fused while parked) gives the motion detector its horizontal speed (the
         walking-speed veto; fresher and better than the speed from two fixes)."""
         v, R = np.asarray(vel.v_n, float), np.asarray(vel.R_n, float)
+        if self.motion is None and np.all(np.isfinite(v)) and np.all(np.isfinite(R)) \
+                and (not self._vels or vel.stamp_s > self._vels[-1][0]):
+            self._vels.append((float(vel.stamp_s), v, R))  # the hand-over's velocity and level window
         if self.motion is None and self.detector is not None and np.all(np.isfinite(v)) and np.all(np.isfinite(R)):
             self.detector.push_gnss_speed(float(vel.stamp_s), float(math.hypot(v[0], v[1])),
                                           math.sqrt(max(float(R[0, 0] + R[1, 1]) / 2.0, 1e-12)))
