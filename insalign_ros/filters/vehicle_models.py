@@ -132,8 +132,18 @@ def _n_from_i(core) -> np.ndarray:
     return earth.C_n_e(lat, lon).T @ Cei.T
 
 
-def _yaw_terms(m: GnssHeading, b_n: np.ndarray, D: np.ndarray, core):
-    """z = wrap(yaw_m - atan2(b_n_y, b_n_x)), H = g^T D on the attitude block, g = d yaw / d b_n."""
+#: finite-difference step of the heading's second derivative in the attitude error [rad]
+_HESS_STEP_RAD = 1e-3
+
+
+def _yaw_terms(m: GnssHeading, b_n: np.ndarray, D: np.ndarray, core, b_of=None):
+    """z = wrap(yaw_m - atan2(b_n_y, b_n_x)), H = g^T D on the attitude block, g = d yaw / d b_n.
+
+    R = sigma^2 + 1/2 tr(M P M P): the variance of the heading's second-order term over the attitude error (M its
+    Hessian in the error, P the attitude block; the second-order Gaussian filter's measurement noise). A baseline's
+    azimuth moves with the tilt only to second order, so a heading of a few tenths of a degree fused while the level is
+    tens of degrees uncertain (a yaw bank just after a hand-over on a ship) is worth what that term says, not its
+    sigma: linearised, it made the IEKF certain of a level 12 deg off. ``b_of(phi)``: b_n at the error ``phi``."""
     r2 = b_n[0] ** 2 + b_n[1] ** 2
     if not r2 > 1e-12 * float(b_n @ b_n):  # a vertical baseline: no yaw
         raise ValueError("GNSS heading: the baseline is vertical in the estimated attitude")
@@ -141,14 +151,40 @@ def _yaw_terms(m: GnssHeading, b_n: np.ndarray, D: np.ndarray, core):
     H = np.zeros((1, core._n_states))
     H[0, 0:3] = g @ D
     z = np.array([math.remainder(m.yaw_rad - math.atan2(b_n[1], b_n[0]), 2.0 * math.pi)])
-    return z, H, np.array([[m.sigma_yaw_rad ** 2]])
+    var = m.sigma_yaw_rad ** 2
+    if b_of is not None:
+        P = np.asarray(core.P, float)[0:3, 0:3]
+        M = _yaw_hessian(b_of)
+        MP = M @ P
+        var += 0.5 * float(np.trace(MP @ MP))
+    return z, H, np.array([[var]])
+
+
+def _yaw_hessian(b_of) -> np.ndarray:
+    """Hessian (3x3) of atan2(b_y, b_x) of ``b_of(phi)`` at phi = 0, by central differences (step _HESS_STEP_RAD)."""
+    h = _HESS_STEP_RAD
+    E = np.eye(3) * h
+
+    def yaw(phi):
+        b = b_of(phi)
+        return math.atan2(b[1], b[0])
+
+    y0 = yaw(np.zeros(3))
+    M = np.empty((3, 3))
+    for i in range(3):
+        M[i, i] = math.remainder(yaw(E[i]) - 2.0 * y0 + yaw(-E[i]), 2.0 * math.pi) / (h * h)
+        for j in range(i + 1, 3):
+            d = (yaw(E[i] + E[j]) - yaw(E[i] - E[j]) - yaw(E[j] - E[i]) + yaw(-E[i] - E[j]))
+            M[i, j] = M[j, i] = math.remainder(d, 2.0 * math.pi) / (4.0 * h * h)
+    return M
 
 
 @jacobian(GnssHeading, "eci_left")
 def _heading_eci_left(m: GnssHeading, core):
     """b_n = C_i_n C_hat exp(phi) b_b = b_n_hat - C_i_n C_hat (b_b)_x phi."""
     A = _n_from_i(core) @ core.C
-    return _yaw_terms(m, A @ m.baseline_b, -A @ lie.hat3(m.baseline_b), core)
+    return _yaw_terms(m, A @ m.baseline_b, -A @ lie.hat3(m.baseline_b), core,
+                      lambda phi: A @ lie.so3_exp(phi) @ m.baseline_b)
 
 
 @jacobian(GnssHeading, "eci_ekf")
@@ -156,7 +192,7 @@ def _heading_eci_ekf(m: GnssHeading, core):
     """b_n = C_i_n exp(psi_x) C_hat b_b = b_n_hat - C_i_n (C_hat b_b)_x psi."""
     Cin = _n_from_i(core)
     c = core.C @ m.baseline_b
-    return _yaw_terms(m, Cin @ c, -Cin @ lie.hat3(c), core)
+    return _yaw_terms(m, Cin @ c, -Cin @ lie.hat3(c), core, lambda psi: Cin @ lie.so3_exp(psi) @ c)
 
 
 class WheelSpeed(Measurement):
