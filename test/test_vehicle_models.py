@@ -176,3 +176,22 @@ def test_ship_with_a_dual_antenna_heading_keeps_its_level_honest_through_the_ban
     assert n == 1800 and outside[0] + outside[1] <= 18, f"level outside its 3-sigma: {outside[:2]} of {n}"
     assert outside[2] <= 54, f"yaw outside its 3-sigma: {outside[2]} of {n}"
     assert max(flags) <= 25.0, flags
+
+
+def test_heading_noise_of_a_yaw_left_unknown_stays_finite_and_small_on_a_known_level():
+    """A single filter whose yaw is unknown (1e4-deg 1-sigma) on a body tilted 10 / 8 deg with a known level: about
+    the tilted body z axis the azimuth is not linear (Hessian -0.05), and with the 1e4-deg 1-sigma the second-order
+    term would be 6e4 deg; computed with every attitude 1-sigma capped at 90 deg (beyond, it is not a second-order
+    term) it is 4.9 deg: the first heading weighs that much, the next ones their own 0.2 deg."""
+    from types import SimpleNamespace
+
+    from insalign_ros.core import lie
+    from insalign_ros.filters.vehicle_models import _yaw_terms
+
+    C = earth.C_b_n_from_rpy(math.radians(10.0), math.radians(8.0), 0.3)
+    b_n = C @ np.array([1.0, 0.0, 0.0])
+    P = np.diag([math.radians(0.3) ** 2, math.radians(0.3) ** 2, math.radians(1e4) ** 2] + [1.0] * 6)
+    m = GnssHeading(0.0, 0.3, math.radians(0.2))
+    _, _, R = _yaw_terms(m, b_n, -C @ lie.hat3(np.array([1.0, 0.0, 0.0])), SimpleNamespace(P=P, _n_states=9),
+                         lambda phi: C @ lie.so3_exp(phi) @ np.array([1.0, 0.0, 0.0]))
+    assert math.radians(4.0) < math.sqrt(R[0, 0]) < math.radians(6.0)

@@ -154,6 +154,9 @@ def _yaw_terms(m: GnssHeading, b_n: np.ndarray, D: np.ndarray, core, b_of=None):
     var = m.sigma_yaw_rad ** 2
     if b_of is not None:
         P = np.asarray(core.P, float)[0:3, 0:3]
+        # an error of more than 90 deg is not a second-order term (a yaw left unknown: 1e4 deg): capped there
+        f = np.minimum(1.0, (0.5 * math.pi) / np.sqrt(np.maximum(np.diag(P), 1e-300)))
+        P = P * np.outer(f, f)
         M = _yaw_hessian(b_of)
         MP = M @ P
         var += 0.5 * float(np.trace(MP @ MP))
