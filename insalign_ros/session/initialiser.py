@@ -194,8 +194,7 @@ class Initialiser:
             if self.after_restart or speed > 0.0:
                 a_est = max(a_est, self._turn_accel(t, speed))
             sig_v = math.sqrt(2.0) * s_p / dt + a_est * (0.5 * dt + (t - f2.stamp_s))
-            if self.after_restart:
-                v0, sig_v = self._gnss_velocity(t, v0, sig_v, a_est)
+            v0, sig_v = self._gnss_velocity(t, v0, sig_v, a_est)  # a GNSS velocity topic, when tighter
             if not gnss_core and not float(np.linalg.norm(v0[:2])) > max(0.5, 3.0 * sig_v):
                 v0, sig_v, a_est = np.zeros(3), sig_v0, 0.0  # a static core at rest: as a first initialisation
         else:
