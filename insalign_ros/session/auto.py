@@ -469,14 +469,12 @@ class AutoCore(AlignmentCore):
             (t_first, va, Rva), (t_last, vb, Rvb) = vs[0], vs[-1]
             dv = (vb - va)[:2]
             var = float(np.trace(Rva[:2, :2] + Rvb[:2, :2]))
-        elif len(fx) >= 3 and fx[-1][0] - fx[0][0] >= LEVEL_WINDOW_MIN_S:
-            (ta, pa, Ra), (tb, pb, Rb) = fx[0], fx[1]
-            (tc, pc, Rc), (td, pd, Rd) = fx[-2], fx[-1]
-            lat, lon, _ = earth.ecef_to_geodetic(pd)
-            H = earth.C_e_n(lat, lon)[:2]  # ECEF -> horizontal E, N
-            dv = H @ ((pd - pc) / (td - tc) - (pb - pa) / (tb - ta))
-            var = (np.trace(H @ (Ra + Rb) @ H.T) / (tb - ta) ** 2 + np.trace(H @ (Rc + Rd) @ H.T) / (td - tc) ** 2)
-            t_first, t_last = 0.5 * (ta + tb), 0.5 * (tc + td)
+        elif len(fx) >= 3 and fx[-1][0] - fx[0][0] >= LEVEL_WINDOW_MIN_S:  # the first and the last fix interval
+            (ta, va, Ra), (tb, vb, Rb) = (earth.velocity_from_fixes(*zip(*pair)) for pair in (fx[:2], fx[-2:]))
+            if not (len(ta) and len(tb)):
+                return None
+            t_first, t_last, dv = float(ta[0]), float(tb[0]), (vb[0] - va[0])[:2]
+            var = float(np.trace(Ra[0, :2, :2] + Rb[0, :2, :2]))
         else:
             return None
         T = t - t_first
@@ -502,7 +500,7 @@ class AutoCore(AlignmentCore):
         v_n = earth.C_n_e(lat_rad, lon_rad).T @ ((p1 - p0) / dt)
         sig = math.sqrt(max(np.trace(R1 + R0) / 3.0, 0.0)) / dt
         age = max(0.0, (self._t or t1) - t1) + dt
-        v_n, sig = v_n, math.hypot(sig, NO_REST_ACC_M_S2 * age)
+        sig = math.hypot(sig, NO_REST_ACC_M_S2 * age)
         if self._vels:  # a GNSS velocity stamped within 1 s when it is tighter (as the sensors initialisation's)
             tv, vv, Rv = self._vels[-1]
             age_v = max(0.0, (self._t or tv) - tv)
