@@ -63,11 +63,12 @@ def main(argv=None) -> int:
     ap.add_argument("--yaw-3sigma-deg", type=float, default=AlignedCriteria.yaw_3sigma_deg)
     ap.add_argument("--yaw-range-deg", type=float, default=60.0, help="initial yaw error ~ U(-R, R) [deg]")
     ap.add_argument("--yaw-hypotheses", type=int, default=1, help="bank of K yaw hypotheses (1 = one filter)")
+    ap.add_argument("--hold-s", type=float, default=AlignedCriteria.hold_s, help="the criteria's hold_s")
     import sweep
 
     sweep.add_arguments(ap)
     args = ap.parse_args(argv)
-    crit = AlignedCriteria(yaw_3sigma_deg=args.yaw_3sigma_deg)
+    crit = AlignedCriteria(yaw_3sigma_deg=args.yaw_3sigma_deg, hold_s=args.hold_s)
     t0 = time.monotonic()
     tasks = [(sweep.shared_scenario("ship", s, args.duration_s), s, args.core, args.duration_s, crit, 0.1, args.yaw_range_deg, args.yaw_hypotheses)
              for s in range(args.runs)]

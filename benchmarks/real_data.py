@@ -174,7 +174,7 @@ class Run:
     cpu_s: float = 0.0
 
 
-def run(data, core: str, vehicle: str = "unknown") -> Run:
+def run(data, core: str, vehicle: str = "unknown", criteria: dict | None = None) -> Run:
     """``offline.align(data, core=core)`` with the defaults (and ``vehicle``), plus the re-initialisations the
     session logs."""
     cfg = SessionConfig.from_dict({"core": core, "vehicle": vehicle})
@@ -186,7 +186,7 @@ def run(data, core: str, vehicle: str = "unknown") -> Run:
             events.append((session.processed_t if session.processed_t is not None else float("nan"), key, text))
 
     t0, c0 = time.time(), time.process_time()
-    session = AlignmentSession(cfg, None, AlignedCriteria(), log=log)
+    session = AlignmentSession(cfg, None, AlignedCriteria(**(criteria or {})), log=log)
     try:
         outs = run_session(session, data)
         res = result_from_outputs(cfg.core, outs, session, data)
@@ -274,7 +274,10 @@ def main(argv=None) -> int:
     ap.add_argument("--full-rate", action="store_true", help="rover_canada at 200 Hz IMU and 20 Hz fixes")
     ap.add_argument("--no-sigma-floor", action="store_true", help="KITTI: skip the 0.5-m fix-sigma variant")
     ap.add_argument("--vehicle", default="unknown", help="SessionConfig.vehicle (default: unknown)")
+    ap.add_argument("--criterion", action="append", default=[], metavar="NAME=VALUE",
+                    help="an aligned-flag criterion other than its default (session/flag.py), e.g. hold_s=2")
     args = ap.parse_args(argv)
+    criteria = {k: float(v) for k, v in (c.split("=", 1) for c in args.criterion)}
     root = Path(args.data) if args.data else shared_data_dir()
     if root is None or not root.is_dir():
         print(f"SKIP: the shared data directory is absent ({root or '../shared/data'})")
@@ -289,7 +292,7 @@ def main(argv=None) -> int:
         if args.no_sigma_floor:
             recs = recs[:1]
         for rec in recs:
-            runs = [run(rec.data, c, args.vehicle) for c in args.cores]
+            runs = [run(rec.data, c, args.vehicle, criteria) for c in args.cores]
             for ref in rec.refs:
                 print(table(rec, runs, ref), "\n", flush=True)
     print(f"total: {time.time() - t_all:.0f} s wall, {time.process_time() - c_all:.0f} s CPU")

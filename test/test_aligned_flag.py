@@ -7,7 +7,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from insalign_ros.core import earth
-from insalign_ros.session.flag import AlignedCriteria, AlignedFlag, attitude_3sigma_deg, euler_3sigma_deg, nis_band
+from insalign_ros.session.flag import (AlignedCriteria, AlignedFlag, attitude_3sigma_deg, euler_3sigma_deg,
+                                      level_floor_3sigma_deg, nis_band)
+from insalign_ros.session.session import AlignmentSession
 
 D2R = math.pi / 180.0
 
@@ -96,7 +98,32 @@ def test_roll_pitch_threshold_and_lower_nis_check():
     assert not f.on_estimate(2.0, _P(0.1, 0.1, 0.1)) and "pessimistic" in f.reason
 
 
-@pytest.mark.parametrize("bad", [dict(yaw_3sigma_deg=0.0), dict(nis_alpha=1.0), dict(nis_alpha_drop=0.02),
+def test_level_bound_is_at_least_a_margin_over_the_grade_floor():
+    """An accelerometer bias b tilts the level by atan(b / g), inseparable from the tilt until the vehicle turns: the
+    default grade's 5 mg puts the level's 3-sigma floor at 0.859 deg, so a 1-deg bound made the flag wait for the
+    covariance's last hundredths (a simulated car's pitch 3-sigma hovered at 0.93-1.03 deg for 12 s)."""
+    floor = level_floor_3sigma_deg(5.0)
+    assert floor == pytest.approx(3.0 * math.degrees(math.atan(5e-3)), rel=1e-12)
+    assert floor == pytest.approx(0.8594, abs=1e-4)
+    level_11 = _P(1.1 / 3.0, 1.1 / 3.0, 0.1)  # 3-sigma 1.1 / 1.1 / 0.3 deg
+    f = AlignedFlag(AlignedCriteria(nis_window=0, hold_s=0.0), level_floor_deg=floor)
+    f.on_update(0.0, True, 1.0)
+    assert f.level_bound_deg == pytest.approx(1.5 * floor) and f.on_estimate(0.0, level_11)
+    assert not f.on_estimate(0.1, _P(0.45, 0.1, 0.1))  # 1.35 deg > 1.289
+    assert "1.29 deg (1.5 x the level floor 0.86 deg of the declared accelerometer bias)" in f.reason
+    off = AlignedFlag(AlignedCriteria(nis_window=0, hold_s=0.0, level_floor_factor=0.0), level_floor_deg=floor)
+    off.on_update(0.0, True, 1.0)
+    assert not off.on_estimate(0.0, level_11) and off.reason == "3-sigma roll/pitch 1.10 deg >= 1 deg"
+    # a good IMU's floor is far below the bound: the bound is the user's
+    assert AlignedFlag(level_floor_deg=level_floor_3sigma_deg(0.025)).level_bound_deg == 1.0
+    # the session takes the floor from the declared grade, and from an explicit accelerometer bias over it
+    assert AlignmentSession({}).flag.level_bound_deg == pytest.approx(1.5 * floor)
+    assert AlignmentSession({"imu_grade": "navigation"}).flag.level_bound_deg == 1.0
+    assert AlignmentSession({"core": "iekf"}, {"acc_bias_mg": 10.0}).flag.level_floor_deg == pytest.approx(
+        level_floor_3sigma_deg(10.0))
+
+
+@pytest.mark.parametrize("bad", [dict(yaw_3sigma_deg=0.0), dict(level_floor_factor=-1.0), dict(nis_alpha=1.0), dict(nis_alpha_drop=0.02),
                                  dict(nis_window=-1), dict(hold_s=-1.0), dict(roll_pitch_3sigma_deg=float("nan"))])
 def test_bad_criteria_are_refused(bad):
     with pytest.raises(ValueError):

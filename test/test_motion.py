@@ -174,7 +174,7 @@ def test_the_detector_says_what_blocks_parked():
 
 def test_walking_speed_vetoes_static_with_a_consumer_gnss():
     """A car cruising at 2-12 m/s on a smooth road (the IMU alone sees it parked), GNSS speeds from 1-s position
-    differences with 0.3 m/s noise, their sigma 0.45 m/s (core auto measures it on the fixes: _fix_noise_m): three
+    differences with 0.3 m/s noise, their sigma 0.45 m/s (core auto measures it on the fixes: motion.FixNoise): three
     speeds over walking speed and 3 sigma veto rest and declare motion below the 5.5-sigma bound (2.5 m/s); the car
     is never called static while faster than 2 m/s after the first three such speeds."""
     kw = dict(duration_s=60.0, park_s=1.0, stop_at_s=200.0, stop_s=1.0, door_at_s=-1.0, road_acc_m_s2=0.0,

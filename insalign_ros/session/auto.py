@@ -38,7 +38,7 @@ from ..filters.base import AlignmentCore, AlignmentEstimate, AlignmentStatus, Up
 from ..filters.hypotheses import YawHypothesisBank
 from ..filters.measurements import GnssPosition, GnssVelocity, GyroBiasPrior, ZeroAngularRate, ZeroVelocity
 from .auto_config import AutoConfig, D2R
-from .motion import MotionConfig, MotionDetector
+from .motion import FixNoise, MotionConfig, MotionDetector, rate_hz_from_intervals
 from .rest import REST_BLOCK_S, _BlockMean, block_variance, gyro_bias_from_rest, rest_rate_mean
 
 
@@ -54,11 +54,11 @@ DETECTOR_SKIP_SPEED_M_S = 3.0
 SPEED_CHECK_PERIOD_S = 0.5
 #: the GNSS speed for the motion detector is a position difference over at least this long [s]
 GNSS_SPEED_BASE_S = 0.9
+#: the motion detector is built once this many IMU intervals give the rate (1 s at 10 Hz)
+DETECTOR_MIN_INTERVALS = 10
 #: a rest window of fewer 1-s gyro blocks than this takes at least the grade's ARW^2 / T as the variance of its mean
 SHORT_REST_BLOCKS = 10
-#: fixes over which the fixes' own noise is measured (second differences; _fix_noise_m)
-FIX_NOISE_N = 10
-FIX_NOISE_FLOOR_M = 0.1  #: ... never below this [m] (a parked receiver drifts smoothly: second differences of mm)
+FIX_NOISE_FLOOR_M = 0.1  #: the fixes' own noise (motion.FixNoise) is never below this [m] (a parked receiver drifts)
 #: state names (``AutoCore.state``), in the order a parked-then-driving run passes through them
 STATES = ("static, levelling", "static, fine", "in motion", "stopped")
 
@@ -78,6 +78,7 @@ class AutoCore(AlignmentCore):
         self.transitions: list[tuple[float, str, str]] = []
         self.detector: MotionDetector | None = None
         self._dts: list[float] = []
+        self._early_speeds: deque = deque(maxlen=16)  # GNSS speeds before the detector exists (_push_speed)
         self._t: float | None = None
         self.hist: deque = deque()  # (t, omega, f): the IMU samples the hand-over may replay
         #: (t, AlignmentEstimate, number of rest blocks done) of the static core at rest
@@ -101,7 +102,7 @@ class AutoCore(AlignmentCore):
         self._fixes: deque = deque()  # (t, p_e, R_e) of the fixes seen while static (GNSS speed for the detector)
         self._level_fixes: deque = deque(maxlen=8)  # ... the last ones (the velocity change over the level window)
         self._vels: deque = deque(maxlen=16)  # (t, v_n, R_n) of the GNSS velocities seen while static
-        self._fix_hist: deque = deque(maxlen=FIX_NOISE_N)  # (t, p_e) of the last fixes (_fix_noise_m)
+        self._fix_noise = FixNoise()  # the fixes' own noise (the walking-speed veto's sigma)
         self._next_hold_t = -math.inf
         self._zupt_support = [0, 0]  # zero-velocity updates asked while static, accepted by the static core
         self._zupt_nis: deque = deque(maxlen=200)  # NIS per degree of freedom of the accepted ones
@@ -163,16 +164,21 @@ class AutoCore(AlignmentCore):
         if self.detector is None:
             if self._t is not None and t > self._t:
                 self._dts.append(t - self._t)
-            if len(self._dts) < 25:
+            if len(self._dts) < DETECTOR_MIN_INTERVALS:
                 return None
-            dts = np.array(self._dts)
-            # the mean interval without gaps (a driver alternating 20/30-ms intervals has a median of 20 ms: the
-            # detector would then take every 30-ms interval for a gap)
-            rate = 1.0 / float(np.mean(dts[dts <= 3.0 * np.median(dts)]))
             self.detector = MotionDetector(MotionConfig.from_dict(dict(
-                rate_hz=rate, gyro_arw_deg_sqrt_h=max(self.cfg.gyro_arw_deg_sqrt_h, 1e-4),
+                rate_hz=rate_hz_from_intervals(self._dts), gyro_arw_deg_sqrt_h=max(self.cfg.gyro_arw_deg_sqrt_h, 1e-4),
                 acc_vrw_m_s_sqrt_h=max(self.cfg.acc_vrw_m_s_sqrt_h, 1e-4))))
+            for args in self._early_speeds:  # the GNSS speeds seen before (a car moving at power-on)
+                self.detector.push_gnss_speed(*args)
         return self.detector.push_imu(t, w, f)
+
+    def _push_speed(self, *args) -> None:
+        """A GNSS speed (``MotionDetector.push_gnss_speed``'s arguments) to the detector, kept until it exists."""
+        if self.detector is None:
+            self._early_speeds.append(args)
+        else:
+            self.detector.push_gnss_speed(*args)
 
     def propagate(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
         """Row by row: the motion decision and the hand-over fall between two samples."""
@@ -411,32 +417,14 @@ class AutoCore(AlignmentCore):
         self._fixes.append((t, p, R))
         if not self._level_fixes or t > self._level_fixes[-1][0]:
             self._level_fixes.append((t, p, R))
-        if not old or self.detector is None:
+        if not old:
             return
         t0, p0, R0 = old[-1]
         dt = t - t0
         sig_p = math.sqrt(max(np.trace(R + R0) / 6.0, 1e-12))
-        noise = max(self._fix_noise_m(t, p), FIX_NOISE_FLOOR_M)  # used when far below the declared (correlated)
+        noise = max(self._fix_noise.push(t, p), FIX_NOISE_FLOOR_M)  # used when far below the declared (correlated)
         veto = math.sqrt(2.0) * (noise if noise < 0.3 * sig_p else sig_p) / dt
-        self.detector.push_gnss_speed(t, float(np.linalg.norm(p - p0)) / dt, math.sqrt(2.0) * sig_p / dt, veto)
-
-    def _fix_noise_m(self, t: float, p_e: np.ndarray) -> float:
-        """Per-axis noise of the fixes [m] as the data show it: robust sigma of the second differences of the last
-        ``FIX_NOISE_N`` positions over sqrt(6) (white noise; a vehicle's own acceleration only adds to it), inf
-        until there are enough. A consumer receiver's errors are correlated from fix to fix: its 1-s position
-        differences are far better than its 3-5 m per-fix sigma says."""
-        h = self._fix_hist
-        if h and t - h[-1][0] > 2.0:
-            h.clear()
-        h.append((t, np.asarray(p_e, float)))
-        if len(h) < FIX_NOISE_N:
-            return math.inf
-        tt = np.array([x[0] for x in h])
-        pp = np.array([x[1] for x in h])
-        d1 = np.diff(pp, axis=0) / np.diff(tt)[:, None]
-        d2 = (d1[1:] - d1[:-1]) * np.diff(tt)[1:, None]  # [m] at the fix interval
-        r = d2 - np.median(d2, axis=0)
-        return float(1.4826 * np.median(np.abs(r)) / math.sqrt(6.0))
+        self._push_speed(t, float(np.linalg.norm(p - p0)) / dt, math.sqrt(2.0) * sig_p / dt, veto)
 
     def _moving_level(self, t: float) -> tuple[np.ndarray, float]:
         """Moving from the start: C_b_n (yaw 0) levelled at ``t`` and its honest level 1-sigma [rad]. From the IMU
@@ -529,9 +517,9 @@ class AutoCore(AlignmentCore):
         if self.motion is None and np.all(np.isfinite(v)) and np.all(np.isfinite(R)) \
                 and (not self._vels or vel.stamp_s > self._vels[-1][0]):
             self._vels.append((float(vel.stamp_s), v, R))  # the hand-over's velocity and level window
-        if self.motion is None and self.detector is not None and np.all(np.isfinite(v)) and np.all(np.isfinite(R)):
-            self.detector.push_gnss_speed(float(vel.stamp_s), float(math.hypot(v[0], v[1])),
-                                          math.sqrt(max(float(R[0, 0] + R[1, 1]) / 2.0, 1e-12)))
+        if self.motion is None and np.all(np.isfinite(v)) and np.all(np.isfinite(R)):
+            self._push_speed(float(vel.stamp_s), float(math.hypot(v[0], v[1])),
+                             math.sqrt(max(float(R[0, 0] + R[1, 1]) / 2.0, 1e-12)))
 
     def predict(self, meas) -> UpdateResult:
         if self.motion is None:

@@ -83,6 +83,8 @@ INT_RANGE = (0, 2**31 - 1)
 #: range. The flag's yaw_3sigma_deg is THE aligned threshold (docs/imu_grades.md, "One name per number")
 CRITERIA_META = {
     "roll_pitch_3sigma_deg": ("3-sigma roll/pitch bound of the aligned flag [deg]", (1e-6, 180.0)),
+    "level_floor_factor": ("the roll/pitch bound is at least this many times the level floor of the declared "
+                           "accelerometer bias, 3 atan(acc_bias / g) (0: off)", (0.0, 100.0)),
     "yaw_3sigma_deg": ("3-sigma yaw bound of the aligned flag [deg]: THE aligned threshold (a core's own "
                        "status_yaw_3sigma_deg is not the flag)", (1e-6, 360.0)),
     "nis_window": ("NIS window [updates] (0: off)", (0, 10000)),

@@ -2,8 +2,12 @@
 
 The flag is raised when, continuously for at least ``hold_s`` of data time:
 
-1. **attitude 3-sigma below thresholds**: ``3 sqrt(P_att_n[0,0])`` and ``3 sqrt(P_att_n[1,1])`` below
-   ``roll_pitch_3sigma_deg`` and ``3 sqrt(P_att_n[2,2])`` (the azimuth error about Up) below ``yaw_3sigma_deg``;
+1. **attitude 3-sigma below thresholds**: ``3 sqrt(P_att_n[0,0])`` and ``3 sqrt(P_att_n[1,1])`` below the level
+   bound and ``3 sqrt(P_att_n[2,2])`` (the azimuth error about Up) below ``yaw_3sigma_deg``. The level bound is
+   ``roll_pitch_3sigma_deg``, or ``level_floor_factor`` times the level floor of the declared IMU when that is
+   larger: an accelerometer bias b tilts the level by atan(b / g), which no aiding separates from the tilt until
+   the vehicle turns, so the floor is ``3 atan(acc_bias / g)`` (0.86 deg for the default ``unknown_mems``'s 5 mg);
+   a bound at the floor would make the flag wait for the covariance's last hundredths;
 2. **innovations consistent with the covariance**: the normalized innovation squared (NIS) of the last
    ``nis_window`` accepted GNSS updates, summed, lies inside the two-sided chi-square band of probability
    ``1 - nis_alpha`` with ``nis_window * dof`` degrees of freedom (a sum of independent chi-square(dof)
@@ -40,6 +44,9 @@ class AlignedCriteria:
 
     #: 3-sigma roll and pitch bound [deg]
     roll_pitch_3sigma_deg: float = 1.0
+    #: the roll/pitch bound is at least this many times the declared IMU's level floor, 3 atan(acc_bias / g)
+    #: (0: the bound is roll_pitch_3sigma_deg whatever the grade)
+    level_floor_factor: float = 1.5
     #: 3-sigma azimuth (yaw about Up) bound [deg]
     yaw_3sigma_deg: float = 2.5
     #: number of recent accepted updates whose NIS sum is tested (0: no NIS test)
@@ -53,14 +60,14 @@ class AlignedCriteria:
     #: also reject a too-small NIS sum (a pessimistic filter)
     nis_lower_check: bool = False
     #: the criteria must hold this long [s of data time] before the flag rises
-    hold_s: float = 5.0
+    hold_s: float = 2.0
     #: an accepted update must be at most this old [s of data time]
     max_update_age_s: float = 5.0
 
     def validate(self) -> None:
         values = asdict(self)
-        for name in ("roll_pitch_3sigma_deg", "yaw_3sigma_deg", "nis_alpha", "nis_alpha_drop", "hold_s",
-                     "max_update_age_s"):
+        for name in ("roll_pitch_3sigma_deg", "level_floor_factor", "yaw_3sigma_deg", "nis_alpha", "nis_alpha_drop",
+                     "hold_s", "max_update_age_s"):
             v = values[name]
             if not (isinstance(v, (int, float)) and math.isfinite(v)):
                 raise ValueError(f"{name}: expected a finite number, got {v!r}")
@@ -72,6 +79,8 @@ class AlignedCriteria:
             raise ValueError(f"nis_alpha_drop: must be in (0, nis_alpha], got {self.nis_alpha_drop}")
         if not (isinstance(self.nis_window, int) and 0 <= self.nis_window <= 10000):
             raise ValueError(f"nis_window: must be an integer in [0, 10000], got {self.nis_window!r}")
+        if self.level_floor_factor < 0:
+            raise ValueError(f"level_floor_factor: must be >= 0, got {self.level_floor_factor}")
         if self.hold_s < 0 or not self.max_update_age_s > 0:
             raise ValueError("hold_s must be >= 0 and max_update_age_s > 0")
 
@@ -84,6 +93,12 @@ def nis_band(window: int, dof: int, alpha: float) -> tuple[float, float]:
     """(lower, upper) bounds of a sum of ``window`` NIS values of ``dof`` dof, two-sided probability ``alpha``."""
     k = window * dof
     return chi2_ppf(alpha / 2.0, k), chi2_ppf(1.0 - alpha / 2.0, k)
+
+
+def level_floor_3sigma_deg(acc_bias_mg: float) -> float:
+    """3-sigma level error [deg] that an accelerometer bias of 1-sigma ``acc_bias_mg`` [mg] leaves while no
+    manoeuvre separates it from the tilt: 3 atan(b / g)."""
+    return 3.0 * math.degrees(math.atan(max(float(acc_bias_mg), 0.0) * 1e-3))
 
 
 def attitude_3sigma_deg(P_att_n: np.ndarray) -> np.ndarray:
@@ -103,10 +118,18 @@ def attitude_3sigma_list(P_att_n: np.ndarray) -> list[float]:
 class AlignedFlag:
     """State machine of the aligned flag. Feed ``on_update`` per measurement update and ``on_estimate`` per output."""
 
-    def __init__(self, criteria: AlignedCriteria | None = None) -> None:
+    def __init__(self, criteria: AlignedCriteria | None = None, level_floor_deg: float = 0.0) -> None:
         self.criteria = criteria or AlignedCriteria()
         self.criteria.validate()
+        #: the declared IMU's level floor (:func:`level_floor_3sigma_deg`) [deg]
+        self.level_floor_deg = float(level_floor_deg)
         self.reset()
+
+    @property
+    def level_bound_deg(self) -> float:
+        """The roll/pitch 3-sigma bound [deg]: ``roll_pitch_3sigma_deg`` or ``level_floor_factor`` x the floor."""
+        c = self.criteria
+        return max(c.roll_pitch_3sigma_deg, c.level_floor_factor * self.level_floor_deg)
 
     def reset(self) -> None:
         self.aligned = False
@@ -145,8 +168,12 @@ class AlignedFlag:
         self.sigma3_deg = np.array(sl)
         if not (math.isfinite(sl[0]) and math.isfinite(sl[1]) and math.isfinite(sl[2])):
             return "attitude covariance is not finite"
-        if max(sl[0], sl[1]) >= c.roll_pitch_3sigma_deg:
-            return f"3-sigma roll/pitch {max(sl[0], sl[1]):.2f} deg >= {c.roll_pitch_3sigma_deg:g} deg"
+        bound = self.level_bound_deg
+        if max(sl[0], sl[1]) >= bound:
+            why = ("" if bound == c.roll_pitch_3sigma_deg else
+                   f" ({c.level_floor_factor:g} x the level floor {self.level_floor_deg:.2f} deg of the declared "
+                   f"accelerometer bias)")
+            return f"3-sigma roll/pitch {max(sl[0], sl[1]):.2f} deg >= {bound:.3g} deg{why}"
         if sl[2] >= c.yaw_3sigma_deg:
             return f"3-sigma yaw {sl[2]:.2f} deg >= {c.yaw_3sigma_deg:g} deg"
         if self.last_update_s is None:

@@ -421,6 +421,38 @@ def detect_motion(t_s, omega_ib_b, f_ib_b, cfg: MotionConfig, gnss_t_s=None, gns
                        g_speed, learner.thresholds, rejected, spread_thr)
 
 
+def rate_hz_from_intervals(dts) -> float:
+    """An IMU's rate [Hz] from its stamp intervals [s]: the mean interval without gaps (a driver alternating 20/30-ms
+    intervals has a median of 20 ms: a detector at 50 Hz would take every 30-ms interval for a gap)."""
+    d = np.asarray(dts, float)
+    return 1.0 / float(np.mean(d[d <= 3.0 * np.median(d)]))
+
+
+class FixNoise:
+    """Per-axis noise of the fixes [m] as the data show it: robust sigma of the second differences of the last ``n``
+    positions over sqrt(6) (white noise; a vehicle's own acceleration only adds to it), inf until there are enough.
+    A consumer receiver's errors are correlated from fix to fix: its 1-s position differences are far better than its
+    3-5 m per-fix sigma says (the sigma of the walking-speed veto, session/auto.py)."""
+
+    def __init__(self, n: int = 10) -> None:
+        self.h: deque = deque(maxlen=n)  # (t, p_e) of the last fixes
+
+    def push(self, t: float, p_e) -> float:
+        """A fix (stamp [s], ECEF position [m]); returns the noise with it [m] (a 2-s gap restarts the history)."""
+        h = self.h
+        if h and t - h[-1][0] > 2.0:
+            h.clear()
+        h.append((t, np.asarray(p_e, float)))
+        if len(h) < h.maxlen:
+            return math.inf
+        tt = np.array([x[0] for x in h])
+        pp = np.array([x[1] for x in h])
+        d1 = np.diff(pp, axis=0) / np.diff(tt)[:, None]
+        d2 = (d1[1:] - d1[:-1]) * np.diff(tt)[1:, None]  # [m] at the fix interval
+        r = d2 - np.median(d2, axis=0)
+        return float(1.4826 * np.median(np.abs(r)) / math.sqrt(6.0))
+
+
 class MotionDetector:
     """Per-sample path: push IMU samples and GNSS speeds in stamp order, read ``decision`` and ``diagnostics()``."""
 

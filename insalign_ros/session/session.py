@@ -31,10 +31,11 @@ import traceback
 from collections import OrderedDict
 
 from ..filters.base import AlignmentCore, AlignmentStatus
+from ..filters.imu_grade import get_grade
 from .catalog import check_core_config, resolve_core_params
 from .buffers import Pending, Ring  # noqa: F401  (Ring re-exported: the node's diagnostics windows)
 from .config import SessionConfig
-from .flag import AlignedCriteria, AlignedFlag
+from .flag import AlignedCriteria, AlignedFlag, level_floor_3sigma_deg
 from .fusion import Fusion
 from .grade_check import GradeCheck
 from .guard import DivergenceGuard
@@ -92,7 +93,8 @@ class AlignmentSession:
         # the IMU grade's noise and bias fields under the explicit core parameters (filters/imu_grade.py)
         self.core_params = resolve_core_params(self.cfg, core_params)
         check_core_config(self.cfg, self.core_params)  # validate now (ValueError with the reason)
-        self.flag = AlignedFlag(criteria or AlignedCriteria())
+        self.flag = AlignedFlag(criteria or AlignedCriteria(), level_floor_3sigma_deg(self.core_params.get(
+            "acc_bias_mg", get_grade(self.cfg.imu_grade).acc_bias_mg)))
         self.log = log or (lambda level, key, text: None)
         self.counters: OrderedDict[str, int] = OrderedDict((k, 0) for k in COUNTERS)
         self.core: AlignmentCore | None = None
