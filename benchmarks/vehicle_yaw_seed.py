@@ -31,7 +31,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from insalign_ros.session.flag import AlignedCriteria  # noqa: E402
+from insalign_ros.filters.imu_grade import DEFAULT_IMU_GRADE, get_grade  # noqa: E402
+from insalign_ros.session.flag import AlignedCriteria, AlignedFlag, level_floor_3sigma_deg  # noqa: E402
 from insalign_ros.session.offline import align, truncate  # noqa: E402
 from insalign_ros.sim.scenarios import SCENARIOS, make_scenario  # noqa: E402
 
@@ -80,6 +81,8 @@ def run(name: str, seed: int, vehicle: str, duration_s: float, vel_sigma: float 
     late = (r.t_s >= t0 + 10.0) & np.isfinite(err)
     cover = float(np.mean(np.abs(err[late]) <= r.sigma3_deg[late, 2])) if late.any() else math.nan
     c = AlignedCriteria(**crit)
+    grade = get_grade(session_params.get("imu_grade") or DEFAULT_IMU_GRADE)
+    level_bound = AlignedFlag(c, level_floor_3sigma_deg(grade.acc_bias_mg)).level_bound_deg
     # where the delay goes: the flag's own 3-sigma (P_att_n about East, North, Up) and its reason per output
     s3 = np.array([o.estimate.P_att_n.diagonal() for o in r.outputs])
     s3 = 3.0 * np.degrees(np.sqrt(np.clip(s3, 0.0, None)))
@@ -87,7 +90,7 @@ def run(name: str, seed: int, vehicle: str, duration_s: float, vel_sigma: float 
     crit_t = r.t_s[holds & (r.t_s >= t0)]
     d = r.diagnostics
     return {"scenario": name, "seed": seed, "vehicle": vehicle, "vel_sigma": vel_sigma, "t_flag_s": t_flag,
-            "t_level_s": _first_stays(r.t_s, np.max(s3[:, :2], axis=1) < c.roll_pitch_3sigma_deg, t0),
+            "t_level_s": _first_stays(r.t_s, np.max(s3[:, :2], axis=1) < level_bound, t0),
             "t_yaw_s": _first_stays(r.t_s, s3[:, 2] < c.yaw_3sigma_deg, t0),
             "t_criteria_s": float(crit_t[0] - t0) if crit_t.size else math.nan,
             "max_err_up_deg": max_up,
