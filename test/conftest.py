@@ -105,7 +105,10 @@ def pytest_collection_modifyitems(config, items):
     n = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "0") or 0)
     if n < 2 or not items:
         return
-    ranked = sorted(items, key=_expected_s, reverse=True)  # stable: file order among equals
+    # the tests marked wallclock first (each takes the machine alone: one placed among the long DDS tests waited for
+    # the other worker's current one, 20 s a time; together at the start they wait only for each other)
+    ranked = sorted(items, key=lambda it: (it.get_closest_marker("wallclock") is not None, _expected_s(it)),
+                    reverse=True)  # stable: file order among equals
     # the shorter slices first: worksteal sends len(pending) // (workers left) to each worker in turn, so the
     # slices then match its chunks exactly (one item off, a slice's last, shortest test would start another worker)
     slices = sorted((ranked[i::n] for i in range(n)), key=len)
