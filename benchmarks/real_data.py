@@ -138,17 +138,22 @@ def thin_fixes(data, step: int):
                    params={**data.params, "gnss_thinning": step})
 
 
-def load(name: str, root: Path, full_rate: bool = False) -> list[Recording]:
-    """The recording(s) of ``name``: KITTI gives two (fix sigma as is, floored at 0.5 m)."""
+def load(name: str, root: Path, full_rate: bool = False, gnss_velocity: bool = False) -> list[Recording]:
+    """The recording(s) of ``name``: KITTI gives two (fix sigma as is, floored at 0.5 m), with the RT3003's
+    velocities as a 1-Hz GNSS velocity topic when ``gnss_velocity``."""
     if name in KITTI_DRIVES:
         from insalign_ros.io.kitti import convert_drive
 
-        data, _ = convert_drive(root / "kitti_raw_oxts_sync" / KITTI_DRIVES[name], gnss_rate_hz=1.0)
+        data, _ = convert_drive(root / "kitti_raw_oxts_sync" / KITTI_DRIVES[name], gnss_rate_hz=1.0,
+                                gnss_velocity=gnss_velocity)
         ref, bare = kitti_reference(data), strip_truth(data)
         fm = first_motion_s(bare)
         short = name.split("_")[1]
         sig = np.sqrt(np.array([np.trace(R) for R in bare.gnss_R_e]) / 6.0)  # ~ horizontal sigma (v = 2 h)
         note = f"fix sigma = pos_accuracy, median {np.median(sig):.3f} m (min {sig.min():.3f})"
+        if bare.has_gnss_velocity:
+            sv = np.sqrt(bare.gnss_vel_R_n[:, 0, 0])
+            note += f"; GNSS velocity at every fix, sigma = vel_accuracy, median {np.median(sv):.3f} m/s"
         return [Recording(f"KITTI {short}", bare, [ref], fm, note),
                 Recording(f"KITTI {short}, fix sigma >= {KITTI_SIGMA_FLOOR_M} m",
                           floor_fix_sigma(bare, KITTI_SIGMA_FLOOR_M), [ref], fm, "fix sigma floored")]
@@ -273,6 +278,8 @@ def main(argv=None) -> int:
     ap.add_argument("--cores", nargs="+", default=list(CORES))
     ap.add_argument("--full-rate", action="store_true", help="rover_canada at 200 Hz IMU and 20 Hz fixes")
     ap.add_argument("--no-sigma-floor", action="store_true", help="KITTI: skip the 0.5-m fix-sigma variant")
+    ap.add_argument("--gnss-velocity", action="store_true",
+                    help="KITTI: the RT3003's velocities as a GNSS velocity topic at the fixes (1 Hz)")
     ap.add_argument("--vehicle", default="unknown", help="SessionConfig.vehicle (default: unknown)")
     ap.add_argument("--criterion", action="append", default=[], metavar="NAME=VALUE",
                     help="an aligned-flag criterion other than its default (session/flag.py), e.g. hold_s=2")
@@ -285,7 +292,7 @@ def main(argv=None) -> int:
     t_all, c_all = time.time(), time.process_time()
     for name in args.recordings:
         try:
-            recs = load(name, root, args.full_rate)
+            recs = load(name, root, args.full_rate, args.gnss_velocity)
         except (OSError, ValueError) as exc:
             print(f"SKIP {name}: {exc}")
             continue

@@ -70,6 +70,19 @@ def test_convert_maps_velocity_and_tangent_plane_fields_are_unused(car, drive):
     assert np.max(np.abs(rows[:, IDX["af"]:IDX["af"] + 3] - rows[:, IDX["ax"]:IDX["ax"] + 3])) > 1e-3
 
 
+def test_gnss_velocity_at_the_fixes_with_vel_accuracy(car, drive):
+    """``gnss_velocity``: the OXTS ve/vn/vu at each fix as a GNSS velocity, 1-sigma vel_accuracy (0.02 m/s in the
+    fixture) horizontally and twice that vertically; the bag carries it on /gps/vel."""
+    d, keep = car
+    data, rep = convert_drive(drive, gnss_velocity=True)
+    assert data.has_gnss_velocity and rep["gnss_velocities"] == data.gnss_t_s.shape[0] == 31
+    np.testing.assert_array_equal(data.gnss_vel_t_s, data.gnss_t_s)
+    k = np.searchsorted(data.t_s, data.gnss_vel_t_s)
+    np.testing.assert_allclose(data.gnss_vel_n, d.v_n[keep][k], atol=1e-12)
+    np.testing.assert_allclose(data.gnss_vel_R_n[0], np.diag([0.02**2, 0.02**2, 0.04**2]), atol=1e-15)
+    assert not convert_drive(drive)[0].has_gnss_velocity  # only when asked
+
+
 def _corrupt(drive: Path, k: int, text: str):
     (drive / "data" / f"{k:010d}.txt").write_text(text)
 

@@ -12,6 +12,8 @@ Field mapping (dataformat.txt; indices 0..29):
   wx wy wz (17-19)   -> body angular rate omega_ib_b [rad/s]
   pos_accuracy (23)  -> GNSS 1-sigma: horizontal = pos_accuracy, vertical = 2 * pos_accuracy, when > 0;
                         else DEFAULT_SIGMA_H_M / DEFAULT_SIGMA_V_M
+  vel_accuracy (24)  -> with ``gnss_velocity``: a GNSS velocity (ve, vn, vu) at each fix, 1-sigma horizontal =
+                        vel_accuracy, vertical = 2 * vel_accuracy, when > 0; else DEFAULT_SIGMA_VEL_M_S
 af/al/au and wf/wl/wu are NOT used: they are resolved in the vehicle's tangent-plane frame (forward and left
 parallel to the Earth surface, up along the local vertical), not in the body frame the IMU measures in.
 
@@ -46,6 +48,7 @@ FIELDS = ("lat lon alt roll pitch yaw vn ve vf vl vu ax ay az af al au wx wy wz 
           "vel_accuracy navstat numsats posmode velmode orimode").split()
 IDX = {n: i for i, n in enumerate(FIELDS)}
 DEFAULT_SIGMA_H_M = 5.0  #: no pos_accuracy: stand-alone GPS-class horizontal 1-sigma [m]
+DEFAULT_SIGMA_VEL_M_S = 0.1  #: no vel_accuracy: a receiver's Doppler velocity horizontal 1-sigma [m/s]
 DEFAULT_SIGMA_V_M = 10.0  #: [m]; vertical GNSS error is typically about twice the horizontal one
 MAX_GAP_FACTOR = 1.5  #: a step longer than 1.5 median steps is reported as a gap
 MODE_FIELDS = ("posmode", "velmode", "orimode")
@@ -191,9 +194,13 @@ def gnss_indices(t_s: np.ndarray, gnss_rate_hz: float, valid: np.ndarray | None 
     return np.sort(order[np.r_[True, w_sorted[1:] != w_sorted[:-1]]])
 
 
-def convert_drive(drive_dir, gnss_rate_hz: float = 1.0, progress: bool = False, fill_policy: str = "mark"):
+def convert_drive(drive_dir, gnss_rate_hz: float = 1.0, progress: bool = False, fill_policy: str = "mark",
+                  gnss_velocity: bool = False):
     """KITTI drive -> (ScenarioData with truth, report). The IMU values are the RT3003's instantaneous outputs
     at each stamp (not averages over the preceding interval as the simulators produce; see docs).
+
+    gnss_velocity: also a GNSS velocity at each valid fix (the RT3003's ve, vn, vu with its vel_accuracy), as a
+    receiver's velocity topic would give it (the RT3003's is its GNSS/INS velocity: smoother than a receiver's).
 
     fill_policy: what to do with fill rows (``fill_rows``): "mark" (imu_valid/gnss_valid False), "drop", "keep".
     The report counts them: fill_rows, fill_by_mode, fill_by_interpolation, fill_blocks [(first, last, seconds)]
@@ -230,6 +237,13 @@ def convert_drive(drive_dir, gnss_rate_hz: float = 1.0, progress: bool = False, 
     R_e = np.array([earth.C_n_e(a, b) @ np.diag([sh**2, sh**2, sv**2]) @ earth.C_e_n(a, b)
                     for a, b, sh, sv in zip(lat[gi], lon[gi], sig_h, sig_v)])
     report["gnss_fixes"] = int(gi.shape[0])
+    vel = {}
+    if gnss_velocity:
+        vi = gi[valid[gi]]
+        sv = np.where(v[vi, IDX["vel_accuracy"]] > 0, v[vi, IDX["vel_accuracy"]], DEFAULT_SIGMA_VEL_M_S)
+        vel = dict(gnss_vel_t_s=t_s[vi], gnss_vel_n=v_n[vi],
+                   gnss_vel_R_n=np.array([np.diag([s * s, s * s, 4.0 * s * s]) for s in sv]).reshape(-1, 3, 3))
+        report["gnss_velocities"] = int(vi.shape[0])
     report["gnss_default_sigma"] = int(np.sum(acc <= 0))
     params = {"source": "kitti_oxts", "drive": str(Path(drive_dir)), "ref_lat_deg": float(v[0, 0]),
               "ref_lon_deg": float(v[0, 1]), "ref_h_m": float(v[0, 2]), "stamp_offset_ns": int(stamps[0]),
@@ -240,7 +254,7 @@ def convert_drive(drive_dir, gnss_rate_hz: float = 1.0, progress: bool = False, 
         C_b_n=C_b_n, lat_rad=lat, lon_rad=lon, h_m=alt, v_n=v_n, gnss_t_s=t_s[gi],
         gnss_p_e=np.column_stack([x, y, z]), gnss_R_e=R_e, imu_spec=None,
         gnss_sigma_m=float(np.median(sig_h)), params=params, imu_valid=None if valid.all() else valid,
-        gnss_valid=None if valid[gi].all() else valid[gi])
+        gnss_valid=None if valid[gi].all() else valid[gi], **vel)
     return data, report
 
 

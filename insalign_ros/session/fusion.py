@@ -290,7 +290,8 @@ class Fusion:
                              f"(|innovation| {np.linalg.norm(pr.innovation):.3g} m/s)")
                 sess.monitor.lower_flag("a GNSS velocity failed the NIS gate")
                 return
-        res = core.update(vel)
+        res = core.update(sess.guard.floored_velocity(vel))
+        sess._est_memo = None  # the floor read the estimate before the update
         if res.accepted:
             c["gnss_vel_accepted"] += 1
         else:

@@ -32,6 +32,8 @@ class DivergenceGuard:
         self._inflated_at: float | None = None  # the last step-1 response (covariance widened, flag down) [s]
         self.last_floor_m = 0.0  # the model floor added to the last fix's sigma [m]
         self._floor_prev = None  # (stamp [s], v_n horizontal [m/s]) at the last floored fix
+        self.last_vel_floor_m_s = 0.0  # the model floor added to the last GNSS velocity's sigma [m/s]
+        self._vel_floor_prev = None  # (stamp [s], v_n horizontal [m/s]) at the last floored GNSS velocity
 
     #: an antenna offset nobody configured: a roof antenna on a car within ~0.1 m of the configured lever arm (the
     #: part of an unmodelled lever arm the filter cannot absorb as a position offset is what a turn rotates away)
@@ -74,6 +76,49 @@ class DivergenceGuard:
         integ = 0.25 * v * omega * omega * dt * T * T
         lever = self.UNMODELLED_LEVER_ARM_M * min(1.0, omega * T)
         return math.sqrt(timing * timing + integ * integ + lever * lever)
+
+    def model_floor_vel_m_s(self, stamp_s: float) -> float:
+        """The 1-sigma [m/s] per axis of what the filter's model cannot reproduce of a GNSS velocity at ``stamp_s``
+        (the velocity counterpart of :meth:`model_floor_m`), from the filter's horizontal velocity now and at the
+        previous GNSS velocity (within 3 s; T apart):
+
+        - timing: the velocity is fused at the first IMU sample at or after its stamp, and where it belongs within
+          the IMU period is unknown: |a| sqrt(L^2 + dt^2 / 12), a the filter's acceleration over T;
+        - integration at the IMU rate: in a turn of rate omega the held specific force leaves 1/2 |v| omega^2 dt^2 of
+          velocity per step, |v| omega^2 dt T / 2 over T;
+        - an unmodelled lever arm: ``UNMODELLED_LEVER_ARM_M`` omega (the antenna's velocity about the IMU's).
+
+        A receiver's (or a GNSS/INS's) centimetre-per-second velocity sigma is not what a 10-Hz IMU's model can use at
+        1 m/s^2: on KITTI (RT3003 velocities of 1-3 cm/s) the pitch became over-confident without it."""
+        sess = self.s
+        dt = sess.loop._median_dt
+        v_n = np.asarray(sess.outputs.estimate().v_n, float)[:2]
+        prev, self._vel_floor_prev = self._vel_floor_prev, (float(stamp_s), v_n)
+        if dt is None or not dt > 0 or prev is None:
+            return 0.0
+        T = float(stamp_s) - prev[0]
+        if not 0.0 < T <= 3.0:
+            return 0.0
+        v, n1 = float(np.linalg.norm(v_n)), float(np.linalg.norm(prev[1]))
+        omega = 0.0
+        if n1 > 0.5 and v > 0.5:
+            omega = abs(math.atan2(prev[1][0] * v_n[1] - prev[1][1] * v_n[0], float(np.dot(prev[1], v_n)))) / T
+        a = float(np.linalg.norm(v_n - prev[1])) / T
+        lag = max((sess.processed_t if sess.processed_t is not None else stamp_s) - stamp_s, 0.0)
+        timing = a * math.sqrt(lag * lag + dt * dt / 12.0)
+        integ = 0.5 * v * omega * omega * dt * T
+        lever = self.UNMODELLED_LEVER_ARM_M * omega
+        return math.sqrt(timing * timing + integ * integ + lever * lever)
+
+    def floored_velocity(self, vel):
+        """``vel`` (a GNSS velocity) with its per-axis sigma raised to :meth:`model_floor_vel_m_s` where below it."""
+        f = self.model_floor_vel_m_s(vel.stamp_s)
+        self.last_vel_floor_m_s = f
+        R = np.asarray(vel.R_n, float)
+        var = float(np.trace(R)) / 3.0
+        if not f * f > var + 1e-9:
+            return vel
+        return type(vel)(vel.stamp_s, vel.v_n, R + (f * f - max(var, 0.0)) * np.eye(3))
 
     def floored(self, fix: GnssFix) -> GnssFix:
         """``fix`` with its per-axis sigma raised to the model floor (:meth:`model_floor_m`) where it is below it
