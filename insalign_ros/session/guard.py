@@ -14,6 +14,13 @@ import numpy as np
 from ..core.types import GnssFix
 
 
+def course_rate(v1_n: np.ndarray, v2_n: np.ndarray, T: float) -> float:
+    """|course change| / T [rad/s] between two horizontal velocities T [s] apart (0 below 0.5 m/s: no course)."""
+    if float(np.linalg.norm(v1_n)) <= 0.5 or float(np.linalg.norm(v2_n)) <= 0.5:
+        return 0.0
+    return abs(math.atan2(v1_n[0] * v2_n[1] - v1_n[1] * v2_n[0], float(np.dot(v1_n, v2_n)))) / T
+
+
 class DivergenceGuard:
     """State of the guard for one filter (the fix sequence survives a re-initialisation: the session carries it)."""
 
@@ -67,10 +74,7 @@ class DivergenceGuard:
         if not 0.0 < T <= 3.0:
             return 0.0
         v = float(np.linalg.norm(v_n))
-        n1 = float(np.linalg.norm(prev[1]))
-        omega = 0.0
-        if n1 > 0.5 and v > 0.5:  # the course change of the filter's velocity since the last fix
-            omega = abs(math.atan2(prev[1][0] * v_n[1] - prev[1][1] * v_n[0], float(np.dot(prev[1], v_n)))) / T
+        omega = course_rate(prev[1], v_n, T)
         lag = max((sess.processed_t if sess.processed_t is not None else t2) - t2, 0.0)
         timing = v * math.sqrt(lag * lag + dt * dt / 12.0)
         integ = 0.25 * v * omega * omega * dt * T * T
@@ -99,10 +103,7 @@ class DivergenceGuard:
         T = float(stamp_s) - prev[0]
         if not 0.0 < T <= 3.0:
             return 0.0
-        v, n1 = float(np.linalg.norm(v_n)), float(np.linalg.norm(prev[1]))
-        omega = 0.0
-        if n1 > 0.5 and v > 0.5:
-            omega = abs(math.atan2(prev[1][0] * v_n[1] - prev[1][1] * v_n[0], float(np.dot(prev[1], v_n)))) / T
+        v, omega = float(np.linalg.norm(v_n)), course_rate(prev[1], v_n, T)
         a = float(np.linalg.norm(v_n - prev[1])) / T
         lag = max((sess.processed_t if sess.processed_t is not None else stamp_s) - stamp_s, 0.0)
         timing = a * math.sqrt(lag * lag + dt * dt / 12.0)
