@@ -224,6 +224,7 @@ def evaluate(r: Run, ref: DS.AttitudeReference, t_motion_s: float | None, t_star
             out["coverage"][i] = float(np.mean(np.abs(err[m, i]) <= s3[m, i]))
     out["up_wrong"] = int(np.sum(up & has[:, 2] & (np.abs(err[:, 2]) > YAW_WRONG_DEG)))
     out["up_with_ref"] = int(np.sum(up & has[:, 2]))
+    out["max_yaw_up"] = float(np.max(np.abs(err[up & has[:, 2], 2]))) if np.any(up & has[:, 2]) else 0.0
     needed = []
     for tr, _, _ in r.restarts:
         k = np.flatnonzero((t < tr) & has[:, 2])
