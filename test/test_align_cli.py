@@ -43,6 +43,24 @@ def test_align_bad_arguments(tmp_path, capsys):
         main(["--out-dir", str(tmp_path)])
 
 
+def test_aligned_criteria_as_the_node_takes_them(tmp_path, capsys):
+    """``--aligned KEY=VALUE`` sets the aligned flag's criteria as the node's ``aligned.<KEY>`` parameters do: a 5-s
+    hold raises the flag 3 s (30 outputs at 10 Hz) after the default 2-s hold; an unknown criterion or a bad value
+    is a one-line error, exit 2."""
+    first = {}
+    for hold in ("2", "5"):
+        out = tmp_path / hold
+        assert main(["--scenario", "ship", "--duration", "60", "--core", "iekf", "--imu-grade", "paper_ship",
+                     "--aligned", f"hold_s={hold}", "--output-period", "0.1", "--out-dir", str(out),
+                     "--no-progress", "--no-plot"]) == 0
+        first[hold] = json.loads((out / "ship_s0_iekf_metrics.json").read_text())["aligned_first_raised_at_s"]
+    assert first["5"] - first["2"] == pytest.approx(3.0, abs=0.11), first
+    assert main(["--scenario", "ship", "--aligned", "hold=5", "--out-dir", str(tmp_path)]) == 2
+    assert "--aligned: unknown criterion ['hold']; one of roll_pitch_3sigma_deg" in capsys.readouterr().err
+    assert main(["--scenario", "ship", "--aligned", "hold_s=-1", "--out-dir", str(tmp_path)]) == 2
+    assert "hold_s must be >= 0" in capsys.readouterr().err
+
+
 def test_a_missing_bag_path_is_not_found_in_the_python_api_too():
     """``ia.align`` on a path that does not exist says so (not "unknown scenario"); a bare unknown name is still an
     unknown scenario with the list of names."""

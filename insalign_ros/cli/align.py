@@ -29,6 +29,7 @@ import csv
 import json
 import math
 import sys
+from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
@@ -77,6 +78,8 @@ def main(argv=None) -> int:
     ap.add_argument("--param", action="append", default=[], metavar="KEY=VALUE", help="core parameter")
     ap.add_argument("--session-param", action="append", default=[], metavar="KEY=VALUE",
                     help="session parameter (insalign_ros.session.config.SessionConfig)")
+    ap.add_argument("--aligned", action="append", default=[], metavar="KEY=VALUE",
+                    help="an aligned-flag criterion, as the node's aligned.<KEY> (session/flag.py), e.g. hold_s=5")
     ap.add_argument("--fix-delay", type=float, default=0.0, metavar="S",
                     help="deliver each fix S seconds of data time after its stamp (receiver latency)")
     ap.add_argument("--imu-topic", default=None, help="sensor_msgs/Imu topic of the bag (default: /imu/data if "
@@ -159,6 +162,7 @@ def _run(args) -> int:
 
     from ..filters.registry import make_config
     from ..session.config import SessionConfig
+    from ..session.flag import AlignedCriteria
 
     core_params = _kv(args.param, "--param")
     sp = _kv(args.session_param, "--session-param")
@@ -166,6 +170,13 @@ def _run(args) -> int:
         sp["imu_grade"] = args.imu_grade
     SessionConfig.from_dict({"core": args.core, **sp})  # user errors before any work
     make_config(args.core, core_params)
+    criteria = _kv(args.aligned, "--aligned")
+    try:
+        AlignedCriteria(**criteria).validate()
+    except TypeError:
+        names = [f.name for f in fields(AlignedCriteria)]
+        raise ValueError(f"--aligned: unknown criterion {sorted(set(criteria) - set(names))}; one of "
+                         f"{', '.join(names)}") from None
     reader = {k: v for k, v in (("imu_topic", args.imu_topic), ("gps_topic", args.gps_topic), ("vel_topic", args.vel_topic),
                                 ("truth_topic", args.truth_topic), ("unknown_fix_sigma_m", args.unknown_fix_sigma))
               if v is not None}
@@ -195,7 +206,7 @@ def _run(args) -> int:
     sp.setdefault("output_period_s", args.output_period)
     with tqdm(total=data.n, desc=args.core, disable=args.no_progress, file=sys.stderr, mininterval=1) as bar:
         r: AlignResult = align(data, core=args.core, core_params=core_params, fix_delay_s=args.fix_delay,
-                               progress=bar, **sp)
+                               progress=bar, criteria=criteria, **sp)
     if args.backtrack > 0:
         d = r.diagnostics
         print(f"backtracking: {d.get('backtrack_window_samples')} samples x {args.backtrack} passes in "
