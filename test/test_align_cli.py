@@ -53,7 +53,9 @@ def test_aligned_criteria_as_the_node_takes_them(tmp_path, capsys):
         assert main(["--scenario", "ship", "--duration", "60", "--core", "iekf", "--imu-grade", "paper_ship",
                      "--aligned", f"hold_s={hold}", "--output-period", "0.1", "--out-dir", str(out),
                      "--no-progress", "--no-plot"]) == 0
-        first[hold] = json.loads((out / "ship_s0_iekf_metrics.json").read_text())["aligned_first_raised_at_s"]
+        m = json.loads((out / "ship_s0_iekf_metrics.json").read_text())
+        assert m["aligned_criteria"]["hold_s"] == float(hold) and m["aligned_criteria"]["level_floor_factor"] == 1.5
+        first[hold] = m["aligned_first_raised_at_s"]
     assert first["5"] - first["2"] == pytest.approx(3.0, abs=0.11), first
     assert main(["--scenario", "ship", "--aligned", "hold=5", "--out-dir", str(tmp_path)]) == 2
     assert "--aligned: unknown criterion ['hold']; one of roll_pitch_3sigma_deg" in capsys.readouterr().err
