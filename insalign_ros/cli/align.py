@@ -172,7 +172,8 @@ def _run(args) -> int:
     make_config(args.core, core_params)
     criteria = _kv(args.aligned, "--aligned")
     try:
-        AlignedCriteria(**criteria).validate()
+        crit = AlignedCriteria(**criteria)
+        crit.validate()
     except TypeError:
         names = [f.name for f in fields(AlignedCriteria)]
         raise ValueError(f"--aligned: unknown criterion {sorted(set(criteria) - set(names))}; one of "
@@ -233,7 +234,7 @@ def _run(args) -> int:
     summ.update(data=name, init_mode=sp["init_mode"], imu_grade=sp.get("imu_grade", SessionConfig().imu_grade),
                 final_rpy_deg=r.rpy_deg[-1].tolist(),
                 final_3sigma_deg=[None if not x <= SIGMA3_UNKNOWN_DEG else float(x) for x in r.sigma3_deg[-1]],
-                final_aligned=bool(r.aligned[-1]), aligned_criteria=AlignedCriteria(**criteria).to_dict(),
+                final_aligned=bool(r.aligned[-1]), aligned_criteria=crit.to_dict(),
                 warnings=warnings, counters=r.counters,
                 diagnostics={k: v for k, v in r.diagnostics.items() if k.startswith("core.")})
     if rpy_error is not None:

@@ -253,10 +253,14 @@ def level_from_specific_force(f_ib_b: np.ndarray, accel_m_s2: float) -> tuple[fl
     accelerating by up to ``accel_m_s2``: the mean's direction is up; the 1-sigma is honest rather than small: 1 deg
     for an unknown accelerometer bias, the acceleration over g, and the samples' spread over g."""
     F = np.asarray(f_ib_b, float)
-    fm = F.mean(axis=0)
+    return _level_from_mean(F.mean(axis=0), accel_m_s2, float(np.linalg.norm(F.std(axis=0))))
+
+
+def _level_from_mean(fm: np.ndarray, accel_m_s2: float, spread_m_s2: float) -> tuple[float, float, float]:
+    """(roll, pitch, 1-sigma) [rad] from a mean specific force ``fm``: its direction is up; 1 deg for an unknown
+    accelerometer bias, the acceleration and the spread [m/s^2] over g."""
     g = max(float(np.linalg.norm(fm)), 1.0)
-    spread = float(np.linalg.norm(F.std(axis=0))) / g
-    sig = math.sqrt(math.radians(1.0) ** 2 + (accel_m_s2 / g) ** 2 + spread ** 2)
+    sig = math.sqrt(math.radians(1.0) ** 2 + (accel_m_s2 / g) ** 2 + (spread_m_s2 / g) ** 2)
     return math.atan2(fm[1], fm[2]), math.atan2(-fm[0], math.hypot(fm[1], fm[2])), sig
 
 
@@ -278,11 +282,8 @@ def level_from_window(t_s, omega_ib_b, f_ib_b, accel_sigma_m_s2: float) -> tuple
     for k in range(n - 2, -1, -1):
         Q = Q @ Rotation.from_rotvec(W[k + 1] * (t[k + 1] - t[k])).as_matrix().T  # undo the step k -> k + 1
         Fr[k] = Q @ F[k]
-    fm = Fr.mean(axis=0)
-    g = max(float(np.linalg.norm(fm)), 1.0)
-    noise = float(np.linalg.norm(Fr.std(axis=0))) / g / math.sqrt(max(n, 1))
-    sig = math.sqrt(math.radians(1.0) ** 2 + (accel_sigma_m_s2 / g) ** 2 + noise ** 2)
-    return math.atan2(fm[1], fm[2]), math.atan2(-fm[0], math.hypot(fm[1], fm[2])), sig
+    return _level_from_mean(Fr.mean(axis=0), accel_sigma_m_s2,
+                            float(np.linalg.norm(Fr.std(axis=0))) / math.sqrt(max(n, 1)))
 
 
 def wrap_angle_rad(a):

@@ -196,6 +196,12 @@ def apply_aliases(params: dict, warn=None) -> dict:
     return out
 
 
+def level_floor_rad(acc_bias_mg: float) -> float:
+    """The level error [rad] an accelerometer bias of ``acc_bias_mg`` [mg] leaves while no manoeuvre separates it from
+    the tilt: atan(b / g) (the static cores' floor, the aligned flag's level bound)."""
+    return math.atan(max(float(acc_bias_mg), 0.0) * 1e-3)
+
+
 def get_grade(grade) -> ImuGrade:
     """A preset name (or an ImuGrade, returned as is) -> ImuGrade; ValueError (one line) for an unknown name."""
     if isinstance(grade, ImuGrade):

@@ -511,12 +511,12 @@ class AutoCore(AlignmentCore):
         """Static: a GNSS velocity (not fused while parked) gives the motion detector its horizontal speed (the
         walking-speed veto; fresher and better than the speed from two fixes)."""
         v, R = np.asarray(vel.v_n, float), np.asarray(vel.R_n, float)
-        if self.motion is None and np.all(np.isfinite(v)) and np.all(np.isfinite(R)) \
-                and (not self._vels or vel.stamp_s > self._vels[-1][0]):
+        if self.motion is not None or not (np.all(np.isfinite(v)) and np.all(np.isfinite(R))):
+            return
+        if not self._vels or vel.stamp_s > self._vels[-1][0]:
             self._vels.append((float(vel.stamp_s), v, R))  # the hand-over's velocity and level window
-        if self.motion is None and np.all(np.isfinite(v)) and np.all(np.isfinite(R)):
-            self._push_speed(float(vel.stamp_s), float(math.hypot(v[0], v[1])),
-                             math.sqrt(max(float(R[0, 0] + R[1, 1]) / 2.0, 1e-12)))
+        self._push_speed(float(vel.stamp_s), float(math.hypot(v[0], v[1])),
+                         math.sqrt(max(float(R[0, 0] + R[1, 1]) / 2.0, 1e-12)))
 
     def predict(self, meas) -> UpdateResult:
         if self.motion is None:

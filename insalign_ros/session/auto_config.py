@@ -117,8 +117,8 @@ class AutoConfig(ConfigDict):
         return self.grade_params(self.static_core)
 
     def level_floor_rad(self) -> float:
-        """Level floor b_acc/g [rad]."""
-        return self.acc_bias_mg * 1e-3
+        """Level floor b_acc/g [rad] (imu_grade.level_floor_rad)."""
+        return imu_grade.level_floor_rad(self.acc_bias_mg)
 
     def azimuth_floor_rad(self, lat_rad: float) -> float:
         """Gyrocompassing floor eps/(omega_ie cos lat) [rad] (inf at the poles)."""

@@ -34,6 +34,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..core.stats import chi2_ppf
+from ..filters.imu_grade import level_floor_rad
 
 
 
@@ -98,7 +99,7 @@ def nis_band(window: int, dof: int, alpha: float) -> tuple[float, float]:
 def level_floor_3sigma_deg(acc_bias_mg: float) -> float:
     """3-sigma level error [deg] that an accelerometer bias of 1-sigma ``acc_bias_mg`` [mg] leaves while no
     manoeuvre separates it from the tilt: 3 atan(b / g)."""
-    return 3.0 * math.degrees(math.atan(max(float(acc_bias_mg), 0.0) * 1e-3))
+    return 3.0 * math.degrees(level_floor_rad(acc_bias_mg))
 
 
 def attitude_3sigma_deg(P_att_n: np.ndarray) -> np.ndarray:

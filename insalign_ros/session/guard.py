@@ -21,6 +21,16 @@ def course_rate(v1_n: np.ndarray, v2_n: np.ndarray, T: float) -> float:
     return abs(math.atan2(v1_n[0] * v2_n[1] - v1_n[1] * v2_n[0], float(np.dot(v1_n, v2_n)))) / T
 
 
+def raised_to(R, floor: float, eps: float):
+    """The covariance ``R`` with its mean per-axis variance raised to ``floor``^2 (isotropically), or None when it is
+    not below that by more than ``eps``."""
+    R = np.asarray(R, float)
+    var = float(np.trace(R)) / 3.0
+    if not floor * floor > var + eps:
+        return None
+    return R + (floor * floor - max(var, 0.0)) * np.eye(3)
+
+
 class DivergenceGuard:
     """State of the guard for one filter (the fix sequence survives a re-initialisation: the session carries it)."""
 
@@ -63,19 +73,12 @@ class DivergenceGuard:
         a gated outlier does not move them); dt the IMU's median period. The fix's
         sigma is raised to it (:meth:`floored`): a receiver's centimetre sigma is not what this model can use at
         10 m/s with a 10-Hz IMU."""
-        sess = self.s
-        dt = sess.loop._median_dt
-        t2 = float(fix.stamp_s)
-        v_n = np.asarray(sess.outputs.estimate().v_n, float)[:2]
-        prev, self._floor_prev = self._floor_prev, (t2, v_n)
-        if dt is None or not dt > 0 or prev is None:
+        since = self._since_last("_floor_prev", float(fix.stamp_s))
+        if since is None:
             return 0.0
-        T = t2 - prev[0]
-        if not 0.0 < T <= 3.0:
-            return 0.0
+        dt, v_n, v_prev, T, lag = since
         v = float(np.linalg.norm(v_n))
-        omega = course_rate(prev[1], v_n, T)
-        lag = max((sess.processed_t if sess.processed_t is not None else t2) - t2, 0.0)
+        omega = course_rate(v_prev, v_n, T)
         timing = v * math.sqrt(lag * lag + dt * dt / 12.0)
         integ = 0.25 * v * omega * omega * dt * T * T
         lever = self.UNMODELLED_LEVER_ARM_M * min(1.0, omega * T)
@@ -94,43 +97,42 @@ class DivergenceGuard:
 
         A receiver's (or a GNSS/INS's) centimetre-per-second velocity sigma is not what a 10-Hz IMU's model can use at
         1 m/s^2: on KITTI (RT3003 velocities of 1-3 cm/s) the pitch became over-confident without it."""
-        sess = self.s
-        dt = sess.loop._median_dt
-        v_n = np.asarray(sess.outputs.estimate().v_n, float)[:2]
-        prev, self._vel_floor_prev = self._vel_floor_prev, (float(stamp_s), v_n)
-        if dt is None or not dt > 0 or prev is None:
+        since = self._since_last("_vel_floor_prev", float(stamp_s))
+        if since is None:
             return 0.0
-        T = float(stamp_s) - prev[0]
-        if not 0.0 < T <= 3.0:
-            return 0.0
-        v, omega = float(np.linalg.norm(v_n)), course_rate(prev[1], v_n, T)
-        a = float(np.linalg.norm(v_n - prev[1])) / T
-        lag = max((sess.processed_t if sess.processed_t is not None else stamp_s) - stamp_s, 0.0)
+        dt, v_n, v_prev, T, lag = since
+        v, omega = float(np.linalg.norm(v_n)), course_rate(v_prev, v_n, T)
+        a = float(np.linalg.norm(v_n - v_prev)) / T
         timing = a * math.sqrt(lag * lag + dt * dt / 12.0)
         integ = 0.5 * v * omega * omega * dt * T
         lever = self.UNMODELLED_LEVER_ARM_M * omega
         return math.sqrt(timing * timing + integ * integ + lever * lever)
 
+    def _since_last(self, slot: str, t: float):
+        """What a model floor at ``t`` needs, and ``t`` with the filter's horizontal velocity kept in ``slot`` for the
+        next one: (the IMU's median period dt, v_n now, v_n at the previous call, T since it, the fusion lag L at
+        the first IMU sample at or after ``t``); None when dt or the previous call (within 3 s) is missing."""
+        sess = self.s
+        dt = sess.loop._median_dt
+        v_n = np.asarray(sess.outputs.estimate().v_n, float)[:2]
+        prev = getattr(self, slot)
+        setattr(self, slot, (t, v_n))
+        if dt is None or not dt > 0 or prev is None or not 0.0 < t - prev[0] <= 3.0:
+            return None
+        return dt, v_n, prev[1], t - prev[0], max((sess.processed_t if sess.processed_t is not None else t) - t, 0.0)
+
     def floored_velocity(self, vel):
         """``vel`` (a GNSS velocity) with its per-axis sigma raised to :meth:`model_floor_vel_m_s` where below it."""
-        f = self.model_floor_vel_m_s(vel.stamp_s)
-        self.last_vel_floor_m_s = f
-        R = np.asarray(vel.R_n, float)
-        var = float(np.trace(R)) / 3.0
-        if not f * f > var + 1e-9:
-            return vel
-        return type(vel)(vel.stamp_s, vel.v_n, R + (f * f - max(var, 0.0)) * np.eye(3))
+        f = self.last_vel_floor_m_s = self.model_floor_vel_m_s(vel.stamp_s)
+        R = raised_to(vel.R_n, f, 1e-9)
+        return vel if R is None else type(vel)(vel.stamp_s, vel.v_n, R)
 
     def floored(self, fix: GnssFix) -> GnssFix:
         """``fix`` with its per-axis sigma raised to the model floor (:meth:`model_floor_m`) where it is below it
         (the same fix otherwise: a receiver's honest sigma above what the model can use is left as it is)."""
-        f = self.model_floor_m(fix)
-        self.last_floor_m = f
-        R = np.asarray(fix.R_e, float)
-        var = float(np.trace(R)) / 3.0
-        if not f * f > var + 1e-6:
-            return fix
-        return GnssFix(fix.stamp_s, fix.p_e, R + (f * f - max(var, 0.0)) * np.eye(3))
+        f = self.last_floor_m = self.model_floor_m(fix)
+        R = raised_to(fix.R_e, f, 1e-6)
+        return fix if R is None else GnssFix(fix.stamp_s, fix.p_e, R)
 
     def fix_jump(self, fix: GnssFix) -> bool:
         """Whether ``fix`` breaks the fix sequence: off the straight-line extrapolation of the two fixes before it
