@@ -73,7 +73,7 @@ class DivergenceGuard:
         a gated outlier does not move them); dt the IMU's median period. The fix's
         sigma is raised to it (:meth:`floored`): a receiver's centimetre sigma is not what this model can use at
         10 m/s with a 10-Hz IMU."""
-        since = self._since_last("_floor_prev", float(fix.stamp_s))
+        self._floor_prev, since = self._since_last(self._floor_prev, float(fix.stamp_s))
         if since is None:
             return 0.0
         dt, v_n, v_prev, T, lag = since
@@ -97,7 +97,7 @@ class DivergenceGuard:
 
         A receiver's (or a GNSS/INS's) centimetre-per-second velocity sigma is not what a 10-Hz IMU's model can use at
         1 m/s^2: on KITTI (RT3003 velocities of 1-3 cm/s) the pitch became over-confident without it."""
-        since = self._since_last("_vel_floor_prev", float(stamp_s))
+        self._vel_floor_prev, since = self._since_last(self._vel_floor_prev, float(stamp_s))
         if since is None:
             return 0.0
         dt, v_n, v_prev, T, lag = since
@@ -108,18 +108,18 @@ class DivergenceGuard:
         lever = self.UNMODELLED_LEVER_ARM_M * omega
         return math.sqrt(timing * timing + integ * integ + lever * lever)
 
-    def _since_last(self, slot: str, t: float):
-        """What a model floor at ``t`` needs, and ``t`` with the filter's horizontal velocity kept in ``slot`` for the
-        next one: (the IMU's median period dt, v_n now, v_n at the previous call, T since it, the fusion lag L at
-        the first IMU sample at or after ``t``); None when dt or the previous call (within 3 s) is missing."""
+    def _since_last(self, prev, t: float):
+        """(``t`` with the filter's horizontal velocity, to keep for the next floor; what a model floor at ``t``
+        needs: the IMU's median period dt, v_n now, v_n at ``prev`` (the kept pair of the previous floor), T since it,
+        the fusion lag L at the first IMU sample at or after ``t``; None when dt or a previous floor within 3 s is
+        missing)."""
         sess = self.s
         dt = sess.loop._median_dt
         v_n = np.asarray(sess.outputs.estimate().v_n, float)[:2]
-        prev = getattr(self, slot)
-        setattr(self, slot, (t, v_n))
         if dt is None or not dt > 0 or prev is None or not 0.0 < t - prev[0] <= 3.0:
-            return None
-        return dt, v_n, prev[1], t - prev[0], max((sess.processed_t if sess.processed_t is not None else t) - t, 0.0)
+            return (t, v_n), None
+        return (t, v_n), (dt, v_n, prev[1], t - prev[0],
+                          max((sess.processed_t if sess.processed_t is not None else t) - t, 0.0))
 
     def floored_velocity(self, vel):
         """``vel`` (a GNSS velocity) with its per-axis sigma raised to :meth:`model_floor_vel_m_s` where below it."""
