@@ -96,7 +96,7 @@ class Loop:
         # events: fixes, outputs, zero-velocity updates (stamps increase along the buffer); the run ends at the first
         # sample at which one falls due
         b = sess.buf
-        t_end = sess.next_out_t - 1e-9
+        t_end = math.inf  # outputs fall due inside a run (_finish_run), the other events end it
         if b.fix_t and b.fix_t[0] < t_end:
             t_end = b.fix_t[0]
         if b.vel_t and b.vel_t[0] < t_end:
@@ -212,7 +212,22 @@ class Loop:
         sess._est_memo = None
         try:
             sess.yaw_seed.imu_arrays(T, W, F)
-            core.propagate(T, W, F)
+            # the outputs due inside the run: the core propagated up to each output's sample, which gets what
+            # events_at gives any sample there (no fix, velocity or scheduled update falls due before t_end)
+            k0, n_in = 0, m - 1 if t >= t_end else m  # the last sample, when an event ends the run: events_at
+            while True:
+                k = bisect.bisect_left(Tl, sess.next_out_t - 1e-9, i + k0, i + n_in) - i
+                if k >= n_in:
+                    break
+                core.propagate(T[k0:k + 1], W[k0:k + 1], F[k0:k + 1])
+                sess._est_memo = None
+                self.events_at(Tl[i + k], out)
+                k0 = k + 1
+                if sess.core is not core:  # a restart
+                    return j
+            if k0 < m:
+                core.propagate(T[k0:], W[k0:], F[k0:])
+                sess._est_memo = None
             if t >= t_end:
                 self.events_at(t, out)
         except Exception as exc:  # noqa: BLE001 - a core failure is a fault; the alignment restarts
