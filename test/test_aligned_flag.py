@@ -46,6 +46,24 @@ def test_flag_rises_after_the_hold_time_and_falls_at_once():
     assert f.on_estimate(t + 0.2, good) is False and "criteria hold for 0.0 of 3 s" in f.reason
 
 
+def test_the_hold_counts_float_stamps_as_the_intervals_they_sum():
+    """Output stamps are sums of float intervals: 14.04 plus twenty 0.1-s periods, minus 14.04, is 1.999999999999993;
+    a 2-s hold passes there (the status said "criteria hold for 2.0 of 2 s" with the flag down, for one more output)."""
+    c = AlignedCriteria(roll_pitch_3sigma_deg=1.0, yaw_3sigma_deg=2.0, nis_window=0, hold_s=2.0, max_update_age_s=5.0)
+    f = AlignedFlag(c)
+    good = _P(0.1, 0.1, 0.5)
+    t0 = 14.04
+    f.on_update(t0, True, 3.0)
+    t, raised, stamps = t0, None, []
+    for _ in range(30):
+        stamps.append(t)
+        if f.on_estimate(t, good) and raised is None:
+            raised = t
+        t += 0.1
+    assert stamps[20] - t0 < 2.0  # the float arithmetic the test is about
+    assert raised == stamps[20]
+
+
 def test_flag_needs_fresh_updates_and_a_consistent_nis():
     c = AlignedCriteria(nis_window=4, hold_s=0.0, max_update_age_s=2.0)
     f = AlignedFlag(c)
