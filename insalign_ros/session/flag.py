@@ -36,7 +36,8 @@ import numpy as np
 from ..core.stats import chi2_ppf
 from ..filters.imu_grade import level_floor_rad
 
-
+#: the hold's comparison tolerance [s] (float stamps; far below any output period)
+HOLD_TOL_S = 1e-6
 
 
 @dataclass
@@ -209,7 +210,9 @@ class AlignedFlag:
         if self.holding_since_s is None:
             self.holding_since_s = float(stamp_s)
         held = stamp_s - self.holding_since_s
-        if not self.aligned and held >= self.criteria.hold_s:
+        # (stamps are sums of float intervals: 16.04 - 14.04 s is 1.9999999999999982 s, which a 2-s hold must pass,
+        # not wait another output for)
+        if not self.aligned and held >= self.criteria.hold_s - HOLD_TOL_S:
             self.aligned = True
             self.raised_at_s = float(stamp_s)
             if self.first_raised_at_s is None:
