@@ -63,7 +63,7 @@ def over_dds(d, t_motion: float, log_dir: Path) -> dict:
     saved = {k: os.environ.get(k) for k in env}
     os.environ.update(env)  # the monitor and the driver (in this process) on the node's private domain
     node = start_node(ALIGN, env, log_dir=log_dir, remaps={"imu/data": "/imu/data_raw", "gps/fix": "/fix"},
-                      params={"vehicle": "car"})
+                      params={"vehicle": "car", "imu_qos_depth": 5000})  # 5 s of wall time at the 10x replay
     mon = AlignmentMonitor(keep_poses=100000)
     drv = Driver(d)
     try:
