@@ -221,6 +221,12 @@ def test_vehicle_car_flags_seconds_after_the_first_motion_over_dds(tmp_path, ros
         assert intervals[0][0] - t_motion <= bound_s, (intervals, t_motion)
         assert not np.any(flag & (np.abs(yaw_err) > 2.0)), yaw_err[flag & (np.abs(yaw_err) > 2.0)]
         assert int(diag.get("nhc_accepted", "0")) > 0, diag
+        # an angle's 3-sigma is never published above 180 deg: NaN while the heading is unknown (parked, then the
+        # yaw bank), numbers once it is known
+        with mon.lock:
+            s3 = np.array([v for _, v in mon.sigmas3])
+        assert np.all(np.isnan(s3) | (s3 <= 180.0)), s3[~np.isnan(s3) & (s3 > 180.0)]
+        assert np.isnan(s3[:, 2]).any() and not np.isnan(s3[:, :2]).any() and not np.isnan(s3[-1]).any(), s3[:3]
     finally:
         drv.close()
         mon.close()

@@ -34,9 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-
-#: an angle's 3-sigma above this says nothing about the angle: the CSV writes "unknown", the JSON null
-SIGMA3_UNKNOWN_DEG = 180.0
+from ..core.stats import SIGMA3_UNKNOWN_DEG
 
 
 def _sigma3_cell(x: float) -> str:

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core import earth
-from .align import SIGMA3_UNKNOWN_DEG
+from ..core.stats import SIGMA3_UNKNOWN_DEG
 from .bringup import isolated_ros_env, start_node, stop_nodes, wait_for_exit
 
 QOS_CHOICES = ("sensor_data", "reliable")  # as insalign_ros/nodes/qos.py (not imported: it needs rclpy)
@@ -152,7 +152,8 @@ def _sim_summary(text: str) -> dict:
 
 
 def _fmt3(v) -> str:
-    return "  ".join(f"{x:+8.3f}" for x in v) if v is not None else "   -"
+    """Three angles [deg]; NaN (the node's ~/euler_error_3sigma of an unknown angle) as "unknown"."""
+    return "  ".join(f"{x:+8.3f}" if x == x else " unknown" for x in v) if v is not None else "   -"
 
 
 def run_alignment(args, log_dir: Path, out=None) -> tuple[int, dict]:
