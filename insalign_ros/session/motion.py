@@ -43,6 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core.lie import cross3
 from ..core.stats import chi2_ppf
 from ..filters import imu_grade
 from ..filters.config import ConfigDict
@@ -197,7 +198,7 @@ def last_window_statistics(omega_ib_b: np.ndarray, f_ib_b: np.ndarray, cfg: Moti
     f_ref = f_ref_c + f_ib_b[0]
     theta_ref = theta[:Nr].sum(0) / Nr
     sum_f_c, sum_theta = fc[Nr:].sum(0), theta[Nr:].sum(0)
-    dv = dt * (sum_f_c - Nv * f_ref_c + np.cross(sum_theta - Nv * theta_ref, f_ref))
+    dv = dt * (sum_f_c - Nv * f_ref_c + cross3(sum_theta - Nv * theta_ref, f_ref))
     u = f_ref / math.sqrt(float(f_ref @ f_ref))
     dv_h = dv - float(dv @ u) * u
     out["dv_h"] = math.sqrt(float(dv_h @ dv_h))
