@@ -115,62 +115,50 @@ def test_unknown_heading_179_deg_off_aligns_with_the_yaw_hypothesis_bank(tmp_pat
         mon.close()
 
 
-def _start_group(cores, scenario, tmp_path, ros_env, nodes, mons, topics=""):
-    """One alignment_node per core (node renamed, its monitor in ``mons``) and one simulator of ``scenario`` (the
-    last of ``nodes``); with ``topics`` (a prefix) the group's input topics are remapped under it, so that two groups
-    share the domain."""
+def _run_group(cores, scenario, tmp_path, ros_env):
     from insalign_ros.nodes.monitor import AlignmentMonitor
 
-    remaps = {t: f"{topics}/{t}" for t in ("imu/data", "gps/fix", "gps/vel", "ground_truth/pose")} if topics else {}
-    for c in cores:
-        mons[c] = AlignmentMonitor(node_name=f"align_{c}")
-    for c in cores:
-        nodes.append(start_node(ALIGN, ros_env, log_dir=tmp_path, name=f"align_{c}",
-                                params={"core": c, "init_from_ground_truth": True,
-                                        "init_rpy_error_deg": "[2.0, 2.0, 10.0]",
-                                        "imu_grade": SCENARIO_IMU_GRADE[scenario]},
-                                remaps={"__node": f"align_{c}", **remaps}))
-    nodes.append(start_node(SIM, ros_env, log_dir=tmp_path, name=f"sim_{scenario}", params={
-        "source": "scenario", "scenario": scenario, "duration_s": 10.0, "rate_hz": 100.0, "rate_factor": 2.5,
-        "wait_for_subscribers": len(cores), "wait_timeout_s": 180.0}, remaps=remaps))
-
-
-def _check_group(mons, sim, nodes):
-    assert wait_for_exit(sim, 100.0) == 0, sim.output()[-2000:]
-    for c, m in mons.items():
-        node = next(n for n in nodes if n.name == f"align_{c}")
-        assert m.wait_for(lambda mm: mm.pose_count >= 40, 10.0), (c, m.pose_count, m.diag, node.output()[-2000:])
-        with m.lock:
-            poses = list(m.poses)
-        for msg in poses:
-            ok, why = _pose_cov_ok(msg)
-            assert ok, (c, why)
-            assert msg.header.frame_id == "map"  # world_frame (REP 105)
-            q = msg.pose.pose.orientation
-            assert abs(q.x**2 + q.y**2 + q.z**2 + q.w**2 - 1.0) < 1e-9
-        assert m.wait_for(lambda mm: mm.diag.get("core") == c and mm.diag.get("core_faults") == "0", 5.0), m.diag
+    mons = {c: AlignmentMonitor(node_name=f"align_{c}") for c in cores}
+    nodes = []
+    try:
+        for c in cores:
+            nodes.append(start_node(ALIGN, ros_env, log_dir=tmp_path, name=f"align_{c}",
+                                    params={"core": c, "init_from_ground_truth": True,
+                                            "init_rpy_error_deg": "[2.0, 2.0, 10.0]",
+                                            "imu_grade": SCENARIO_IMU_GRADE[scenario]},
+                                    remaps={"__node": f"align_{c}"}))
+        sim = start_node(SIM, ros_env, log_dir=tmp_path, name=f"sim_{scenario}", params={
+            "source": "scenario", "scenario": scenario, "duration_s": 10.0, "rate_hz": 100.0, "rate_factor": 2.5,
+            "wait_for_subscribers": len(cores), "wait_timeout_s": 180.0})
+        nodes.append(sim)
+        assert wait_for_exit(sim, 100.0) == 0, sim.output()[-2000:]
+        for c, m in mons.items():
+            assert m.wait_for(lambda mm: mm.pose_count >= 40, 10.0), (c, m.pose_count, m.diag,
+                                                                        nodes[cores.index(c)].output()[-2000:])
+            with m.lock:
+                poses = list(m.poses)
+            for msg in poses:
+                ok, why = _pose_cov_ok(msg)
+                assert ok, (c, why)
+                assert msg.header.frame_id == "map"  # world_frame (REP 105)
+                q = msg.pose.pose.orientation
+                assert abs(q.x**2 + q.y**2 + q.z**2 + q.w**2 - 1.0) < 1e-9
+            assert m.wait_for(lambda mm: mm.diag.get("core") == c and mm.diag.get("core_faults") == "0", 5.0), m.diag
+    finally:
+        stop_nodes(nodes)
+        for m in mons.values():
+            m.close()
 
 
 @pytest.mark.timeout(380)
 def test_every_core_publishes_pose_with_spd_covariance(tmp_path, ros_env):
     """One simulator and one alignment_node per registered core (node renamed), in the same isolated domain:
-    the GNSS-aided cores on the ship, the others (static, zero-velocity or averaging) on the static scenario. The
-    two groups run at the same time (the static group's topics remapped under /static): one after the other, the
-    test took 29 s on an idle machine, half of it each group's processes starting."""
+    the GNSS-aided cores on the ship, the others (static, zero-velocity or averaging) on the static scenario."""
     from insalign_ros.filters.registry import core_names, make_core
 
     gnss = [c for c in core_names() if GnssPosition in make_core(c, {}).accepts]
     other = [c for c in core_names() if c not in gnss]
-    assert {"liekf", "pi_liekf", "iekf", "ekf"} <= set(gnss) and other
-    nodes, ship, static = [], {}, {}
-    try:
-        _start_group(gnss, "ship", tmp_path, ros_env, nodes, ship)
-        sim_ship = nodes[-1]
-        _start_group(other, "static", tmp_path, ros_env, nodes, static, topics="/static")
-        sim_static = nodes[-1]
-        _check_group(ship, sim_ship, nodes)
-        _check_group(static, sim_static, nodes)
-    finally:
-        stop_nodes(nodes)
-        for m in (*ship.values(), *static.values()):
-            m.close()
+    assert {"liekf", "pi_liekf", "iekf", "ekf"} <= set(gnss)
+    _run_group(gnss, "ship", tmp_path, ros_env)
+    if other:
+        _run_group(other, "static", tmp_path, ros_env)
