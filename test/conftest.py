@@ -61,7 +61,7 @@ def pytest_configure(config):
 _LONG_TESTS_S = {
     "test_node_ready.py::test_cold_numba_cache": 45.0,
     "test_node_stamp_jitter.py::test_host_stamp_jitter_over_dds": 31.0,
-    "test_node_e2e.py::test_every_core_publishes_pose": 24.0,
+    "test_node_e2e.py::test_every_core_publishes_pose": 30.0,
     "test_node_driver_style.py::test_driver_style_stream_with_default_parameters": 23.0,
     "test_sample_bag.py::test_the_sample_bag_replays": 22.0,
     "test_node_demo.py::test_demo_aligns": 21.0,
