@@ -69,7 +69,14 @@ def _compare(mon, summary, result, t0_s):
 
 
 @pytest.mark.timeout(400)
-@pytest.mark.parametrize("core,scenario", [("iekf", "ship"), ("pkf", "static")])
+@pytest.mark.parametrize("core,scenario", [
+    # -m slow (11-15 s): test_imu_axes.py::test_imu_axes_over_dds_frd_mounted_equals_the_flu_offline_run runs the same
+    # core on a ship bag (seed 1, 30 s, the same initial guess) through imu_sim_node -> alignment_node and asserts the
+    # same equality with the offline API to 1e-9 rad, with the FRD mounting on top (measured 1.4e-10 rad; here
+    # 9.1e-11); the pose-paced replay stays in the pkf case below
+    pytest.param("iekf", "ship", marks=pytest.mark.slow),
+    ("pkf", "static"),
+])
 def test_node_over_dds_equals_the_offline_api(tmp_path, ros_env, core, scenario):
     from insalign_ros.io.bag import write_bag
     from insalign_ros.sim.scenarios import make_scenario
