@@ -142,7 +142,9 @@ def _stream_and_collect(drv, mon, node, d, nearest: bool):
     ("car", 150.0, {"heading_deg": -120.0}, 1.0, None),  # (a) already moving at 15 m/s at start-up
     # (b) a ship, moving from the start: the longest DDS run of the suite (240 s of data for a flag at 207 s, 31 s of
     # a 10-min suite), -m slow; in the default run the same data and defaults go through the session offline
-    # (test_default_parameters_on_the_ship_offline below) and the ship over DDS with its grade (paper_ship, 105 s)
+    # (test_default_parameters_on_the_ship_offline below; the ship with its grade, paper_ship, 105 s, is -m slow too:
+    # offline in test_grade_matched_runs_offline; a ship over DDS with the default core in test_node_demo.py and
+    # test_sample_bag.py)
     pytest.param("ship", 240.0, {}, 2.0, None, marks=pytest.mark.slow),
     ("park_drive", 105.0, {"heading_deg": 150.0, "park_s": 40.0}, 1.0, None),  # (c) parked 40 s, then driving
     # the second run of each: the imu_grade matching the IMU (offline, fixes 150 ms late: flag at 29 / 56 / 56 s).
