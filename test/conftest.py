@@ -53,37 +53,51 @@ def pytest_configure(config):
     _WARMUP["s" if not any(rcs) else "error"] = time.perf_counter() - t0 if not any(rcs) else f"exit codes {rcs}"
 
 
-#: wall time of the longest tests [s] (scripts/test on 2 workers, cold cache, load average 4-13 on the 2-core machine;
-#: the cold-cache test was 75 s in CI on the default core) by node id prefix: only the order of the run depends on it
-#: (longest first), never a result; a test not listed counts 10 s when it starts nodes over DDS (marker ``ros``),
-#: 0.5 s otherwise
+#: wall time of the longest tests [s] (scripts/test on 2 workers, warm kernel cache, load average 2 on the 2-core
+#: machine; the cold-cache test compiles the static core's kernels, 30-48 s) by node id prefix: only the order of the
+#: run depends on it (longest first; the tests marked wallclock balanced between the workers, so that both finish
+#: theirs at the same time), never a result; a test not listed counts 10 s when it starts nodes over DDS (marker
+#: ``ros``), 0.5 s otherwise
 _LONG_TESTS_S = {
-    "test_node_ready.py::test_cold_numba_cache": 100.0,
-    "test_node_e2e.py::test_every_core_publishes_pose": 43.0,
-    "test_node_bad_input.py::test_bad_input_is_rejected": 35.0,
-    "test_node_stamp_jitter.py::test_host_stamp_jitter_over_dds": 35.0,
-    "test_sample_bag.py::test_the_sample_bag_replays": 30.0,
-    "test_node_equivalence.py::test_lagged_fixes_over_dds": 29.0,
-    "test_node_outputs.py::test_imu_datum_and_reset_over_dds": 29.0,
-    "test_align_fleet.py::test_fleet_on_two_workers": 29.0,
-    "test_node_ready.py::test_imu_only_once_aligned": 27.0,
-    "test_node_demo.py::test_demo_aligns": 24.0,
-    "test_node_bag_replay.py::test_replayed_bag_reaches_aligned": 24.0,
-    "test_node_driver_style.py::test_driver_style_stream_with_default_parameters": 20.0,
-    "test_node_equivalence.py::test_node_over_dds_equals_the_offline_api": 20.0,
-    "test_imu_axes.py::test_imu_axes_over_dds": 19.0,
-    "test_node_e2e.py::test_ship_run_reaches_aligned": 18.0,
-    "test_coarse_rocking.py::test_three_sigma_covers_rocking": 17.0,
-    "test_session_fuzz.py::test_session_survives_any_fault": 15.0,
-    "test_node_bag_replay.py::test_paced_bag_replay": 16.0,
-    "test_first_run.py::test_read_only_install": 12.0,
-    "test_backtrack.py::test_driver_live_feed_budgeted": 12.0,
-    "test_backtrack.py::test_backward_and_catch_up_300s": 11.0,
-    "test_auto_mode.py::test_park_drive_navgrade_heading": 9.0,
-    "test_speed_paths.py::test_session_fast_path_matches_per_sample_over_300_s": 8.0,
-    "test_session.py::test_session_equals_the_per_event_runner": 7.0,
-    "test_lie.py::test_exp_log_round_trip_10000": 7.0,
-    "test_sim_scenarios.py::test_closing_the_loop_noise_free": 6.0,
+    "test_node_ready.py::test_cold_numba_cache": 45.0,
+    "test_node_stamp_jitter.py::test_host_stamp_jitter_over_dds": 31.0,
+    "test_node_e2e.py::test_every_core_publishes_pose": 30.0,
+    "test_node_driver_style.py::test_driver_style_stream_with_default_parameters": 23.0,
+    "test_sample_bag.py::test_the_sample_bag_replays": 22.0,
+    "test_node_demo.py::test_demo_aligns": 19.0,
+    "test_node_outputs.py::test_imu_datum_and_reset_over_dds": 20.0,
+    "test_node_bad_input.py::test_bad_input_is_rejected": 19.0,
+    "test_node_equivalence.py::test_lagged_fixes_over_dds": 15.0,
+    "test_node_bag_replay.py::test_replayed_bag_reaches_aligned": 16.0,
+    "test_node_equivalence.py::test_node_over_dds_equals_the_offline_api": 15.0,
+    "test_node_driver_style.py::test_vehicle_car_flags_seconds_after_the_first_motion": 14.0,
+    "test_imu_axes.py::test_imu_axes_over_dds": 14.0,
+    "test_node_demo.py::test_demo_fails_with_the_reason": 12.0,
+    "test_node_ready.py::test_imu_only_once_aligned": 12.0,
+    "test_node_bag_replay.py::test_paced_bag_replay": 12.0,
+    "test_auto_mode_dds.py::test_auto_core_goes_through_the_states": 12.0,
+    "test_node_e2e.py::test_unknown_heading_179_deg_off": 12.0,
+    "test_node_e2e.py::test_ship_run_reaches_aligned": 11.0,
+    "test_align_fleet.py::test_fleet_on_two_workers": 9.0,
+    "test_session_fuzz.py::test_session_survives_any_fault": 8.0,
+    "test_coarse_rocking.py::test_three_sigma_covers_rocking": 6.0,  # the module's rocking runs (a shared fixture)
+    "test_speed_paths.py::test_session_fast_path_matches_per_sample_over_300_s": 4.0,
+    "test_mechanization_e.py::test_forward_reproduces_truth_then_inverse": 4.0,
+    "test_auto_mode.py::test_park_drive_navgrade_heading": 4.0,
+    "test_first_run.py::test_read_only_install": 5.0,
+    "test_backtrack.py::test_backward_and_catch_up_300s": 2.0,
+    "test_session.py::test_session_equals_the_per_event_runner": 3.0,
+    "test_lie.py::test_exp_log_round_trip_10000": 1.5,
+    "test_sim_scenarios.py::test_closing_the_loop_noise_free": 3.0,
+    # marked wallclock (each runs alone)
+    "test_backtrack_node.py::test_node_backtracking_two_position": 7.0,
+    "test_pi_liekf.py::test_sync_solve_waits_at_most_the_budget": 3.5,
+    "test_pi_liekf.py::test_async_lmi_never_blocks_an_update": 3.2,
+    "test_pi_liekf.py::test_offline_default_is_synchronous": 1.4,
+    "test_pi_liekf.py::test_a_slow_lmi_on_a_weakly_excited_ship": 1.4,
+    "test_backtrack.py::test_driver_live_feed_budgeted": 1.2,
+    "test_pi_liekf.py::test_async_solve_that_overruns_the_budget": 1.0,
+    "test_pi_liekf.py::test_close_is_idempotent": 0.9,
 }
 
 
@@ -95,24 +109,81 @@ def _expected_s(item) -> float:
     return 10.0 if item.get_closest_marker("ros") is not None else 0.5
 
 
+def _shared_fixture_keys(item) -> list:
+    """(module file, fixture name) of each module-, class- or package-scoped fixture ``item`` uses: the tests that
+    share one must run one after the other on one worker, or pytest sets the fixture up again (a module's fixture is
+    torn down as soon as the next test is of another module)."""
+    info = getattr(item, "_fixtureinfo", None)
+    if info is None:
+        return []
+    path = item.nodeid.split("::")[0]
+    keys = []
+    for name in info.names_closure:
+        defs = info.name2fixturedefs.get(name)
+        if defs and str(getattr(defs[-1], "scope", "function")).split(".")[-1].lower() in ("module", "class", "package"):
+            keys.append((path, name))
+    return keys
+
+
+def _groups(items) -> list:
+    """``items`` in groups that share a module/class-scoped fixture (union over shared fixtures), collection order
+    kept inside each group; every other test is a group of its own."""
+    parent = list(range(len(items)))
+
+    def find(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    first: dict = {}
+    for i, it in enumerate(items):
+        for key in _shared_fixture_keys(it):
+            j = first.setdefault(key, i)
+            parent[find(i)] = find(j)
+    out: dict = {}
+    for i, it in enumerate(items):
+        out.setdefault(find(i), []).append(it)
+    return list(out.values())
+
+
 @pytest.hookimpl(trylast=True)  # after the -m deselection: the slices must be of the items that run
 def pytest_collection_modifyitems(config, items):
     """Under pytest-xdist, the longest tests first on every worker: pytest-xdist's ``worksteal`` (scripts/test)
     hands each worker one contiguous slice of the collection and lets an idle worker steal the tail of another's
-    queue, so the items are dealt round-robin by expected duration into one slice per worker, each slice longest
-    first. A long test left for the end (the collection's file order put the DDS tests there) kept one worker busy
-    for a minute while the other idled. Without xdist the order is pytest's."""
+    queue, so the tests are dealt by expected duration into one slice per worker, each slice longest first. A long
+    test left for the end (the collection's file order put the DDS tests there) kept one worker busy for a minute
+    while the other idled. The tests that share a module-scoped fixture are dealt together and run one after the
+    other (dealt one by one, test_coarse_rocking.py computed its 12 rocking runs three times: 16 s instead of 5).
+    Without xdist the order is pytest's."""
     n = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "0") or 0)
     if n < 2 or not items:
         return
+
+    def wallclock(g):
+        return any(it.get_closest_marker("wallclock") is not None for it in g)
+
     # the tests marked wallclock first (each takes the machine alone: one placed among the long DDS tests waited for
-    # the other worker's current one, 20 s a time; together at the start they wait only for each other)
-    ranked = sorted(items, key=lambda it: (it.get_closest_marker("wallclock") is not None, _expected_s(it)),
-                    reverse=True)  # stable: file order among equals
+    # the other worker's current one, 20 s a time; together at the start they wait only for each other), then the
+    # groups by expected duration (stable: file order among equals)
+    groups = sorted(_groups(items), key=lambda g: (wallclock(g), sum(map(_expected_s, g))), reverse=True)
     # the shorter slices first: worksteal sends len(pending) // (workers left) to each worker in turn, so the
-    # slices then match its chunks exactly (one item off, a slice's last, shortest test would start another worker)
-    slices = sorted((ranked[i::n] for i in range(n)), key=len)
-    items[:] = [it for s in slices for it in s]
+    # slices must hold exactly its chunks' numbers of tests (one test off, a slice's last, shortest test would start
+    # another worker); each group goes to the slice with the least expected time that still has room for it
+    N = len(items)
+    room = [N // n + (1 if i >= n - N % n else 0) for i in range(n)]
+    slices: list = [[] for _ in range(n)]
+    load = [0.0] * n
+    for g in groups:
+        fits = [i for i in range(n) if room[i] >= len(g)] or [max(range(n), key=lambda i: room[i])]
+        i = min(fits, key=lambda i: (load[i], i))
+        slices[i].append(g)
+        room[i] -= len(g)
+        load[i] += sum(map(_expected_s, g))
+    # inside a slice: wallclock first, then the group of the longest test first
+    items[:] = [it for sl in slices
+                for g in sorted(sl, key=lambda g: (wallclock(g), max(map(_expected_s, g))), reverse=True)
+                for it in g]
 
 
 def pytest_report_header(config):

@@ -136,7 +136,9 @@ def test_imu_axes_over_dds_frd_mounted_equals_the_flu_offline_run(tmp_path, monk
         diffs, n_pub, n_off = _compare(mon, summary, ref, float(d.t_s[0]))
         print(f"FRD mounted over DDS: {len(diffs)} common stamps of {n_pub} published / {n_off} offline FLU; max "
               f"difference {diffs.max():.3g} rad")
-        assert len(diffs) >= 0.9 * n_off and diffs.max() < 1e-6
+        # 1e-9 rad, as test_node_equivalence.py's plain FLU run (measured 1.4e-10: the conversion's rounding only);
+        # this test stands for that run's iekf-on-a-ship case in the default run
+        assert len(diffs) >= 0.9 * n_off and diffs.max() < 1e-9
     finally:
         stop_nodes(nodes)
         mon.close()

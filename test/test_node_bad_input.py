@@ -87,7 +87,9 @@ class Feeder:
     def pace(self):
         self.sent += 1
         if self.sent % 100 == 0:
-            time.sleep(0.15)  # ~650 messages/s (the machine is shared; throughput is benchmarks/node_latency.py)
+            # ~1,000 messages/s idle (650 at 0.15 s: 6 s more of the test); the node may lag under load: reliable
+            # histories deeper than the stream lose nothing and every check below waits on state
+            time.sleep(0.1)  # (the machine is shared; throughput is benchmarks/node_latency.py)
 
     def stream(self, k0, k1, t_offset=0.0, gps=True, inject=None):
         """Publish samples k0..k1-1 (truth every 5th, fixes at their stamps); inject(k) may publish extras."""
@@ -141,7 +143,7 @@ def test_bad_input_is_rejected_counted_and_the_node_keeps_aligning(tmp_path, ros
     from insalign_ros.sim.scenarios import make_scenario
 
     rate = 50.0
-    data = make_scenario("ship", seed=5, duration_s=260.0, rate_hz=rate)
+    data = make_scenario("ship", seed=5, duration_s=160.0, rate_hz=rate)
     node = start_node(ALIGN, ros_env, log_dir=tmp_path, params={
         "core": "liekf", "init_from_ground_truth": True, "init_rpy_error_deg": "[3.0, -3.0, 30.0]",
         "imu_grade": "paper_ship", "gnss_frame_id": "gps_link", "imu_frame_id": "imu_link", "imu_qos": "reliable", "imu_qos_depth": 20000, "gnss_qos": "reliable",
@@ -207,15 +209,16 @@ def test_bad_input_is_rejected_counted_and_the_node_keeps_aligning(tmp_path, ros
         feed.stream(k_drop + 15, kA, inject=inject)  # 15 samples = 0.3 s lost
         count("imu_gaps")
         assert mon.wait_for(lambda m: m.aligned is True, 15.0), (mon.diag, mon.aligned_history)
-        # segment B, 60-200 s: no GNSS for 140 s (the flag must fall: no fresh update)
-        kB = int(200 * rate)
+        # segment B, 60-100 s: no GNSS for 40 s, 8 times the flag's 5-s freshness bound (the flag must fall: no fresh
+        # update; 140 s before, 7 s of the test for the same assertions)
+        kB = int(100 * rate)
         feed.stream(kA, kB, gps=False)
         assert mon.wait_for(lambda m: m.aligned is False, 15.0), mon.diag
         assert mon.wait_for(lambda m: "no GNSS fix for" in m.diag.get("message", ""), 10.0), mon.diag
-        # segment C, 200-260 s: GNSS back, the node recovers; a forward jump of 1.5 s (< max_gap_s = 2 s) at 201 s
+        # segment C, 100-160 s: GNSS back, the node recovers; a forward jump of 1.5 s (< max_gap_s = 2 s) at 101 s
         # is a gap, not a reset (in a ship's wave motion the one sample after the gap stands for 1.5 s of rotation:
         # the filter inflates its covariance and re-converges)
-        k_gap = int(201 * rate)
+        k_gap = int(101 * rate)
         feed.stream(kB, k_gap)
         feed.stream(k_gap + 75, data.n)
         count("imu_gaps")
@@ -224,6 +227,8 @@ def test_bad_input_is_rejected_counted_and_the_node_keeps_aligning(tmp_path, ros
         time.sleep(0.5)
         with mon.lock:
             err, s3, diag = mon.euler_error[1].copy(), mon.euler_3sigma[1].copy(), dict(mon.diag)
+        print(f"after the bad input and the 40-s GNSS outage: Euler error {np.round(err, 3)} deg, 3-sigma "
+              f"{np.round(s3, 3)} deg")
         assert node.alive(), node.output()[-3000:]
         assert abs(err[2]) < 2.5 and np.all(np.abs(err[:2]) < 1.0), (err, s3)
         assert np.all(np.abs(err) < s3), (err, s3)

@@ -144,13 +144,20 @@ def _stream_and_collect(drv, mon, node, d, nearest: bool):
     ("car", 150.0, {"heading_deg": -120.0}, 1.0, None),  # (a) already moving at 15 m/s at start-up
     # (b) a ship, moving from the start: the longest DDS run of the suite (240 s of data for a flag at 207 s, 31 s of
     # a 10-min suite), -m slow; in the default run the same data and defaults go through the session offline
-    # (test_default_parameters_on_the_ship_offline below) and the ship over DDS with its grade (paper_ship, 105 s)
+    # (test_default_parameters_on_the_ship_offline below; the ship with its grade, paper_ship, 105 s, is -m slow too:
+    # offline in test_grade_matched_runs_offline; a ship over DDS with the default core in test_node_demo.py and
+    # test_sample_bag.py)
     pytest.param("ship", 240.0, {}, 2.0, None, marks=pytest.mark.slow),
     ("park_drive", 105.0, {"heading_deg": 150.0, "park_s": 40.0}, 1.0, None),  # (c) parked 40 s, then driving
-    # the second run of each: the imu_grade matching the IMU (offline, fixes 150 ms late: flag at 32 / 59 / 59 s)
-    ("car", 90.0, {"heading_deg": -120.0}, 1.0, "industrial_mems"),
-    ("ship", 105.0, {}, 2.0, "paper_ship"),
-    ("park_drive", 105.0, {"heading_deg": 150.0, "park_s": 40.0}, 1.0, "industrial_mems"),
+    # the second run of each: the imu_grade matching the IMU (offline, fixes 150 ms late: flag at 29 / 56 / 56 s).
+    # -m slow (16-18 s each over DDS, 50 s of a 6-min suite): the driver-style DDS part is the same as in (a) and (c)
+    # above, and the grade reaches the node as a parameter in test_imu_grade.py::test_node_imu_grade_parameter; in
+    # the default run the same data, grades and late fixes go through the session offline
+    # (test_grade_matched_runs_offline below, the same assertions)
+    pytest.param("car", 90.0, {"heading_deg": -120.0}, 1.0, "industrial_mems", marks=pytest.mark.slow),
+    pytest.param("ship", 105.0, {}, 2.0, "paper_ship", marks=pytest.mark.slow),
+    pytest.param("park_drive", 105.0, {"heading_deg": 150.0, "park_s": 40.0}, 1.0, "industrial_mems",
+                 marks=pytest.mark.slow),
 ])
 def test_driver_style_stream_with_default_parameters(tmp_path, ros_env, scenario, duration_s, overrides, bound_deg,
                                                      grade):
@@ -250,3 +257,29 @@ def test_default_parameters_on_the_ship_offline():
     assert r.aligned.any() and first is not None and first > 60.0, first  # not before the grade-matched run's 59 s
     assert not np.any(r.aligned & (np.abs(yaw_err) > 3.0)), yaw_err[r.aligned & (np.abs(yaw_err) > 3.0)]
     assert abs(yaw_err[-1]) < yaw_3s[-1] and abs(yaw_err[-1]) < 2.0, (yaw_err[-1], yaw_3s[-1])
+
+
+@pytest.mark.parametrize("scenario,duration_s,overrides,bound_deg,grade", [
+    ("car", 90.0, {"heading_deg": -120.0}, 1.0, "industrial_mems"),
+    ("ship", 105.0, {}, 2.0, "paper_ship"),
+    ("park_drive", 105.0, {"heading_deg": 150.0, "park_s": 40.0}, 1.0, "industrial_mems"),
+])
+def test_grade_matched_runs_offline(scenario, duration_s, overrides, bound_deg, grade):
+    """The grade-matched cases of test_driver_style_stream_with_default_parameters (over DDS: -m slow) through the
+    session offline: the same data (seed 4, 100 Hz), the imu_grade matching the IMU, the other parameters default
+    (core auto), fixes 150 ms late, no ground truth: flag up (first at 29 / 56 / 56 s), never up with |yaw error| >
+    3 deg, final |yaw error| under the bound and inside its 3-sigma, nothing rejected or stale."""
+    from insalign_ros.session.offline import align
+    from insalign_ros.sim.scenarios import make_scenario
+
+    d = make_scenario(scenario, seed=4, duration_s=duration_s, rate_hz=100.0, **overrides)
+    r = align(d, fix_delay_s=0.15, imu_grade=grade)
+    yaw_err, yaw_3s = r.rpy_err_deg[:, 2], r.sigma3_deg[:, 2]
+    print(f"{scenario} offline, imu_grade {grade} (core {r.core}): flag first raised at "
+          f"{r.metrics['aligned_first_raised_at_s']} s, final yaw error {yaw_err[-1]:+.3f} deg (3-sigma "
+          f"{yaw_3s[-1]:.3f} deg)")
+    assert r.aligned.any(), r.diagnostics.get("message")
+    assert abs(yaw_err[-1]) < yaw_3s[-1], (yaw_err[-1], yaw_3s[-1])
+    assert not np.any(r.aligned & (np.abs(yaw_err) > 3.0)), yaw_err[r.aligned & (np.abs(yaw_err) > 3.0)]
+    assert abs(yaw_err[-1]) < bound_deg, yaw_err[-1]
+    assert r.counters["gnss_stale"] == 0 and r.counters["imu_rejected"] == 0, r.counters

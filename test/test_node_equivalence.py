@@ -69,7 +69,14 @@ def _compare(mon, summary, result, t0_s):
 
 
 @pytest.mark.timeout(400)
-@pytest.mark.parametrize("core,scenario", [("iekf", "ship"), ("pkf", "static")])
+@pytest.mark.parametrize("core,scenario", [
+    # -m slow (11-15 s): test_imu_axes.py::test_imu_axes_over_dds_frd_mounted_equals_the_flu_offline_run runs the same
+    # core on a ship bag (seed 1, 30 s, the same initial guess) through imu_sim_node -> alignment_node and asserts the
+    # same equality with the offline API to 1e-9 rad, with the FRD mounting on top (measured 1.4e-10 rad; here
+    # 9.1e-11); the pose-paced replay stays in the pkf case below
+    pytest.param("iekf", "ship", marks=pytest.mark.slow),
+    ("pkf", "static"),
+])
 def test_node_over_dds_equals_the_offline_api(tmp_path, ros_env, core, scenario):
     from insalign_ros.io.bag import write_bag
     from insalign_ros.sim.scenarios import make_scenario
@@ -103,7 +110,8 @@ def test_lagged_fixes_over_dds_give_the_on_time_result_and_the_watchdog_drops_th
     from insalign_ros.io.bag import write_bag
     from insalign_ros.sim.scenarios import make_scenario
 
-    d = make_scenario("ship", seed=2, duration_s=60.0)
+    # 40 s of ship (60 before: 2 s more of the replay at rate factor 10): the flag is up from 16 s on
+    d = make_scenario("ship", seed=2, duration_s=40.0)
     bag = write_bag(d, tmp_path / "bag")
     rpy0 = (np.degrees(earth.rpy_from_C_b_n(d.C_b_n[0])) + [1.0, -1.0, 3.0]).tolist()
     session = {"init_mode": "guess", "initial_rpy_deg": rpy0, "initial_velocity_enu_m_s": d.v_n[0].tolist(),

@@ -98,7 +98,9 @@ def _run(tmp_path, ros_env, d, jitter_s, drop):
 def test_host_stamp_jitter_over_dds(tmp_path, ros_env, rate_hz):
     from insalign_ros.sim.scenarios import make_scenario
 
-    d = make_scenario("car", seed=4, duration_s=40.0, rate_hz=rate_hz, heading_deg=-120.0)
+    # 25 s of data (40 s before, 9 s more of the test): the dropout at 20 s, after the rate model's first 9 updates
+    # (every 200 intervals, session/gaps.py) and 2,000 jittered intervals in which a jitter counted as a gap would show
+    d = make_scenario("car", seed=4, duration_s=25.0, rate_hz=rate_hz, heading_deg=-120.0)
     gaps_clean, cpu_clean, _ = _run(tmp_path / "clean", ros_env, d, 0.0, None)
     gaps_jit, cpu_jit, log = _run(tmp_path / "jitter", ros_env, d, 0.005, (20.0, 20.3))
     # the node's line per gap: "IMU gap of <length> s before <stamp of the sample after it>"
