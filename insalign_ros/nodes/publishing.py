@@ -26,6 +26,7 @@ from sensor_msgs.msg import Imu, NavSatFix
 from std_msgs.msg import Bool
 
 from ..core import earth
+from ..core.stats import SIGMA3_UNKNOWN_DEG
 from . import conversions as cv
 
 try:  # tf2_msgs is a ROS package (not on PyPI): without it the node runs, publish_tf warns once and is ignored
@@ -169,8 +170,9 @@ class OutputPublisher:
                 me.header = m3.header
                 me.vector.x, me.vector.y, me.vector.z = (float(x) for x in o.euler_error_deg)
                 self.pub_err.publish(me)
-            if err3:
-                m3.vector.x, m3.vector.y, m3.vector.z = (float(x) for x in o.euler_3sigma_deg)
+            if err3:  # NaN where the angle is unknown (3-sigma above SIGMA3_UNKNOWN_DEG)
+                m3.vector.x, m3.vector.y, m3.vector.z = (float(x) if x <= SIGMA3_UNKNOWN_DEG else math.nan
+                                                         for x in o.euler_3sigma_deg)
                 self.pub_err3.publish(m3)
         self.publish_flag(bool(s.aligned))
         if outs:
