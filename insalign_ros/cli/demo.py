@@ -153,7 +153,7 @@ def _sim_summary(text: str) -> dict:
 
 def _fmt3(v) -> str:
     """Three angles [deg]; NaN (the node's ~/euler_error_3sigma of an unknown angle) as "unknown"."""
-    return "  ".join(f"{x:+8.3f}" if x == x else " unknown" for x in v) if v is not None else "   -"
+    return "  ".join(" unknown" if math.isnan(x) else f"{x:+8.3f}" for x in v) if v is not None else "   -"
 
 
 def run_alignment(args, log_dir: Path, out=None) -> tuple[int, dict]:

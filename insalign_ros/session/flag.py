@@ -210,8 +210,8 @@ class AlignedFlag:
         if self.holding_since_s is None:
             self.holding_since_s = float(stamp_s)
         held = stamp_s - self.holding_since_s
-        # (stamps are sums of float intervals: 16.04 - 14.04 s is 1.9999999999999982 s, which a 2-s hold must pass,
-        # not wait another output for)
+        # (stamps are sums of float intervals: 14.04 s plus twenty 0.1-s periods, minus 14.04 s, is 1.999999999999993 s,
+        # which a 2-s hold must pass, not wait another output for)
         if not self.aligned and held >= self.criteria.hold_s - HOLD_TOL_S:
             self.aligned = True
             self.raised_at_s = float(stamp_s)

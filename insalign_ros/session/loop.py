@@ -1,6 +1,7 @@
-"""The processing loop: buffered IMU samples up to the fusion horizon go to the core in stamp order, runs without
-events as arrays (``core.propagate``), the samples at which something falls due (a fix, an output, a gap, a
-possible spike) one by one (arrays of length 1: the same entry). Period tracking, spike dropping and gap bridging live here.
+"""The processing loop: buffered IMU samples up to the fusion horizon go to the core in stamp order, runs up to the
+next event as arrays (``core.propagate``, split at the samples where an output falls due), the samples that need
+attention (a possible gap or spike) one by one (arrays of length 1: the same entry). Period tracking, spike dropping
+and gap bridging live here.
 
 docs/session.md ("Time line", "Gaps"), docs/speed.md."""
 
@@ -77,8 +78,9 @@ class Loop:
 
     def _fast_run(self, plan: "FastPlan", i: int, out: list[Output]) -> int:
         """Process samples ``i:j`` of the plan in one batch when none of them needs per-sample attention, the last
-        one possibly a sample at which events fall due (fixes, a zero-velocity update, an output: handled after the
-        batch, as ``_step`` does after that sample); return ``j`` (``i``: nothing done, the caller takes the per-sample
+        one possibly a sample at which events fall due (fixes, GNSS velocities, wheel speeds, a scheduled update:
+        handled after the batch, as ``_step`` does after that sample); outputs that fall due inside the run are
+        made at their samples (``_finish_run``). Return ``j`` (``i``: nothing done, the caller takes the per-sample
         path).
 
         A sample needs attention when its interval could be a gap or make the spike check return early (bounded with
@@ -93,10 +95,10 @@ class Loop:
                 or self._dt_count < self.dts.maxlen:  # the rate model is updated at every interval until then
             return i
         Tl = plan.Tl
-        # events: fixes, outputs, zero-velocity updates (stamps increase along the buffer); the run ends at the first
-        # sample at which one falls due
+        # events: fixes, GNSS velocities, wheel speeds, scheduled updates (stamps increase along the buffer); the run
+        # ends at the first sample at which one falls due (outputs fall due inside a run: _finish_run)
         b = sess.buf
-        t_end = math.inf  # outputs fall due inside a run (_finish_run), the other events end it
+        t_end = math.inf
         if b.fix_t and b.fix_t[0] < t_end:
             t_end = b.fix_t[0]
         if b.vel_t and b.vel_t[0] < t_end:
@@ -223,7 +225,7 @@ class Loop:
                 sess._est_memo = None
                 self.events_at(Tl[i + k], out)
                 k0 = k + 1
-                if sess.core is not core:  # a restart
+                if sess.core is not core:  # a restart at an output: the rest of the run is dropped, as after a fault
                     return j
             if k0 < m:
                 core.propagate(T[k0:], W[k0:], F[k0:])
