@@ -85,6 +85,57 @@ def test_per_sample_path_gives_the_same_decisions():
     assert d["moving"] and d["gnss_speed_m_s"] == 5.0 and d["dv_h_threshold_m_s"] == tr.thresholds["dv_h_m_s"]
 
 
+def test_array_path_gives_the_per_sample_decisions_and_numbers():
+    # push_imu_arrays (the session's static path) against push_imu row by row, on a park-door-drive-off with a stamp
+    # gap, a non-finite row, a repeated stamp and GNSS speeds: the same decisions and window statistics, bit for bit
+    # (one compiled kernel computes each window from its own rows), at the end of every chunk; until_moving stops
+    # on the row that declares motion
+    sc = make_scenario("park_drive", seed=7, duration_s=14.0, park_s=8.0, door_at_s=2.0)
+    keep = np.ones(sc.n, bool)
+    keep[300:340] = False  # a 0.4-s gap
+    T, W, F = sc.t_s[keep].copy(), sc.omega_ib_b[keep].copy(), sc.f_ib_b[keep].copy()
+    W[500] = np.nan
+    T[700] = T[699]
+    cfg = MotionConfig.from_imu_grade(DEFAULT_IMU_GRADE, sc.imu_spec.rate_hz)
+    gt, gs, gsig = np.arange(0.5, 14.0, 1.0), np.zeros(14), np.full(14, 0.05)
+    gs[9:] = 5.0
+    ref, per_row = MotionDetector(cfg), []
+    j = 0
+    for k in range(len(T)):
+        while j < len(gt) and gt[j] <= T[k]:
+            ref.push_gnss_speed(gt[j], gs[j], gsig[j])
+            j += 1
+        ref.push_imu(T[k], W[k], F[k])
+        per_row.append(ref.diagnostics())
+    first_moving = next(k for k, d in enumerate(per_row) if d["moving"])
+    rng = np.random.default_rng(3)
+    for until_moving in (False, True):
+        det, k, j, compared, bulk = MotionDetector(cfg), 0, 0, 0, 0
+        while k < len(T):
+            end = min(k + int(rng.integers(1, 60)), len(T))
+            while j < len(gt) and gt[j] <= T[end - 1]:  # a speed ahead of a row waits for it (push_imu)
+                det.push_gnss_speed(gt[j], gs[j], gsig[j])
+                j += 1
+            m = det.push_imu_arrays(T[k:end], W[k:end], F[k:end], until_moving=until_moving)
+            if m == 0:
+                det.push_imu(T[k], W[k], F[k])
+                m = 1
+            k += m
+            bulk = max(bulk, m)
+            assert det.diagnostics() == per_row[k - 1] or _same_with_nan(det.diagnostics(), per_row[k - 1])
+            compared += 1
+            if until_moving and det.decision.moving:
+                assert k - 1 == first_moving
+                break
+        assert compared > 20 and bulk > 30
+        if not until_moving:
+            assert det.rejected == ref.rejected == {"imu": 2, "gnss": 0}
+
+
+def _same_with_nan(a: dict, b: dict) -> bool:
+    return a.keys() == b.keys() and all(a[x] == b[x] or (a[x] != a[x] and b[x] != b[x]) for x in a)
+
+
 def test_thresholds_follow_the_imu_grade():
     # without vibration allowance the spread bound is the chi-square bound of white noise: a false-alarm rate
     # near p_false_alarm on pure noise, and the bound scales with the noise density

@@ -194,8 +194,31 @@ class AutoCore(AlignmentCore):
                     self._cruise(T[k:j], W[k:j], F[k:j])
                     k = j
                     continue
+            if self.motion is None and self.detector is not None:
+                # static: the rows the detector takes at once, up to the one that declares motion
+                j = k + self.detector.push_imu_arrays(T[k:], W[k:], F[k:], until_moving=True)
+                if j > k:
+                    self._static_rows(T[k:j], W[k:j], F[k:j], self.detector.decision)
+                    k = j
+                    continue
             self._row(T[k:k + 1], W[k:k + 1], F[k:k + 1])
             k += 1
+
+    def _static_rows(self, T: np.ndarray, W: np.ndarray, F: np.ndarray, dec) -> None:
+        """Rows before the hand-over, their motion decisions made (``dec``: the last one's, None before the detector):
+        the history, the rest blocks, the static core (one block); the hand-over when ``dec`` declares motion."""
+        for t, w, f in zip(T.tolist(), W, F):
+            if self._t is not None and t > self._t:  # the sample is the mean rate over (t_prev, t]
+                mean = self._block.add(t - self._t, w)
+                if mean is not None:
+                    self._blocks.append(mean)
+            self._t = t
+            self.hist.append((t, w, f))
+            while self.hist[0][0] < t - 6.0:
+                self.hist.popleft()
+        self.static.propagate(T, W, F)
+        if dec is not None and dec.moving:
+            self._handover(self._t, dec.since_s)
 
     def _cruise(self, T: np.ndarray, W: np.ndarray, F: np.ndarray) -> None:
         """Rows of :meth:`_row` while in motion with the detector skipped, as one block (the same samples in the same
@@ -214,19 +237,13 @@ class AutoCore(AlignmentCore):
             self.detector_skipped = self._speed() > DETECTOR_SKIP_SPEED_M_S
         skip = self.detector_skipped and self.motion is not None and self.state == "in motion"
         dec = None if skip else self._detect(t, w, f)
+        if self.motion is None:
+            self._static_rows(T, W, F, dec)
+            return
         t_prev, self._t = self._t, t
         self.hist.append((t, w, f))
         while self.hist and self.hist[0][0] < t - 6.0:
             self.hist.popleft()
-        if self.motion is None:
-            if t_prev is not None and t > t_prev:  # the sample is the mean rate over (t_prev, t]
-                mean = self._block.add(t - t_prev, w)
-                if mean is not None:
-                    self._blocks.append(mean)
-            self.static.propagate(T, W, F)
-            if dec is not None and dec.moving:
-                self._handover(t, dec.since_s)
-            return
         self.motion.propagate(T, W, F)
         if self.state == "stopped" and t_prev is not None and t > t_prev:
             self._stop_block(t - t_prev, w, dec is not None and dec.decided and not dec.moving)

@@ -29,10 +29,11 @@ Hysteresis: motion is declared after ``enter_hold_s`` of uninterrupted motion ev
 of uninterrupted rest evidence (quiet IMU, and a fresh GNSS speed if any consistent with zero). Anything else keeps
 the state: a person getting in is neither. Before the first decision the state is undecided (``decided`` False).
 
-Two paths with the same decisions (test/test_motion.py): ``detect_motion`` takes whole arrays (offline, vectorised
-statistics), ``MotionDetector`` takes samples one by one (node/session); both use ``window_statistics`` and
-``_Hysteresis``. The rates are treated as nominal (1 / rate_hz); a stamp gap over 1.5 sample intervals restarts
-the windows (the decision is kept). ``blocking()`` says in words what keeps the state from "parked".
+Two paths with the same decisions (test/test_motion.py): ``detect_motion`` takes whole arrays (offline),
+``MotionDetector`` takes samples one by one (``push_imu``) or runs of them (``push_imu_arrays``, the same numbers bit
+for bit); all compute the window statistics with one compiled kernel (motion_kernels.py) and decide with
+``_Hysteresis``. The rates are treated as nominal (1 / rate_hz); a stamp gap over ``GAP_FACTOR`` sample intervals
+restarts the windows (the decision is kept). ``blocking()`` says in words what keeps the state from "parked".
 """
 
 from __future__ import annotations
@@ -43,11 +44,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.lie import cross3
 from ..core.stats import chi2_ppf
 from ..filters import imu_grade
 from ..filters.config import ConfigDict
 from ..sim import error_model
+from .motion_kernels import window_stats_nb
 
 G_M_S2 = error_model.G0_M_S2
 #: a stamp step over this many nominal intervals restarts the windows (3: host-stamp jitter and drivers that alternate
@@ -144,65 +145,16 @@ class MotionConfig(ConfigDict):
 
 
 def window_statistics(omega_ib_b: np.ndarray, f_ib_b: np.ndarray, cfg: MotionConfig) -> dict:
-    """Per-sample statistics of one gap-free run of samples (vectorised; NaN until the windows are full).
+    """Per-sample statistics of one gap-free run of samples (NaN until the windows are full).
 
-    omega_ib_b [rad/s], f_ib_b [m/s^2]: (N, 3). Returns arrays (N,): spread_f [m/s^2], spread_omega [rad/s],
-    dv_h [m/s] (module docstring).
+    omega_ib_b [rad/s], f_ib_b [m/s^2]: (N, 3). Returns arrays (N,): spread_f [m/s^2], spread_omega [rad/s], dv_h [m/s]
+    (module docstring; one compiled pass, :func:`motion_kernels.window_stats_nb`).
     """
     n = cfg.samples()
-    W, Nv, Nr = n["window"], n["dv"], n["ref"]
-    dt = 1.0 / cfg.rate_hz
-    N = omega_ib_b.shape[0]
-    out = {k: np.full(N, np.nan) for k in ("spread_f", "spread_omega", "dv_h")}
-    L = Nv + Nr
-    if N < L:
-        return out
-
-    def csum(x):  # prefix sums with a leading zero
-        return np.concatenate([np.zeros((1,) + x.shape[1:]), np.cumsum(x, axis=0)])
-
-    k1 = np.arange(L, N + 1)  # k + 1 for the samples k >= L - 1 that have full windows
-    for key, x in (("spread_f", f_ib_b), ("spread_omega", omega_ib_b)):
-        xc = x - x[0]  # centred on the first sample: the sums of squares keep their precision
-        c1, c2 = csum(xc), csum(xc**2)
-        s1, s2 = c1[k1] - c1[k1 - W], c2[k1] - c2[k1 - W]
-        out[key][L - 1:] = np.sqrt(np.maximum((s2 - s1**2 / W).sum(1) / W, 0.0))
-    theta = np.cumsum(omega_ib_b, axis=0) * dt  # small-angle body rotation since the first sample [rad]
-    cf, ct = csum(f_ib_b - f_ib_b[0]), csum(theta)
-    f_ref_c = (cf[k1 - Nv] - cf[k1 - L]) / Nr  # reference specific force, centred on f_ib_b[0]
-    f_ref = f_ref_c + f_ib_b[0]
-    theta_ref = (ct[k1 - Nv] - ct[k1 - L]) / Nr
-    sum_f_c, sum_theta = cf[k1] - cf[k1 - Nv], ct[k1] - ct[k1 - Nv]
-    # sum over the window of f_j - R(theta_j - theta_ref)^T f_ref, with R^T v = v - theta x v (small angles)
-    dv = dt * (sum_f_c - Nv * f_ref_c + np.cross(sum_theta - Nv * theta_ref, f_ref))
-    u = f_ref / np.linalg.norm(f_ref, axis=1, keepdims=True)
-    dv_h = dv - np.sum(dv * u, axis=1, keepdims=True) * u
-    out["dv_h"][L - 1:] = np.linalg.norm(dv_h, axis=1)
-    return out
-
-
-def last_window_statistics(omega_ib_b: np.ndarray, f_ib_b: np.ndarray, cfg: MotionConfig) -> dict:
-    """:func:`window_statistics` of the newest sample only, from exactly the last ``dv + ref`` samples (L, 3): the
-    same sums over the same rows (the per-sample detector's cost: O(L) once, not the whole run's arrays)."""
-    n = cfg.samples()
-    W, Nv, Nr = n["window"], n["dv"], n["ref"]
-    dt = 1.0 / cfg.rate_hz
-    out = {}
-    for key, x in (("spread_f", f_ib_b), ("spread_omega", omega_ib_b)):
-        xc = x[-W:] - x[0]
-        s1, s2 = xc.sum(0), (xc * xc).sum(0)
-        out[key] = math.sqrt(max(float((s2 - s1 * s1 / W).sum()) / W, 0.0))
-    theta = np.cumsum(omega_ib_b, axis=0) * dt
-    fc = f_ib_b - f_ib_b[0]
-    f_ref_c = fc[:Nr].sum(0) / Nr
-    f_ref = f_ref_c + f_ib_b[0]
-    theta_ref = theta[:Nr].sum(0) / Nr
-    sum_f_c, sum_theta = fc[Nr:].sum(0), theta[Nr:].sum(0)
-    dv = dt * (sum_f_c - Nv * f_ref_c + cross3(sum_theta - Nv * theta_ref, f_ref))
-    u = f_ref / math.sqrt(float(f_ref @ f_ref))
-    dv_h = dv - float(dv @ u) * u
-    out["dv_h"] = math.sqrt(float(dv_h @ dv_h))
-    return out
+    X = np.concatenate([np.asarray(omega_ib_b, float), np.asarray(f_ib_b, float)], axis=1)
+    out = np.empty((X.shape[0], 3))
+    window_stats_nb(X, 0, int(n["window"]), int(n["dv"]), int(n["ref"]), 1.0 / cfg.rate_hz, out)
+    return {"spread_f": out[:, 0], "spread_omega": out[:, 1], "dv_h": out[:, 2]}
 
 
 def _gnss_flags(gnss: tuple, thr: dict, cfg: MotionConfig) -> tuple[bool, bool]:
@@ -474,6 +426,7 @@ class MotionDetector:
         self._gnss_now = (None, None, 0, math.nan)  # speed, sigma, consecutive over walking, age
         self.learner = VibrationLearner(cfg)
         self._W = n["window"]
+        self._nb_args = (int(n["window"]), int(n["dv"]), int(n["ref"]), 1.0 / cfg.rate_hz)  # window_stats_nb's
         self._blk: list = []  # the samples (omega, f) of the spread block being filled
         self.rejected = {"imu": 0, "gnss": 0}
         self.last_reject_reason = ""
@@ -511,31 +464,61 @@ class MotionDetector:
         if self._t and t - self._t[-1] > GAP_FACTOR / self.cfg.rate_hz:
             self._t.clear()  # a gap restarts the windows
             self._blk = []
-        self._t.append(t)
-        L = self._L
-        i = self._i = (self._i + 1) % L
-        self._ring[i, 0:3] = self._ring[i + L, 0:3] = omega
-        self._ring[i, 3:6] = self._ring[i + L, 3:6] = f
-        if len(self._t) == L:
-            win = self._ring[i + 1:i + 1 + L]
-            self._stats = last_window_statistics(win[:, 0:3], win[:, 3:6], self.cfg)
-        else:
-            self._stats = {k: math.nan for k in self._stats}
-        while len(self._gnss) > 1 and self._gnss[1][0] <= t:
-            self._gnss.popleft()
-        g = self._gnss[0] if self._gnss and self._gnss[0][0] <= t else None
-        fresh = g is not None and t - g[0] <= self.cfg.gnss_timeout_s
-        self._gnss_now = (g[1], g[2], g[3], t - g[0]) if fresh else (None, None, 0, math.nan)
-        self._blk.append(self._ring[i, :].copy())
-        if len(self._blk) == self._W:
-            b = np.array(self._blk)
-            self._blk = []
-            sp = np.sqrt(np.maximum(b.var(axis=0), 0.0).reshape(2, 3).sum(axis=1))
-            self.learner.add(t, float(sp[1]), float(sp[0]), not self._stats["dv_h"] > self.learner.prior["dv_h_m_s"],
-                             self._gnss_now[:3], self._hyst.state is True)
-        self.thresholds = self.learner.thresholds
-        self._hyst.step(t, *_evidence(self._stats, self._gnss_now[:3], self.thresholds, self.cfg))
+        self._take([t], np.concatenate([omega, f])[None, :])
         return self.decision
+
+    def push_imu_arrays(self, t_s, omega_ib_b, f_ib_b, until_moving: bool = False) -> int:
+        """``push_imu`` for the leading rows of arrays (t_s (N,) [s], omega_ib_b [rad/s], f_ib_b [m/s^2] (N, 3)) that
+        continue the time line (finite, increasing, no gap: the first against the last sample taken), their window
+        statistics in one compiled call. Stops at the first other row (not taken: ``push_imu`` it) and, with
+        ``until_moving``, after the first row whose decision is motion. Returns the number of rows taken; the
+        decisions and numbers are ``push_imu``'s row by row, bit for bit."""
+        T = np.asarray(t_s, float)
+        rows = np.concatenate([np.asarray(omega_ib_b, float), np.asarray(f_ib_b, float)], axis=1)
+        if T.shape[0] == 0:
+            return 0
+        step = np.diff(np.concatenate([[self._t[-1] if self._t else T[0] - 1.0 / self.cfg.rate_hz], T]))
+        good = np.isfinite(rows).all(1) & (step > 0) & (step <= GAP_FACTOR / self.cfg.rate_hz)  # NaN stamps: False
+        bad = np.flatnonzero(~good)
+        m = int(bad[0]) if bad.size else T.shape[0]
+        return self._take(T[:m].tolist(), rows[:m], until_moving) if m else 0
+
+    def _take(self, Tl: list, rows: np.ndarray, until_moving: bool = False) -> int:
+        """Rows (omega, f) (m, 6) at stamps Tl that continue the windows: statistics (the kernel over the last L - 1
+        samples and these), GNSS speed, vibration blocks, evidence and hysteresis row by row; returns the rows taken
+        (up to the first that declares motion with ``until_moving``)."""
+        L, i, m = self._L, self._i, len(Tl)
+        hist = min(len(self._t), L - 1)
+        out = np.empty((m, 3))
+        window_stats_nb(np.concatenate([self._ring[i + 1 + L - hist:i + 1 + L], rows]), hist, *self._nb_args, out)
+        sf, so, dv = out.T.tolist()
+        taken = m
+        for r in range(m):
+            t = Tl[r]
+            self._stats = st = {"spread_f": sf[r], "spread_omega": so[r], "dv_h": dv[r]}
+            while len(self._gnss) > 1 and self._gnss[1][0] <= t:
+                self._gnss.popleft()
+            g = self._gnss[0] if self._gnss and self._gnss[0][0] <= t else None
+            fresh = g is not None and t - g[0] <= self.cfg.gnss_timeout_s
+            self._gnss_now = (g[1], g[2], g[3], t - g[0]) if fresh else (None, None, 0, math.nan)
+            self._blk.append(rows[r])
+            if len(self._blk) == self._W:
+                b = np.array(self._blk)
+                self._blk = []
+                sp = np.sqrt(np.maximum(b.var(axis=0), 0.0).reshape(2, 3).sum(axis=1))
+                self.learner.add(t, float(sp[1]), float(sp[0]), not st["dv_h"] > self.learner.prior["dv_h_m_s"],
+                                 self._gnss_now[:3], self._hyst.state is True)
+            self.thresholds = self.learner.thresholds
+            self._hyst.step(t, *_evidence(st, self._gnss_now[:3], self.thresholds, self.cfg))
+            if until_moving and self._hyst.state is True:
+                taken = r + 1
+                break
+        self._t.extend(Tl[:taken])
+        k = min(taken, L)  # only the last L rows stay in the ring, each at j and j + L
+        idx = (i + 1 + np.arange(taken - k, taken)) % L
+        self._ring[idx] = self._ring[idx + L] = rows[taken - k:taken]
+        self._i = (i + taken) % L
+        return taken
 
     def blocking(self) -> str:
         """What keeps the detector from seeing the vehicle parked, in words ("" when nothing does)."""
