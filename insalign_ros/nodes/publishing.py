@@ -198,6 +198,10 @@ class OutputPublisher:
 
     # ------------------------------------------------------------------ /diagnostics
     def publish_diagnostics(self) -> None:
+        """The /diagnostics status (about 150 key-values: ~1 ms a message), built only while something subscribes
+        (an aggregator, a bag recorder, ``ros2 topic echo``: it gets the next period's)."""
+        if self.pub_diag.get_subscription_count() == 0:
+            return
         node, s = self.node, self.node.session
         st = DiagnosticStatus()
         st.name = f"{node.get_name()}: alignment"
