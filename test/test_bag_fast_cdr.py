@@ -1,6 +1,7 @@
 """The bag reader's CDR fast path (io/cdr_fast.py) against rosbags' deserialiser: the same fields for every frame-id
 length (the CDR alignment after the string), None for what is not exactly the layout (then rosbags reads it), and
-read_bag with and without the fast path gives the same recording, bit for bit, rejections included."""
+read_bag with and without the fast path gives the same recording, bit for bit, rejections included; so does the
+block path (io/bag_fast.py: runs of messages read and checked at once) against reading them one by one."""
 
 import math
 
@@ -8,7 +9,7 @@ import numpy as np
 import pytest
 
 import insalign_ros as ia
-from insalign_ros.io import bag, cdr_fast
+from insalign_ros.io import bag, bag_fast, cdr_fast
 
 
 def _imu_msg(T, frame: str, w, f, sec=1_700_000_000, nsec=123_456_789):
@@ -66,3 +67,48 @@ def test_read_bag_with_and_without_the_fast_path_is_the_same_recording(tmp_path,
             np.testing.assert_array_equal(a, b, err_msg=k)
     assert rep_fast["rejected"] == rep_slow["rejected"]
     assert sum(sum(c.values()) for c in rep_fast["rejected"].values()) == 4  # the duplicate stamp: Imu and truth
+
+
+def test_block_path_reads_what_one_by_one_reads(tmp_path, monkeypatch):
+    # a flagged stretch on /imu/data_invalid interleaved with /imu/data (one stream), a non-finite rate, a 60-g
+    # specific force, a repeated and an earlier stamp, a truth quaternion that is not a unit one: the three readers
+    # (runs at once, one by one from the bytes, rosbags' deserialiser) give the same recording and rejections
+    d = ia.simulate("car", seed=2, duration_s=8.0)
+    valid = np.ones(d.n, bool)
+    valid[100:130] = False
+    d.imu_valid = valid
+    d.omega_ib_b[40] = np.nan
+    d.f_ib_b[41] = (600.0, 0.0, 0.0)
+    d.t_s[60] = d.t_s[59]
+    d.t_s[120] = d.t_s[118]
+    path = bag.write_bag(d, tmp_path / "b")
+    reads = {}
+    for mode in ("block", "one by one", "rosbags"):
+        if mode == "one by one":
+            monkeypatch.setattr(bag_fast, "take_block", lambda kind, items, prev, *a: (False, prev))
+        if mode == "rosbags":
+            monkeypatch.setattr(bag, "FAST_CDR", {})
+        rep = {}
+        reads[mode] = (bag.read_bag(path, report=rep), rep)
+    (ref, rep_ref) = reads["block"]
+    assert not ref.imu_valid_mask[95:135].all() and ref.imu_valid_mask.sum() > d.n - 40
+    assert sum(sum(c.values()) for c in rep_ref["rejected"].values()) >= 5
+    for mode in ("one by one", "rosbags"):
+        other, rep = reads[mode]
+        for k in ("t_s", "omega_ib_b", "f_ib_b", "gnss_t_s", "gnss_p_e", "C_b_n", "v_n", "lat_rad", "h_m", "imu_valid"):
+            np.testing.assert_array_equal(getattr(ref, k), getattr(other, k), err_msg=f"{mode}: {k}")
+        assert rep["rejected"] == rep_ref["rejected"], mode
+
+
+def test_a_block_of_frame_ids_that_pad_alike_is_read_per_message():
+    # "im" and "imu" (3 and 4 bytes with the NUL) pad the header alike: one byte length, one block; their frame ids
+    # and fields are each message's own; a block of two lengths is left to the one-by-one reader
+    ts = bag.typestore()
+    raws = [bytes(ts.serialize_cdr(_imu_msg(ts.types, fr, (k, 0.5, -k), (1.0, k, 9.8), nsec=k), "sensor_msgs/msg/Imu"))
+            for k, fr in enumerate(["im", "imu", "imu", "im"])]
+    t_ns, frames, w, f = cdr_fast.imu_block(raws)
+    for k, raw in enumerate(raws):
+        one = cdr_fast.imu(raw)
+        assert (int(t_ns[k]), frames[k], tuple(w[k]), tuple(f[k])) == one
+    other = bytes(ts.serialize_cdr(_imu_msg(ts.types, "imu_link", (0, 0, 0), (0, 0, 9.8)), "sensor_msgs/msg/Imu"))
+    assert cdr_fast.imu_block(raws + [other]) is None and cdr_fast.pose_block(raws) is None

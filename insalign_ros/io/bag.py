@@ -35,7 +35,7 @@ from scipy.spatial.transform import Rotation
 from ..core import units
 from .bag_vehicle import read_vehicle_topics, vehicle_events  # /wheel/odom, /gps/heading
 from ..core.recording import ImuSpec, ScenarioData
-from . import cdr_fast, validation
+from . import bag_fast, cdr_fast, validation
 from .topics import INVALID_SUFFIX, VEL_TYPE, listing, resolve_topics
 
 log = logging.getLogger(__name__)
@@ -239,19 +239,9 @@ TRUTH_POSE = {"geometry_msgs/msg/PoseStamped": lambda m: m.pose,
               "nav_msgs/msg/Odometry": lambda m: m.pose.pose}
 
 
-#: message types read from their CDR bytes (io/cdr_fast.py) in a ROS 2 bag
-FAST_CDR = {"sensor_msgs/msg/Imu": cdr_fast.imu, "geometry_msgs/msg/PoseStamped": cdr_fast.pose_stamped}
-
-
-def _truth_problem(p: tuple, q: tuple) -> str | None:
-    """Why a truth pose (position (x, y, z), orientation (x, y, z, w)) is unusable, or None."""
-    x, y, z, w = q
-    n2 = x * x + y * y + z * z + w * w  # nan or inf when a component is
-    if not abs(math.sqrt(n2) - 1.0) <= 1e-6:
-        return "orientation not a unit quaternion"
-    if not (math.isfinite(p[0]) and math.isfinite(p[1]) and math.isfinite(p[2])):
-        return "non-finite position"
-    return None
+#: message types read from their CDR bytes (io/cdr_fast.py, io/bag_fast.py) in a ROS 2 bag: type -> (stream, reader)
+FAST_CDR = {"sensor_msgs/msg/Imu": ("imu", cdr_fast.imu),
+            "geometry_msgs/msg/PoseStamped": ("truth", cdr_fast.pose_stamped)}
 
 
 def _stamp_ns(msg) -> int:
@@ -338,40 +328,55 @@ def _read_messages(path, wanted: dict, invalid: dict, truth_topic: str, meta_top
         conns = [c for c in r.connections if c.topic == meta_topic or (
             c.topic in streams and (streams[c.topic][0] != "truth" or c.msgtype in TRUTH_POSE)
             and (streams[c.topic][0] != "vel" or c.msgtype == VEL_TYPE))]
-        fast = {c.topic: FAST_CDR.get(c.msgtype) for c in conns if r.is2 and c.topic != meta_topic}
-        for conn, _, raw in r.messages(connections=conns):
-            dec = fast[conn.topic](raw) if fast.get(conn.topic) else None  # io/cdr_fast.py
+        fast = {c.topic: FAST_CDR[c.msgtype][1] for c in conns if r.is2 and c.topic in streams
+                and FAST_CDR.get(c.msgtype, ("",))[0] == streams[c.topic][0]}
+        pending = {kind: [] for kind in got}  # (topic, raw) of fast types in bag order, taken a run at once
+
+        def flush(kind):  # io/bag_fast.py; a run it cannot read at once (mixed layouts) is taken one by one below
+            items, pending[kind] = pending[kind], []
+            done, prev[kind] = bag_fast.take_block(kind, items, prev[kind], got, rejected, frames, streams)
+            return [] if done else items
+
+        def messages():
+            for conn, _, raw in r.messages(connections=conns):
+                if fast.get(conn.topic):
+                    pending[streams[conn.topic][0]].append((conn.topic, raw))
+                    continue
+                yield from (flush(streams[conn.topic][0]) if conn.topic in streams else [])
+                yield conn.topic, raw
+            for kind in pending:
+                yield from flush(kind)
+
+        types = {c.topic: c.msgtype for c in conns}
+        for topic, raw in messages():
+            dec = fast[topic](raw) if fast.get(topic) else None  # io/cdr_fast.py
             if dec is not None:  # Imu or PoseStamped, read from its bytes
-                kind, ok = streams[conn.topic]
+                kind, ok = streams[topic]
                 t_ns, frame, a, b = dec
-                frames[conn.topic].add(frame)
-                reason = validation.check_stamp(t_ns * 1e-9, prev[kind])
-                if kind == "imu":
-                    reason = reason or validation.check_imu(a, b)
-                    if not reason:
-                        g = got["imu"]
-                        g["t"].append(t_ns), g["w"].append(a), g["f"].append(b), g["ok"].append(ok)
-                else:
-                    reason = reason or _truth_problem(a, b)
-                    if not reason:
-                        g = got["truth"]
-                        g["t"].append(t_ns), g["p"].append(a), g["q"].append(b)
+                frames[topic].add(frame)
+                reason = validation.check_stamp(t_ns * 1e-9, prev[kind]) or (
+                    validation.check_imu(a, b) if kind == "imu" else validation.check_pose(a, b))
+                if not reason:
+                    g, (ka, kb) = got[kind], (("w", "f") if kind == "imu" else ("p", "q"))
+                    g["t"].append(t_ns), g[ka].append(a), g[kb].append(b)
+                    if kind == "imu":
+                        g["ok"].append(ok)
                 if reason:
-                    rejected[conn.topic][reason] += 1
+                    rejected[topic][reason] += 1
                 else:
                     prev[kind] = t_ns * 1e-9
                 continue
-            msg = r.deserialize(raw, conn.msgtype)
-            if conn.topic == meta_topic:
+            msg = r.deserialize(raw, types[topic])
+            if topic == meta_topic:
                 if meta is None:
                     try:
                         meta = json.loads(msg.data)
                     except (ValueError, AttributeError) as exc:
                         rep["warnings"].append(f"metadata not JSON ({exc}); ignored")
                 continue
-            kind, ok = streams[conn.topic]
+            kind, ok = streams[topic]
             t_ns = _stamp_ns(msg)
-            frames[conn.topic].add(msg.header.frame_id)
+            frames[topic].add(msg.header.frame_id)
             reason = validation.check_stamp(t_ns * 1e-9, prev[kind])
             g = got[kind]
             if kind == "imu":
@@ -402,14 +407,14 @@ def _read_messages(path, wanted: dict, invalid: dict, truth_topic: str, meta_top
                 if not reason:
                     g["t"].append(t_ns), g["v"].append(v), g["R"].append(R)
             else:
-                pose = TRUTH_POSE[conn.msgtype](msg)
+                pose = TRUTH_POSE[types[topic]](msg)
                 p, q = pose.position, pose.orientation
                 p, q = (p.x, p.y, p.z), (q.x, q.y, q.z, q.w)
-                reason = reason or _truth_problem(p, q)
+                reason = reason or validation.check_pose(p, q)
                 if not reason:
                     g["t"].append(t_ns), g["p"].append(p), g["q"].append(q)
             if reason:
-                rejected[conn.topic][reason] += 1
+                rejected[topic][reason] += 1
             else:
                 prev[kind] = t_ns * 1e-9
     return meta, got, rejected, frames, n_unknown, streams
@@ -518,8 +523,9 @@ def read_bag(path, imu_topic: str | None = IMU_TOPIC, gps_topic: str | None = GP
     if n_unknown:
         rep["warnings"].append(f"{gps_topic}: {n_unknown} fix(es) with UNKNOWN covariance: sigma "
                                f"{unknown_fix_sigma_m:g} m per axis (unknown_fix_sigma_m)")
+    bag_fast.stack(got)
     imu, gps, tru, vel = got["imu"], got["gps"], got["truth"], got["vel"]
-    if not imu["t"]:
+    if not len(imu["t"]):
         for wmsg in rep["warnings"]:
             log.warning("%s: %s", path, wmsg)
         raise ValueError(f"{path}: no valid IMU sample on {rep['topics']['imu']}")
@@ -545,7 +551,7 @@ def read_bag(path, imu_topic: str | None = IMU_TOPIC, gps_topic: str | None = GP
     spec = ImuSpec(**meta["imu_spec"]) if meta.get("imu_spec") else None
     truth = dict(C_b_n=None, lat_rad=None, lon_rad=None, h_m=None, v_n=None)
     ref = None
-    if tru["t"]:
+    if len(tru["t"]):
         tr_t_ns, tr_p, tr_q = np.array(tru["t"], dtype=np.int64), np.array(tru["p"]), np.array(tru["q"])
         ref = _truth_reference(meta, ref_llh_deg, gps, tr_t_ns, tr_p, rep["warnings"])
         if ref is not None:

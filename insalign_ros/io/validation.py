@@ -56,6 +56,17 @@ def check_imu(omega_ib_b, f_ib_b) -> str | None:
         f_ib_b, "linear_acceleration", MAX_SPECIFIC_FORCE_M_S2)
 
 
+def check_pose(p: tuple, q: tuple) -> str | None:
+    """Why a pose (position (x, y, z), orientation quaternion (x, y, z, w)) is unusable, or None."""
+    x, y, z, w = q
+    n2 = x * x + y * y + z * z + w * w  # nan or inf when a component is
+    if not abs(math.sqrt(n2) - 1.0) <= 1e-6:
+        return "orientation not a unit quaternion"
+    if not (math.isfinite(p[0]) and math.isfinite(p[1]) and math.isfinite(p[2])):
+        return "non-finite position"
+    return None
+
+
 def check_covariance(cov, name: str = "covariance", require_positive_diag: bool = False) -> str | None:
     c = np.asarray(cov, dtype=float)
     if c.shape == (9,):
