@@ -88,12 +88,12 @@ STATIC_CORES = {"pkf", "ekf10", "earth_iekf", "coarse"}
 
 
 def run_case(core, rate_hz, rate_factor, duration_s, qos, log_dir, executor="events", settle_s=60.0, ref=None,
-             truth=True, profile=None):
+             truth=True, profile=None, scenario=None):
     """One run. ``truth``: the simulator publishes ground_truth/pose (10 Hz) and the node starts from it with an
     error (the benchmark's case); False: what a user runs, no truth topic and the node's default parameters (only
     ``core`` and ``imu_qos`` given; initialised from the sensors). ``profile``: a path for a py-spy flame graph
     (raw/collapsed format) of the node over the measured window (py-spy's sampling costs the node CPU: not for the
-    cost figures)."""
+    cost figures). ``scenario``: the simulator's scenario (default: static for the static cores, else ship)."""
     env = isolated_ros_env()
     env["INSALIGN_EXECUTOR"] = executor
     for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
@@ -116,7 +116,8 @@ def run_case(core, rate_hz, rate_factor, duration_s, qos, log_dir, executor="eve
         nodes.append(align)
         mon.wait_for(lambda m: m.diag_count > 0, 30.0)
         sim = start_node("insalign_ros.nodes.imu_sim_node", env, log_dir=log_dir, name=f"sim_{core}",
-                         params={"source": "scenario", "scenario": "static" if core in STATIC_CORES else "ship",
+                         params={"source": "scenario",
+                                 "scenario": scenario or ("static" if core in STATIC_CORES else "ship"),
                                  "rate_hz": rate_hz, "seed": 3,
                                  "rate_factor": rate_factor, "duration_s": duration_s, "wait_for_subscribers": 1,
                                  "wait_timeout_s": 30.0, "qos_depth": 1000, "publish_ground_truth": truth})
@@ -190,7 +191,9 @@ def offline_outside(core, rate_hz, duration_s, settle_s):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--cores", nargs="+", default=["liekf", "iekf", "ekf", "pi_liekf"])
+    ap.add_argument("--cores", nargs="+", default=["liekf", "iekf", "ekf", "pi_liekf"],
+                    help="cores of the cost runs; CORE@SCENARIO picks the simulator's scenario (e.g. auto@static: "
+                         "the default core on a parked vehicle)")
     ap.add_argument("--cost-duration-s", type=float, default=30.0, help="real-time run per core [s]")
     ap.add_argument("--load-duration-s", type=float, default=180.0, help="data time of the 1,250 msg/s run [s]")
     ap.add_argument("--settle-s", type=float, default=60.0, help="3-sigma check from this data time on [s]")
@@ -219,16 +222,17 @@ def main(argv=None) -> int:
             if not Path(sys.executable).with_name("py-spy").exists():
                 ap.error("--profile needs py-spy in this interpreter's environment (pip install py-spy)")
             args.profile.mkdir(parents=True, exist_ok=True)
-        for core, ex, tr in cases:
+        for spec, ex, tr in cases:
+            core, _, scenario = spec.partition("@")
             for ref in ([args.ref] if args.ref else []) + [None]:
-                prof = (args.profile / f"{core}_{ex}_truth-{'on' if tr else 'off'}.txt"
+                prof = (args.profile / f"{spec.replace('@', '_')}_{ex}_truth-{'on' if tr else 'off'}.txt"
                         if args.profile and not ref else None)
                 r = run_case(core, 125.0, 1.0, args.cost_duration_s, "sensor_data", log_dir, ex, ref=ref, truth=tr,
-                             profile=prof)
+                             profile=prof, scenario=scenario or None)
                 if ref:
                     ref_share = r["cpu_share"]
                 ratio = f" ({r['cpu_share'] / ref_share:.2f}x the ref)" if args.ref and not ref else ""
-                print(f"| {core} | {'yes' if tr else 'no (defaults)'} | {'ref' if ref else 'this'} | {ex} | "
+                print(f"| {spec} | {'yes' if tr else 'no (defaults)'} | {'ref' if ref else 'this'} | {ex} | "
                       f"{r['msgs_per_s']:.0f} | "
                       f"{100 * r['cpu_share']:.1f} %{ratio} | {100 * r['cpu_share_median_interval']:.1f} % "
                       f"({r['cpu_share_intervals']}) | {100 * r['python_thread_share']:.1f} / "
@@ -243,7 +247,7 @@ def main(argv=None) -> int:
         print("| core | sent | received | dropped | gaps | callback median / p99 [us] | session samples/s | "
               "outputs outside 3-sigma (node / offline) | aligned at end |")
         print("|---|---|---|---|---|---|---|---|---|")
-        for core in args.cores:
+        for core in (c.partition("@")[0] for c in args.cores):  # the load runs: each core's own scenario
             r = run_case(core, 125.0, 10.0, args.load_duration_s, "sensor_data", log_dir, settle_s=args.settle_s)
             off, n_off = offline_outside(core, 125.0, args.load_duration_s, args.settle_s)
             print(f"| {core} | {r['sent']} | {r['received']} | {r['sent'] - r['received']} | {r['gaps']} | "
