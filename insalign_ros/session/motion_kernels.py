@@ -38,29 +38,16 @@ def window_stats_nb(X, start, W, Nv, Nr, dt, out):
                     s2 += d * d
                 tr += s2 - s1 * s1 / W
             out[o, c] = math.sqrt(max(tr / W, 0.0))
-        th0 = th1 = th2 = 0.0  # running sum of omega (theta = sum * dt)
-        fr0 = fr1 = fr2 = tr0 = tr1 = tr2 = 0.0  # sums over the reference rows
-        sf0 = sf1 = sf2 = st0 = st1 = st2 = 0.0  # sums over the velocity-change rows
+        th = np.zeros(3)  # running sum of omega (theta = sum * dt)
+        S = np.zeros((2, 6))  # over the reference rows (0) and the velocity-change rows (1): sum f - f_j0, sum theta
         for i in range(L):
-            j = j0 + i
-            th0 += X[j, 0]
-            th1 += X[j, 1]
-            th2 += X[j, 2]
-            f0, f1, f2 = X[j, 3] - X[j0, 3], X[j, 4] - X[j0, 4], X[j, 5] - X[j0, 5]
-            if i < Nr:
-                fr0 += f0
-                fr1 += f1
-                fr2 += f2
-                tr0 += th0 * dt
-                tr1 += th1 * dt
-                tr2 += th2 * dt
-            else:
-                sf0 += f0
-                sf1 += f1
-                sf2 += f2
-                st0 += th0 * dt
-                st1 += th1 * dt
-                st2 += th2 * dt
+            j, w = j0 + i, 0 if i < Nr else 1
+            for a in range(3):
+                th[a] += X[j, a]
+                S[w, a] += X[j, 3 + a] - X[j0, 3 + a]
+                S[w, 3 + a] += th[a] * dt
+        fr0, fr1, fr2, tr0, tr1, tr2 = S[0, 0], S[0, 1], S[0, 2], S[0, 3], S[0, 4], S[0, 5]
+        sf0, sf1, sf2, st0, st1, st2 = S[1, 0], S[1, 1], S[1, 2], S[1, 3], S[1, 4], S[1, 5]
         fc0, fc1, fc2 = fr0 / Nr, fr1 / Nr, fr2 / Nr  # reference specific force, centred
         g0, g1, g2 = fc0 + X[j0, 3], fc1 + X[j0, 4], fc2 + X[j0, 5]
         a0, a1, a2 = st0 - Nv * (tr0 / Nr), st1 - Nv * (tr1 / Nr), st2 - Nv * (tr2 / Nr)
