@@ -28,7 +28,8 @@ class AlignResult:
     """Arrays of one offline alignment run (one row per output), plus metrics when truth exists.
 
     ``t_s`` [s data time]; ``rpy_deg`` roll, pitch, yaw estimate [deg] (yaw from East, CCW); ``sigma3_deg``
-    their 3-sigma [deg]; ``aligned`` the session's flag; ``rpy_err_deg`` estimate minus truth (NaN without
+    their 3-sigma [deg] as the covariance gives it, for analysis: above ``core.stats.SIGMA3_UNKNOWN_DEG`` (180) the
+    angle is unknown (``insalign-align`` writes "unknown", the node publishes NaN); ``aligned`` the session's flag; ``rpy_err_deg`` estimate minus truth (NaN without
     truth); ``nees`` attitude NEES (NaN without truth)."""
 
     core: str
