@@ -37,7 +37,7 @@ def hat3(phi: np.ndarray) -> np.ndarray:
 
 def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a x b for two 3-vectors: ``np.cross``'s products and differences, bit for bit, without its ~15-50 us of
-    overhead per call (it runs at the IMU rate in the strapdown and the motion detector)."""
+    overhead per call (it runs at the IMU rate in the local-level strapdown)."""
     return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 

@@ -207,15 +207,14 @@ class AutoCore(AlignmentCore):
     def _static_rows(self, T: np.ndarray, W: np.ndarray, F: np.ndarray, dec) -> None:
         """Rows before the hand-over, their motion decisions made (``dec``: the last one's, None before the detector):
         the history, the rest blocks, the static core (one block); the hand-over when ``dec`` declares motion."""
-        for t, w, f in zip(T.tolist(), W, F):
-            if self._t is not None and t > self._t:  # the sample is the mean rate over (t_prev, t]
-                mean = self._block.add(t - self._t, w)
+        prev = self._t
+        for t, w in zip(T.tolist(), W):
+            if prev is not None and t > prev:  # the sample is the mean rate over (t_prev, t]
+                mean = self._block.add(t - prev, w)
                 if mean is not None:
                     self._blocks.append(mean)
-            self._t = t
-            self.hist.append((t, w, f))
-            while self.hist[0][0] < t - 6.0:
-                self.hist.popleft()
+            prev = t
+        self._remember(T, W, F)
         self.static.propagate(T, W, F)
         if dec is not None and dec.moving:
             self._handover(self._t, dec.since_s)
@@ -223,12 +222,15 @@ class AutoCore(AlignmentCore):
     def _cruise(self, T: np.ndarray, W: np.ndarray, F: np.ndarray) -> None:
         """Rows of :meth:`_row` while in motion with the detector skipped, as one block (the same samples in the same
         order to the in-motion core; the history the hand-over and the level window read)."""
+        self._remember(T, W, F)
+        self.motion.propagate(T, W, F)
+
+    def _remember(self, T: np.ndarray, W: np.ndarray, F: np.ndarray) -> None:
+        """The rows into the last 6 s of history (the hand-over's replay and level window); the last stamp taken."""
         self.hist.extend(zip(T.tolist(), W, F))
-        t = float(T[-1])
+        self._t = t = float(T[-1])
         while self.hist and self.hist[0][0] < t - 6.0:
             self.hist.popleft()
-        self._t = t
-        self.motion.propagate(T, W, F)
 
     def _row(self, T: np.ndarray, W: np.ndarray, F: np.ndarray) -> None:
         t, w, f = float(T[0]), W[0], F[0]
@@ -240,10 +242,8 @@ class AutoCore(AlignmentCore):
         if self.motion is None:
             self._static_rows(T, W, F, dec)
             return
-        t_prev, self._t = self._t, t
-        self.hist.append((t, w, f))
-        while self.hist and self.hist[0][0] < t - 6.0:
-            self.hist.popleft()
+        t_prev = self._t
+        self._remember(T, W, F)
         self.motion.propagate(T, W, F)
         if self.state == "stopped" and t_prev is not None and t > t_prev:
             self._stop_block(t - t_prev, w, dec is not None and dec.decided and not dec.moving)
