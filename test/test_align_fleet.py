@@ -70,3 +70,33 @@ def test_kernels_are_compiled_once_per_machine(tmp_path, monkeypatch):
     assert not t.is_alive()
     waited, _ = got["r"]
     assert waited >= held * 0.9, (waited, held)
+
+
+def test_a_completed_warm_up_lets_the_next_processes_load_side_by_side(tmp_path, monkeypatch):
+    """The first warm-up of a fingerprint runs under the machine's lock (it may compile); once it has completed, the
+    next ones only check the fingerprint under the lock and load the cache outside it (two fleet workers load at
+    once instead of one after the other). Another set of cores is another fingerprint: under the lock again."""
+    import fcntl
+
+    from insalign_ros.session import warmup
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    (tmp_path / "insalign_ros").mkdir()
+    under_lock = []
+
+    def fake_warm_up(cores, duration_s=30.0):
+        with open(warmup.lock_path(), "a") as fh:  # another open file: blocked while anyone holds the lock
+            try:
+                fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                fcntl.flock(fh, fcntl.LOCK_UN)
+                under_lock.append(False)
+            except BlockingIOError:
+                under_lock.append(True)
+        return 0.0
+
+    monkeypatch.setattr(warmup, "warm_up", fake_warm_up)
+    for cores in (("iekf",), ("iekf",), ("iekf",), ("pkf",), ("iekf",)):
+        warmup.warm_up_once(cores, duration_s=1.0)
+    assert under_lock == [True, False, False, True, False]
+    assert warmup._fingerprint(("iekf",)) != warmup._fingerprint(("pkf",))
+    assert len((tmp_path / "insalign_ros" / "warmup.done").read_text().split()) == 2
