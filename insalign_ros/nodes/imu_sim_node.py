@@ -451,17 +451,23 @@ def main(args=None) -> int:
                 rclpy.spin_once(node, timeout_sec=0.1)
         else:
             _run_stream(node)
+        delivered = False
         if node.data is not None:  # reliable readers: wait until they acknowledged everything (a lagging reader
             from rclpy.duration import Duration  # gets its tail: drain_timeout_s, 60 s by default)
+            from rclpy.qos import ReliabilityPolicy
 
             end = time.monotonic() + node.drain_timeout_s
-            for pub in (node.pub, node.pub_fix, node.pub_truth):
+            pubs = [p for p in (node.pub, node.pub_fix, node.pub_vel, node.pub_truth) if p is not None]
+            delivered = all(p.qos_profile.reliability == ReliabilityPolicy.RELIABLE for p in pubs)
+            for pub in pubs:
                 left = max(0.1, end - time.monotonic())
-                if pub is not None and not pub.wait_for_all_acked(Duration(seconds=left)):
+                if not pub.wait_for_all_acked(Duration(seconds=left)):
+                    delivered = False
                     node.get_logger().warning(f"{pub.topic_name}: not all messages acknowledged within "
                                               f"{node.drain_timeout_s:g} s")
-        # let the reliable writer deliver what is queued before the process goes away
-        end = time.monotonic() + 2.0
+        # best effort (no acknowledgements to wait for) or not all acknowledged: give the writer 2 s to deliver what
+        # is queued before the process goes away; every reader acknowledged every message: nothing is left to deliver
+        end = time.monotonic() + (0.0 if delivered else 2.0)
         while rclpy.ok() and time.monotonic() < end:
             rclpy.spin_once(node, timeout_sec=0.05)
         print(SUMMARY_PREFIX + json.dumps(node.summary()), flush=True)
