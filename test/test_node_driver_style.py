@@ -28,7 +28,7 @@ T0_NS = 1_700_000_000 * 1_000_000_000  # a wall-clock-like epoch, as a host-stam
 class Driver:
     """Publishes a ScenarioData like an IMU driver and a GNSS driver would (see the module docstring)."""
 
-    def __init__(self, data, seed=0):
+    def __init__(self, data, seed=0, imu_topic="/imu/data_raw", fix_topic="/fix"):
         import rclpy
         from rclpy.node import Node
         from rclpy.qos import qos_profile_sensor_data
@@ -38,8 +38,8 @@ class Driver:
         self.ctx = rclpy.Context()
         rclpy.init(context=self.ctx)
         self.node = Node("fake_drivers", context=self.ctx)
-        self.pub_imu = self.node.create_publisher(Imu, "/imu/data_raw", qos_profile_sensor_data)
-        self.pub_fix = self.node.create_publisher(NavSatFix, "/fix", qos_profile_sensor_data)
+        self.pub_imu = self.node.create_publisher(Imu, imu_topic, qos_profile_sensor_data)
+        self.pub_fix = self.node.create_publisher(NavSatFix, fix_topic, qos_profile_sensor_data)
         self.d = data
         rng = np.random.default_rng(seed)
         self.jitter_ns = rng.integers(-500_000, 500_001, data.n)
