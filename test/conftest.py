@@ -54,12 +54,12 @@ def pytest_configure(config):
 
 
 #: wall time of the longest tests [s] (scripts/test on 2 workers, warm kernel cache, load average 2 on the 2-core
-#: machine; the cold-cache test compiles the static core's kernels, 30-48 s) by node id prefix: only the order of the
+#: machine; the cold-cache test compiles the Earth-frame IEKF's kernels) by node id prefix: only the order of the
 #: run depends on it (longest first; the tests marked wallclock balanced between the workers, so that both finish
 #: theirs at the same time), never a result; a test not listed counts 10 s when it starts nodes over DDS (marker
 #: ``ros``), 0.5 s otherwise
 _LONG_TESTS_S = {
-    "test_node_ready.py::test_cold_numba_cache": 45.0,
+    "test_node_ready.py::test_cold_numba_cache": 20.0,
     "test_node_stamp_jitter.py::test_host_stamp_jitter_over_dds": 15.0,
     "test_node_e2e.py::test_every_core_publishes_pose": 19.0,
     "test_node_driver_style.py::test_driver_style_stream_with_default_parameters": 23.0,
