@@ -93,7 +93,6 @@ _LONG_TESTS_S = {
     "test_backtrack_node.py::test_node_backtracking_two_position": 7.0,
     "test_pi_liekf.py::test_sync_solve_waits_at_most_the_budget": 3.5,
     "test_pi_liekf.py::test_async_lmi_never_blocks_an_update": 3.2,
-    "test_pi_liekf.py::test_offline_default_is_synchronous": 1.4,
     "test_pi_liekf.py::test_a_slow_lmi_on_a_weakly_excited_ship": 1.4,
     "test_backtrack.py::test_driver_live_feed_budgeted": 1.2,
     "test_pi_liekf.py::test_async_solve_that_overruns_the_budget": 1.0,
@@ -163,9 +162,11 @@ def pytest_collection_modifyitems(config, items):
     def wallclock(g):
         return any(it.get_closest_marker("wallclock") is not None for it in g)
 
-    # the tests marked wallclock first (each takes the machine alone: one placed among the long DDS tests waited for
-    # the other worker's current one, 20 s a time; together at the start they wait only for each other), then the
-    # groups by expected duration (stable: file order among equals)
+    # the tests marked wallclock all in the first slice, at its head: each takes the machine alone, so it waits for
+    # the other workers' current tests. Split between the slices (each slice's own first), a worker that ran out of
+    # them started its longest test, 20-25 s that the other slice's next wallclock test waited for; now the other
+    # slices start with their shortest tests, as many seconds of them as the wallclock tests take, so each wallclock
+    # test waits for a short test at most. Then the groups by expected duration (stable: file order among equals).
     groups = sorted(_groups(items), key=lambda g: (wallclock(g), sum(map(_expected_s, g))), reverse=True)
     # the shorter slices first: worksteal sends len(pending) // (workers left) to each worker in turn, so the
     # slices must hold exactly its chunks' numbers of tests (one test off, a slice's last, shortest test would start
@@ -175,15 +176,32 @@ def pytest_collection_modifyitems(config, items):
     slices: list = [[] for _ in range(n)]
     load = [0.0] * n
     for g in groups:
-        fits = [i for i in range(n) if room[i] >= len(g)] or [max(range(n), key=lambda i: room[i])]
-        i = min(fits, key=lambda i: (load[i], i))
+        if wallclock(g) and room[0] >= len(g):
+            i = 0
+        else:
+            fits = [i for i in range(n) if room[i] >= len(g)] or [max(range(n), key=lambda i: room[i])]
+            i = min(fits, key=lambda i: (load[i], i))
         slices[i].append(g)
         room[i] -= len(g)
         load[i] += sum(map(_expected_s, g))
-    # inside a slice: wallclock first, then the group of the longest test first
-    items[:] = [it for sl in slices
-                for g in sorted(sl, key=lambda g: (wallclock(g), max(map(_expected_s, g))), reverse=True)
-                for it in g]
+    alone_s = sum(_expected_s(it) for g in slices[0] if wallclock(g) for it in g)
+
+    def ordered(k, sl):
+        """Wallclock first, then the group of the longest test first; the slices without the wallclock tests start
+        with their shortest groups, ``alone_s`` seconds of them (shortest first)."""
+        sl = sorted(sl, key=lambda g: (wallclock(g), max(map(_expected_s, g))), reverse=True)
+        if k == 0 or alone_s <= 0.0:
+            return sl
+        head, t = [], 0.0
+        for g in sorted(sl, key=lambda g: sum(map(_expected_s, g))):
+            if t >= alone_s:
+                break
+            head.append(g)
+            t += sum(map(_expected_s, g))
+        ids = {id(g) for g in head}
+        return head + [g for g in sl if id(g) not in ids]
+
+    items[:] = [it for k, sl in enumerate(slices) for g in ordered(k, sl) for it in g]
 
 
 def pytest_report_header(config):
