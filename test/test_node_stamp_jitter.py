@@ -4,9 +4,10 @@ clean stream; a real 0.3-s dropout in the same stream is found and bridged (test
 Two nodes side by side: one on the clean stream, one on the jittered stream with the dropout, where the one gap counted must be the
 dropout (its length and stamp from the node's log line): a gap counted for the jitter fails it (a third run of the
 jittered stream without the dropout cost a third of the test for the same assertion).
-400 Hz runs at the session level (test_gap_jitter.py); over DDS it costs the suite a minute more on a shared 2-core
-machine, so it is run by hand (``test_host_stamp_jitter_over_dds(tmp_path, env, 400.0)`` with an isolated ROS env;
-on an idle machine: 0 gaps clean, the dropout the one gap of 0.308 s, node CPU 0.91x; docs/session.md)."""
+400 Hz runs at the session level (test_gap_jitter.py); over DDS it costs the suite another 17 s of a worker (idle;
+more on a shared 2-core machine), so it is run by hand (``test_host_stamp_jitter_over_dds(tmp_path, env, 400.0)``
+with an isolated ROS env; on an idle machine, the nodes side by side: 0 gaps clean, the dropout the one gap of
+0.308 s, node CPU 0.93-0.95x; docs/session.md)."""
 
 import re
 import time
