@@ -97,11 +97,6 @@ def so3_left_jacobian(phi: np.ndarray) -> np.ndarray:
     return _I3 + b * K + c * (K @ K)
 
 
-def so3_right_jacobian(phi: np.ndarray) -> np.ndarray:
-    """SO(3) right Jacobian ``J_r(phi) = J_l(-phi)``."""
-    return so3_left_jacobian(-np.asarray(phi, dtype=float))
-
-
 def so3_left_jacobian_inv(phi: np.ndarray) -> np.ndarray:
     """Inverse of the SO(3) left Jacobian (the tau^-1 of PI-LIEKF eq. (A.4)); valid for |phi| < 2 pi."""
     theta = float(np.linalg.norm(phi))
@@ -111,11 +106,6 @@ def so3_left_jacobian_inv(phi: np.ndarray) -> np.ndarray:
     else:
         d = (1.0 - theta * math.sin(theta) / (2.0 * (1.0 - math.cos(theta)))) / (theta * theta)
     return _I3 - 0.5 * K + d * (K @ K)
-
-
-def so3_right_jacobian_inv(phi: np.ndarray) -> np.ndarray:
-    """Inverse of the SO(3) right Jacobian."""
-    return so3_left_jacobian_inv(-np.asarray(phi, dtype=float))
 
 
 def so3_gamma2(phi: np.ndarray) -> np.ndarray:

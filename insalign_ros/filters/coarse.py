@@ -285,11 +285,6 @@ class CoarseAlignment(AlignmentCore):
                  "w_h_rad_s": w_h}
         return np.diag([lvl[0], lvl[1], az_var]), parts
 
-    def sigmas_rad(self) -> tuple[float, float]:
-        """(level, azimuth) 1-sigma [rad] of the current window (the larger level axis)."""
-        P, _ = self.covariance(self._attitude())
-        return math.sqrt(max(P[0, 0], P[1, 1])), math.sqrt(P[2, 2])
-
     def estimate(self) -> AlignmentEstimate:
         names = ("psiE", "psiN", "psiU")
         if not self._init or self.T_s < self.cfg.min_window_s:

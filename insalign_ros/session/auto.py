@@ -42,10 +42,8 @@ from .motion import FixNoise, MotionConfig, MotionDetector, rate_hz_from_interva
 from .rest import REST_BLOCK_S, _BlockMean, block_variance, gyro_bias_from_rest, rest_rate_mean
 
 
-#: hand-over without a snapshot at rest (moving from the start): level and velocity 1-sigma [deg, m/s]
-NO_REST_LEVEL_SIGMA_DEG = 5.0
-NO_REST_SIGMA_V_M_S = 20.0
-#: ... the vehicle acceleration [m/s^2] assumed when the fixes do not give it (the session's init_accel_m_s2)
+#: hand-over without a snapshot at rest (moving from the start): the vehicle acceleration [m/s^2] assumed when the
+#: fixes do not give it (the session's init_accel_m_s2)
 NO_REST_ACC_M_S2 = 1.0
 #: ... the level comes from the IMU window over which the fixes' velocity change is known when they span this [s]
 LEVEL_WINDOW_MIN_S = 2.0
@@ -367,7 +365,7 @@ class AutoCore(AlignmentCore):
             P[2, :] = P[:, 2] = 0.0
             P[2, 2] = (1e4 * D2R) ** 2  # unknown: uniform over the bank's hypotheses (as the session's sensors init)
         core = registry.make_core(cfg.motion_core, params)
-        sig_v = 0.05 if before else NO_REST_SIGMA_V_M_S
+        sig_v = 0.05  # at rest (moving from the start: from the fixes, below)
         v0_n = np.zeros(3)
         sig_p = self.sig_p
         if not before:  # moving from the start: velocity from the fixes, position the newest fix carried forward

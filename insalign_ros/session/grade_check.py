@@ -22,9 +22,8 @@ class GradeCheck:
     """The session stage behind the "imu_grade ... too optimistic" note (kept across re-initialisations: it is the
     IMU's, not the filter's)."""
 
-    #: fused fixes while moving in the innovation window; the test's false-alarm probability per full window
+    #: fused fixes while moving in the innovation window (its mean NIS/dof goes to the diagnostics)
     WINDOW = 20
-    P_FALSE = 1e-3
     #: the bias consistency statistic (see _bias_findings) above this contradicts the grade (6 axes tested at every
     #: fix: 5 sigma keeps the false alarms of a matched grade rare)
     Z_MAX = 5.0
