@@ -88,11 +88,19 @@ def ecef_to_geodetic(p_e: np.ndarray) -> tuple[float, float, float]:
     1,000 km of height: < 1e-15 rad and < 1e-8 m (pymap3d: the same near the surface, 1.2e-9 rad above 10 km;
     test/test_earth.py); pymap3d within 1 km of the Earth's centre."""
     x, y, z = float(p_e[0]), float(p_e[1]), float(p_e[2])
-    p2 = x * x + y * y
-    p = math.sqrt(p2)
-    if p2 + z * z < 1e6:  # the closed form's singular region (the centre): the library
+    if x * x + y * y + z * z < 1e6:  # the closed form's singular region (the centre): the library
         lat, lon, h = pymap3d.ecef2geodetic(x, y, z, deg=False)
         return float(lat), float(lon), float(h)
+    return geodetic_closed_form(x, y, z)
+
+
+def geodetic_closed_form(x: float, y: float, z: float) -> tuple[float, float, float]:
+    """Heikkinen's closed form of :func:`ecef_to_geodetic` (floats; NaN within 1 km of the Earth's centre, where
+    :func:`ecef_to_geodetic` takes the library); compiled as is by core/mechanization_numba.py."""
+    p2 = x * x + y * y
+    p = math.sqrt(p2)
+    if p2 + z * z < 1e6:
+        return math.nan, math.nan, math.nan
     z2 = z * z
     F_ = 54.0 * B_M * B_M * z2
     G = p2 + (1.0 - E2) * z2 - E2 * (A_M * A_M - B_M * B_M)

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import earth, lie
+from . import mechanization_numba as nb
 
 
 @dataclass
@@ -93,8 +94,19 @@ def state_eci_from_geodetic(
 
 def geodetic_from_state_eci(state: NavStateEci, t0_s: float):
     """(lat_rad, lon_rad, h_m, C_b_n, v_n) of an ECI state."""
-    p_e, v_e = earth.eci_to_ecef(state.t_s, state.p_i, state.v_i, t0_s)
-    lat, lon, h = earth.ecef_to_geodetic(p_e)
-    C_en = earth.C_e_n(lat, lon)
-    C_ie = earth.C_e_i(state.t_s, t0_s).T
-    return lat, lon, h, C_en @ C_ie @ state.C_b_i, C_en @ v_e
+    return navigation_from_state_eci(state, t0_s, _ZERO3, False)[:5]
+
+
+_ZERO3 = np.zeros((3, 3))
+
+
+def navigation_from_state_eci(state: NavStateEci, t0_s: float, P_att: np.ndarray, inertial: bool):
+    """(lat_rad, lon_rad, h_m, C_b_n, v_n, P_att_n) of an ECI state whose attitude error covariance ``P_att`` is
+    kept in the body frame (``inertial`` False) or in ECI (True): one compiled call
+    (mechanization_numba.eci_navigation, once per output). Within 1 km of the Earth's centre (a lost filter) the
+    geodetic position is NaN and so is everything else."""
+    C_b_n, v_n, P_att_n = np.empty((3, 3)), np.empty(3), np.empty((3, 3))
+    c = np.ascontiguousarray
+    lat, lon, h = nb.eci_navigation(float(state.t_s), float(t0_s), c(state.C_b_i, float), c(state.v_i, float),
+                                    c(state.p_i, float), c(P_att, float), bool(inertial), C_b_n, v_n, P_att_n)
+    return lat, lon, h, C_b_n, v_n, P_att_n

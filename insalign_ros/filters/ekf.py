@@ -90,9 +90,7 @@ class ConventionalEkf(BatchedEciCore):
         self.b_g = self.b_g + dx[9:12]
         self.b_a = self.b_a + dx[12:15]
 
-    def _P_att_n(self, C_b_n):
-        C_i_n = C_b_n @ self.C.T
-        return C_i_n @ self.P[0:3, 0:3] @ C_i_n.T
+    _att_error_inertial = True  # psi_i: P_att_n = C_i_n P C_i_n^T
 
     def _bias_out(self):
         return self.b_g.copy(), self.b_a.copy()

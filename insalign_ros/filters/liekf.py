@@ -37,7 +37,7 @@ import numpy as np
 
 
 from ..core import mechanization_numba as nb
-from ..core.mechanization import NavStateEci, geodetic_from_state_eci, state_eci_from_geodetic
+from ..core.mechanization import NavStateEci, navigation_from_state_eci, state_eci_from_geodetic
 from ..core.units import deg_sqrt_h_to_rad_sqrt_s, m_s_sqrt_h_to_m_s_sqrt_s
 from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, ImuSample, UpdateResult
 from .checks import ImuBuffer, check_imu, usable_imu_arrays
@@ -54,7 +54,7 @@ class BatchedEciCore(AlignmentCore):
     """ECI strapdown + error-state covariance with batched propagation; subclasses define the error model.
 
     Subclass hooks: ``_n_states``, ``state_names``, ``_bias_correct(omega, f)``, ``_transitions(...)``,
-    ``_P0(P_att_n, sigma_v, sigma_p)``, ``_inject(dx)``, ``_P_att_n()``; the measurement Jacobians are the models'
+    ``_P0(P_att_n, sigma_v, sigma_p)``, ``_inject(dx)``, ``_att_error_inertial``; the measurement Jacobians are the models'
     (filters/measurements.py, ``convention``), the update the one pipeline (filters/update.py).
     """
 
@@ -256,8 +256,9 @@ class BatchedEciCore(AlignmentCore):
         """Retraction X_hat exp(dxi) (eq. (14)); error reset (eq. (15)) is implicit."""
         self.C, self.v, self.p = retract_se23(self.C, self.v, self.p, np.ascontiguousarray(dx[0:9], dtype=float))
 
-    def _P_att_n(self, C_b_n: np.ndarray) -> np.ndarray:
-        return C_b_n @ self.P[0:3, 0:3] @ C_b_n.T
+    #: the attitude error states are a rotation vector in ECI (True; P_att_n = C_i_n P C_i_n^T) or in the body frame
+    #: (False: the invariant errors, P_att_n = C_b_n P C_b_n^T), core/mechanization.py navigation_from_state_eci
+    _att_error_inertial = False
 
     # ---------------------------------------------------------------- update hooks (filters/update.py)
     def _gate(self, meas) -> float:
@@ -289,9 +290,8 @@ class BatchedEciCore(AlignmentCore):
         if not self._init:
             raise RuntimeError("estimate() before initialize()")
         self.flush()
-        lat, lon, h, C_b_n, v_n = geodetic_from_state_eci(NavStateEci(self.t_s, self.C, self.v, self.p), self.t0_s)
-        P_att = self._P_att_n(C_b_n)
-        P_att = 0.5 * (P_att + P_att.T)
+        lat, lon, h, C_b_n, v_n, P_att = navigation_from_state_eci(
+            NavStateEci(self.t_s, self.C, self.v, self.p), self.t0_s, self.P[0:3, 0:3], self._att_error_inertial)
         sig_yaw3 = 3.0 * math.degrees(math.sqrt(max(P_att[2, 2], 0.0)))
         if sig_yaw3 < self.cfg.status_yaw_3sigma_deg:
             status, reason = AlignmentStatus.ALIGNED, f"3-sigma yaw {sig_yaw3:.2f} deg"

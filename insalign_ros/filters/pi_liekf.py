@@ -249,10 +249,11 @@ class PiLiekf(Liekf):
 
     def _yaw_var_n(self) -> float:
         # vertical component of the body-frame attitude covariance: psi_n = C_b_n phi (docs/inmotion_cores.md)
-        from ..core.mechanization import NavStateEci, geodetic_from_state_eci
+        from ..core.mechanization import NavStateEci, navigation_from_state_eci
 
-        *_, C_b_n, _ = geodetic_from_state_eci(NavStateEci(self.t_s, self.C, self.v, self.p), self.t0_s)
-        return float((C_b_n @ self.P[0:3, 0:3] @ C_b_n.T)[2, 2])
+        P_att_n = navigation_from_state_eci(NavStateEci(self.t_s, self.C, self.v, self.p), self.t0_s,
+                                            self.P[0:3, 0:3], self._att_error_inertial)[5]
+        return float(P_att_n[2, 2])
 
     def _solve_job(self, H):
         """``fn(job)`` that solves on a snapshot (copies) of the window: safe to run in the worker thread. The

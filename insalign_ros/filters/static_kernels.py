@@ -80,6 +80,14 @@ def _zupt_predict_nb(x5, f_np, lat, r_m, m, dt, x5_out, F5):
 def _corrected_attitude_nb(pN, pE, pD, C_b_n):
     """``mech.correct_attitude(misalignment_rotation_enu([pN, pE, pD]))`` compiled: the nearest rotation (SVD) to
     ``T Rz(pD) exp([pN, pE, 0]) T C_b_n``; returns the new C_b_n."""
+    u, _, vt = np.linalg.svd(misaligned_attitude_nb(pN, pE, pD, C_b_n))
+    return u @ vt
+
+
+@nb._jit
+def misaligned_attitude_nb(pN, pE, pD, C_b_n):
+    """``misalignment_rotation_enu([pN, pE, pD]) @ C_b_n`` compiled: ``T Rz(pD) exp([pN, pE, 0]) T C_b_n`` (the
+    static cores' attitude with the misalignment still held in the state applied)."""
     X = np.empty((3, 3))
     a, b, _, _ = nb._coeffs(pN * pN + pE * pE)  # lie.so3_exp's coefficients
     nb._so3_from(pN, pE, 0.0, a, b, 1.0, X)
@@ -95,9 +103,7 @@ def _corrected_attitude_nb(pN, pE, pD, C_b_n):
     for i in range(3):
         for j in range(3):
             E[i, j] = sg[i] * sg[j] * Rx[idx[i], idx[j]]
-    M = E @ C_b_n
-    u, _, vt = np.linalg.svd(M)
-    return u @ vt
+    return E @ C_b_n
 
 
 @nb._jit

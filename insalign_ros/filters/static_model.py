@@ -31,7 +31,7 @@ from ..core.mechanization_n import LocalLevelMechanization
 from ..core.units import G0_M_S2
 from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, ImuSample, UpdateResult
 from .config import ConfigDict, param
-from .static_kernels import _corrected_attitude_nb, _f_model_nb, _jacobian_nb, _M0, _zupt_step_nb
+from .static_kernels import _corrected_attitude_nb, _f_model_nb, _jacobian_nb, _M0, _zupt_step_nb, misaligned_attitude_nb
 from .checks import ImuBuffer, usable_imu_arrays
 from .measurements import ZeroVelocity
 
@@ -498,8 +498,8 @@ class StaticZuptCore(AlignmentCore):
 
     def attitude_estimate(self) -> np.ndarray:
         """C_b_n with the azimuth still held in the state applied."""
-        E = misalignment_rotation_enu(np.array([self.x[2], self.x[3], self.x[4]]))
-        return E @ self.mech.C_b_n
+        return misaligned_attitude_nb(float(self.x[2]), float(self.x[3]), float(self.x[4]),
+                                      np.ascontiguousarray(self.mech.C_b_n, float))
 
     def estimate(self) -> AlignmentEstimate:
         if not self._init:

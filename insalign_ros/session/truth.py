@@ -36,6 +36,14 @@ class TruthTable:
     llh: np.ndarray | None = None
     v_n: np.ndarray | None = None
 
+    def t_list(self) -> list:
+        """``t_s`` as a list of floats, built once (the output's look-up bisects it: ~0.3 us against ~1.5 us for
+        ``np.searchsorted`` on a slice)."""
+        tl = self.__dict__.get("_t_list")
+        if tl is None:
+            tl = self.__dict__["_t_list"] = self.t_s.tolist()
+        return tl
+
     def sample(self, k: int) -> TruthSample:
         llh = None if self.llh is None else tuple(self.llh[k].tolist())
         tr = TruthSample(float(self.t_s[k]), self.C_b_n[k], None, None if self.v_n is None else self.v_n[k], llh)
@@ -92,7 +100,7 @@ class TruthDict(dict):
         while self.pending:
             blk = self.pending[0]
             tb, lo, hi = blk
-            k = lo + int(np.searchsorted(tb.t_s[lo:hi], t0, side="left"))
+            k = bisect.bisect_left(tb.t_list(), t0, lo, hi)
             self.n_pending -= k - lo
             if k < hi:
                 blk[1] = k
@@ -108,13 +116,13 @@ class TruthDict(dict):
             return ((tt[i - 1], self._sample(tt[i - 1]).C_b_n) if i else None), (tt[i], self._sample(tt[i]).C_b_n)
         before = (tt[-1], self._sample(tt[-1]).C_b_n) if tt else None
         for tb, lo, hi in self.pending:
-            T = tb.t_s
-            k = lo + int(np.searchsorted(T[lo:hi], x, side="left"))
+            T = tb.t_list()
+            k = bisect.bisect_left(T, x, lo, hi)
             if k < hi:
                 if k > lo:
-                    before = (float(T[k - 1]), tb.C_b_n[k - 1])
-                return before, (float(T[k]), tb.C_b_n[k])
-            before = (float(T[hi - 1]), tb.C_b_n[hi - 1])
+                    before = (T[k - 1], tb.C_b_n[k - 1])
+                return before, (T[k], tb.C_b_n[k])
+            before = (T[hi - 1], tb.C_b_n[hi - 1])
         return before, None
 
     def add_rows(self, stamps: list, table: TruthTable, start: int) -> None:
