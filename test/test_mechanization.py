@@ -61,3 +61,32 @@ def test_forward_then_inverse_returns_to_start():
     assert np.linalg.norm(lie.so3_log(s0.C_b_i.T @ C)) < 1e-10
     assert np.linalg.norm(v - s0.v_i) < 1e-7
     assert np.linalg.norm(p - s0.p_i) < 1e-5
+
+
+def test_navigation_outputs_of_an_eci_state_match_the_frame_chain():
+    """``navigation_from_state_eci`` (one compiled call per estimate) against the frame chain of core/earth.py written
+    out: ECI -> ECEF, geodetic, ENU; the attitude covariance of an error kept in the body frame (C_b_n P C_b_n^T) and
+    in ECI (C_i_n P C_i_n^T); within 1 km of the Earth's centre the position is NaN (a lost filter)."""
+    rng = np.random.default_rng(3)
+    for k in range(20):
+        lat, lon, h = rng.uniform(-1.4, 1.4), rng.uniform(-3.1, 3.1), rng.uniform(-100.0, 9000.0)
+        t, t0 = rng.uniform(0.0, 5000.0), rng.uniform(-100.0, 100.0)
+        C_b_n = E.C_b_n_from_rpy(*rng.uniform(-3.0, 3.0, 3))
+        s = M.state_eci_from_geodetic(t, t0, lat, lon, h, C_b_n, rng.normal(0.0, 20.0, 3))
+        A = rng.normal(0.0, 1e-3, (3, 3))
+        P = A @ A.T
+        p_e, v_e = E.eci_to_ecef(t, s.p_i, s.v_i, t0)
+        lat_r, lon_r, h_r = E.ecef_to_geodetic(p_e)
+        C_i_n = E.C_e_n(lat_r, lon_r) @ E.C_e_i(t, t0).T
+        for inertial in (False, True):
+            la, lo, hh, Cbn, vn, Patt = M.navigation_from_state_eci(s, t0, P, inertial)
+            assert abs(la - lat_r) < 1e-14 and abs(lo - lon_r) < 1e-14 and abs(hh - h_r) < 1e-8
+            assert abs(la - lat) < 1e-12 and abs(hh - h) < 1e-6  # and the geodetic position it started from
+            assert np.allclose(Cbn, C_i_n @ s.C_b_i, rtol=0, atol=1e-14)
+            assert np.allclose(Cbn, C_b_n, rtol=0, atol=1e-12)
+            assert np.allclose(vn, E.C_e_n(lat_r, lon_r) @ v_e, rtol=0, atol=1e-11)
+            R = C_i_n if inertial else Cbn
+            assert np.allclose(Patt, R @ P @ R.T, rtol=1e-12, atol=1e-20)
+            assert np.array_equal(Patt, Patt.T)
+    centre = M.NavStateEci(0.0, np.eye(3), np.zeros(3), np.array([300.0, 0.0, 0.0]))
+    assert all(math.isnan(x) for x in M.navigation_from_state_eci(centre, 0.0, np.eye(3), False)[:3])

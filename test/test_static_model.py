@@ -99,3 +99,18 @@ def test_pkf_gain_dimensions_and_deadbeat_limit():
     # heavy Q_m -> no model error
     K_heavy = pkf_gain(F, H_ZUPT, 10, np.eye(20), np.eye(50) * 1e12)
     assert np.abs(K_heavy).max() < 1e-9
+
+
+def test_compiled_misaligned_attitude_is_the_misalignment_rotation_applied():
+    """The static cores' attitude estimate (static_kernels.misaligned_attitude_nb, compiled) is eq. (23)'s rotation
+    ``misalignment_rotation_enu(phi)`` applied to C_b_n, for small and large misalignments."""
+    from insalign_ros.core import earth
+    from insalign_ros.filters.static_kernels import misaligned_attitude_nb
+
+    rng = np.random.default_rng(11)
+    for scale in (1e-4, 0.05, 1.0):
+        for _ in range(10):
+            phi = rng.normal(0.0, scale, 3)
+            C = earth.C_b_n_from_rpy(*rng.uniform(-3.0, 3.0, 3))
+            got = misaligned_attitude_nb(float(phi[0]), float(phi[1]), float(phi[2]), np.ascontiguousarray(C))
+            assert np.allclose(got, misalignment_rotation_enu(phi) @ C, rtol=0, atol=1e-14)
