@@ -30,7 +30,7 @@ def plot_euler_errors(results: list[RunResult], path, title: str = "") -> None:
     ax[-1].set_xlabel("time [s]")
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
+    fixed_layout(fig, bool(title))
     fig.savefig(path, dpi=90)
     plt.close(fig)
 
@@ -74,7 +74,7 @@ def plot_estimate(t_s, rpy_deg, sigma3_deg, aligned, path, title: str = "") -> N
     ax[0].legend(fontsize=8, loc="upper right")
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
+    fixed_layout(fig, bool(title))
     fig.savefig(path, dpi=90)
     plt.close(fig)
 
@@ -88,3 +88,9 @@ def _limits(x, s3, up):
     lo, hi = min(lo, float(np.min(x))), max(hi, float(np.max(x)))
     pad = max(0.5, 0.05 * (hi - lo))
     return lo - pad, hi + pad
+
+
+def fixed_layout(fig, title: bool) -> None:
+    """Fixed margins for the stacked panels (room for 7-character tick labels and the axis labels), instead of
+    ``tight_layout``, which draws every tick once more to measure them: half the time of a plot."""
+    fig.subplots_adjust(left=0.11, right=0.97, bottom=0.06, top=0.94 if title else 0.97, hspace=0.12)
