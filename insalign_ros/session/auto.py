@@ -290,9 +290,7 @@ class AutoCore(AlignmentCore):
         whose 0.035 m/s at the IMU pulled the navigation-grade gyrocompass by 0.2-0.6 deg)."""
         if self.detector is None or not self.detector.decision.decided or self.detector.decision.moving:
             return True  # undecided counts as motion: a zero-velocity update while driving would corrupt the level
-        d = self.detector.diagnostics()
-        return bool(d["dv_h_m_s"] > d["dv_h_threshold_m_s"] or d["spread_f_m_s2"] > d["spread_f_threshold_m_s2"]
-                    or d["spread_omega_deg_s"] > d["spread_omega_threshold_deg_s"])
+        return self.detector.over_rest_bounds()
 
     def _speed(self) -> float:
         """Horizontal speed of the in-motion core [m/s] (a stop is declared only when it agrees)."""

@@ -520,6 +520,13 @@ class MotionDetector:
         self._i = (i + taken) % L
         return taken
 
+    def over_rest_bounds(self) -> bool:
+        """The last sample's velocity change, specific-force spread or angular-rate spread above its bound (the
+        numbers :meth:`diagnostics` reports, without building them: once per zero-velocity update)."""
+        s, thr = self._stats, self.thresholds
+        return bool(s["dv_h"] > thr["dv_h_m_s"] or s["spread_f"] > thr["spread_f_m_s2"]
+                    or math.degrees(s["spread_omega"]) > math.degrees(thr["spread_omega_rad_s"]))
+
     def blocking(self) -> str:
         """What keeps the detector from seeing the vehicle parked, in words ("" when nothing does)."""
         return blocking(self._stats, self._gnss_now[:3], self.thresholds, self.cfg, self.learner.word())
