@@ -64,10 +64,16 @@ def ecef_to_eci(t_s: float, p_e: np.ndarray, v_e: np.ndarray | None = None, t0_s
 def eci_to_ecef(t_s: float, p_i: np.ndarray, v_i: np.ndarray | None = None, t0_s: float = 0.0):
     """ECI position [m] (and inertial velocity [m/s]) -> ECEF position and velocity relative to ECEF."""
     C = C_e_i(t_s, t0_s).T
-    p_e = C @ p_i
     if v_i is None:
-        return p_e
-    return p_e, C @ np.asarray(v_i) - _omega_ie_cross(p_e)
+        return C @ p_i
+    return eci_to_ecef_pv(C, p_i, np.asarray(v_i))
+
+
+def eci_to_ecef_pv(C_i_e: np.ndarray, p_i: np.ndarray, v_i: np.ndarray):
+    """:func:`eci_to_ecef` of a position and a velocity with the rotation ``C_i_e = C_e_i(t_s, t0_s)^T`` given
+    (compiled as is inside core/mechanization_numba.py's ``eci_navigation``)."""
+    p_e = C_i_e @ p_i
+    return p_e, C_i_e @ v_i - _omega_ie_cross(p_e)
 
 
 def _omega_ie_cross(p_e: np.ndarray) -> np.ndarray:

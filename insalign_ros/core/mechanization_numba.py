@@ -388,24 +388,24 @@ def eci_invariant_block(C, v, p, T, W, F, t_prev, b_g, b_a, zn, zj, P, qrate, wa
     return Wc[n - 1].copy()
 
 
-_C_e_i = _jit(earth.C_e_i)
-_C_e_n = _jit(earth.C_e_n)
-_omega_ie_cross = _jit(earth._omega_ie_cross)
-_geodetic_closed_form = _jit(earth.geodetic_closed_form)
+if COMPILE:  # earth.py's frame chain, callable as it is from the kernels below (and plain Python elsewhere)
+    from numba.extending import register_jitable
+
+    for _fn in (earth.C_e_i, earth.C_e_n, earth._omega_ie_cross, earth.eci_to_ecef_pv, earth.geodetic_closed_form):
+        register_jitable(_fn)
 
 
 @_jit
 def eci_navigation(t_s, t0_s, C_b_i, v_i, p_i, P_att, inertial, C_b_n, v_n, P_att_n):
     """An ECI state as navigation outputs (core/mechanization.py ``navigation_from_state_eci``: one compiled call
-    per estimate; earth.eci_to_ecef, earth.geodetic_closed_form and earth.C_e_n composed): returns (lat, lon, h)
+    per estimate; earth.py's eci_to_ecef_pv, geodetic_closed_form and C_e_n composed): returns (lat, lon, h)
     [rad, rad, m] (NaN within 1 km of the Earth's centre: a lost filter, which the outputs refuse) and fills C_b_n,
     v_n (ENU) and ``P_att_n = R P_att R^T`` (symmetrised), the attitude error covariance in ENU of an error kept
     in the body frame (``inertial`` False: R = C_b_n) or in ECI (True: R = C_i_n)."""
-    C_ie = np.ascontiguousarray(_C_e_i(t_s, t0_s).T)
-    p_e = C_ie @ p_i  # earth.eci_to_ecef
-    v_e = C_ie @ v_i - _omega_ie_cross(p_e)
-    lat, lon, h = _geodetic_closed_form(p_e[0], p_e[1], p_e[2])
-    C_en = _C_e_n(lat, lon)
+    C_ie = np.ascontiguousarray(earth.C_e_i(t_s, t0_s).T)
+    p_e, v_e = earth.eci_to_ecef_pv(C_ie, p_i, v_i)
+    lat, lon, h = earth.geodetic_closed_form(p_e[0], p_e[1], p_e[2])
+    C_en = earth.C_e_n(lat, lon)
     C_in = C_en @ C_ie
     C_b_n[:, :] = C_in @ C_b_i
     v_n[:] = C_en @ v_e
