@@ -158,9 +158,16 @@ def model_error_jacobian(x5, f_np, lat, r_m, G):
         G[:, j] = (f_model(x5, u, e) - f_model(x5, u, -e)) / 2e-6
 
 
+def misalignment_rotation_enu(phi_ned: np.ndarray) -> np.ndarray:
+    """Orthonormal version of eq. (23) in ENU: ``T Rz(phiD) exp([phiN, phiE, 0]) T`` (the static cores' feedback and
+    attitude estimate; compiled as static_kernels.misaligned_attitude_nb)."""
+    T = static_model.T_NED_ENU
+    return T @ static_model.Rz(phi_ned[2]) @ lie.so3_exp(np.array([phi_ned[0], phi_ned[1], 0.0])) @ T
+
+
 def corrected_attitude(pN, pE, pD, C_b_n):
     """``C_b_n <- E C_b_n`` with the eq. (23) misalignment rotation in ENU, re-orthonormalised by an SVD."""
-    E = static_model.misalignment_rotation_enu(np.array([pN, pE, pD]))
+    E = misalignment_rotation_enu(np.array([pN, pE, pD]))
     u, _, vt = np.linalg.svd(E @ C_b_n)
     return u @ vt
 

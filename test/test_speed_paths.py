@@ -278,7 +278,7 @@ def test_compiled_update_helpers_match_numpy():
         assert np.abs(pn - X[:3, 4]).max() < 1e-8  # 6.4e6 m: its ulp is 1e-9 m
     for phi in ([1e-3, -2e-3, 0.4], [0.01, 0.02, 0.0], [0.0, 0.0, 3.0]):
         mech = LocalLevelMechanization(0.6, 0.2, 10.0, C, np.zeros(3))
-        mech.correct_attitude(sm.misalignment_rotation_enu(np.array(phi)))
+        mech.correct_attitude(oracles.misalignment_rotation_enu(np.array(phi)))
         assert np.abs(sk._corrected_attitude_nb(*phi, C) - mech.C_b_n).max() < 1e-15
         assert np.abs(oracles.corrected_attitude(*phi, C) - mech.C_b_n).max() < 1e-15
     for p_e in rng.normal(scale=6e6, size=(10, 3)):

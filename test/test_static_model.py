@@ -10,7 +10,8 @@ from insalign_ros.core import earth, lie
 from insalign_ros.filters.pkf import pkf_gain
 from insalign_ros.filters.static_model import (
     H_ZUPT, T_NED_ENU, Rz, StaticModelInputs, enu_psi_from_ned_phi, f_model, jacobian, misalignment_matrix,
-    misalignment_rotation_enu, ned_from_enu)
+    ned_from_enu)
+from oracles import misalignment_rotation_enu
 
 LAT = math.radians(35.0)
 G = 9.8

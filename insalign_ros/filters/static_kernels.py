@@ -78,16 +78,17 @@ def _zupt_predict_nb(x5, f_np, lat, r_m, m, dt, x5_out, F5):
 
 @nb._jit
 def _corrected_attitude_nb(pN, pE, pD, C_b_n):
-    """``mech.correct_attitude(misalignment_rotation_enu([pN, pE, pD]))`` compiled: the nearest rotation (SVD) to
-    ``T Rz(pD) exp([pN, pE, 0]) T C_b_n``; returns the new C_b_n."""
+    """``mech.correct_attitude(E)`` with eq. (23)'s rotation E: the nearest rotation (SVD) to
+    ``T Rz(pD) exp([pN, pE, 0]) T C_b_n`` (:func:`misaligned_attitude_nb`); returns the new C_b_n."""
     u, _, vt = np.linalg.svd(misaligned_attitude_nb(pN, pE, pD, C_b_n))
     return u @ vt
 
 
 @nb._jit
 def misaligned_attitude_nb(pN, pE, pD, C_b_n):
-    """``misalignment_rotation_enu([pN, pE, pD]) @ C_b_n`` compiled: ``T Rz(pD) exp([pN, pE, 0]) T C_b_n`` (the
-    static cores' attitude with the misalignment still held in the state applied)."""
+    """Eq. (23)'s orthonormal misalignment rotation in ENU applied to C_b_n, ``T Rz(pD) exp([pN, pE, 0]) T C_b_n``:
+    the static cores' attitude with the misalignment still held in the state applied (test/oracles.py has the numpy
+    formula, ``misalignment_rotation_enu``)."""
     X = np.empty((3, 3))
     a, b, _, _ = nb._coeffs(pN * pN + pE * pE)  # lie.so3_exp's coefficients
     nb._so3_from(pN, pE, 0.0, a, b, 1.0, X)

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core import earth, lie
+from ..core import earth
 from ..core import mechanization_numba as nb
 from ..core.mechanization_n import LocalLevelMechanization
 from ..core.units import G0_M_S2
@@ -64,12 +64,6 @@ def misalignment_matrix(phi_ned: np.ndarray) -> np.ndarray:
     pN, pE, pD = phi_ned
     c, s = math.cos(pD), math.sin(pD)
     return np.array([[c, -s, pE * c + pN * s], [s, c, pE * s - pN * c], [-pE, pN, 1.0]])
-
-
-def misalignment_rotation_enu(phi_ned: np.ndarray) -> np.ndarray:
-    """Orthonormal version of eq. (23) in ENU: ``T Rz(phiD) exp([phiN, phiE, 0]) T`` (for feedback)."""
-    E_ned = Rz(phi_ned[2]) @ lie.so3_exp(np.array([phi_ned[0], phi_ned[1], 0.0]))
-    return T_NED_ENU @ E_ned @ T_NED_ENU
 
 
 @dataclass
