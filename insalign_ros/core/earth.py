@@ -89,8 +89,8 @@ def geodetic_to_ecef(lat_rad: float, lon_rad: float, h_m: float) -> np.ndarray:
 
 def ecef_to_geodetic(p_e: np.ndarray) -> tuple[float, float, float]:
     """ECEF [m] -> (lat_rad, lon_rad, h_m) (WGS84), Heikkinen's closed form (IEEE Trans. AES 30(3), 1994, J. Zhu's
-    summary) in scalar floats: every estimate() of the ECI cores calls this (8x with a yaw bank), and pymap3d's
-    ``ecef2geodetic`` costs ~85 us a call against ~2 us here. Round trip with :func:`geodetic_to_ecef` from -10 km to
+    summary) in scalar floats (:func:`geodetic_closed_form`, which every estimate() of the ECI cores runs compiled,
+    8x with a yaw bank): pymap3d's ``ecef2geodetic`` costs ~85 us a call against ~2 us here. Round trip with :func:`geodetic_to_ecef` from -10 km to
     1,000 km of height: < 1e-15 rad and < 1e-8 m (pymap3d: the same near the surface, 1.2e-9 rad above 10 km;
     test/test_earth.py); pymap3d within 1 km of the Earth's centre."""
     x, y, z = float(p_e[0]), float(p_e[1]), float(p_e[2])
