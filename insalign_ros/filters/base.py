@@ -63,6 +63,26 @@ def bias_indices(state_names, block: str) -> list[int]:
     return [i for i, n in enumerate(state_names) if n.rstrip("_xyz").lstrip("d") == block]
 
 
+def widen_biases(P: np.ndarray, state_names, var_bg_rad2_s2: float, var_ba_m2_s4: float) -> None:
+    """Add ``var_bg_rad2_s2`` / ``var_ba_m2_s4`` to each gyro- / accelerometer-bias variance of the covariance ``P``
+    (in place), carried to every state through the Gaussian's regression on the biases: with K = P_xb P_bb^-1,
+    P += K diag(var) K^T. So a state the data tie to a bias (the attitude a gyro bias has turned since the start, the
+    tilt an accelerometer bias mimics) gets the uncertainty a wider bias prior implies, in the core's own error
+    coordinates; the bias block itself gets exactly ``var``. A singular bias block falls back to the diagonal."""
+    blocks = [(bias_indices(state_names, b), v) for b, v in (("bg", var_bg_rad2_s2), ("ba", var_ba_m2_s4)) if v > 0.0]
+    idx = [i for ix, _ in blocks for i in ix]
+    if not idx:
+        return
+    d = np.concatenate([np.full(len(ix), v) for ix, v in blocks])
+    try:
+        K = np.linalg.solve(P[np.ix_(idx, idx)], P[idx, :]).T  # P_xb P_bb^-1 (P_bb symmetric)
+    except np.linalg.LinAlgError:
+        K = np.zeros((len(P), len(idx)))
+        K[idx, np.arange(len(idx))] = 1.0
+    P += (K * d) @ K.T
+    P[:] = 0.5 * (P + P.T)
+
+
 class AlignmentCore(ABC):
     """Base class of every alignment estimator.
 
@@ -213,12 +233,11 @@ class AlignmentCore(ABC):
         self.flush()
         a = list(self.att_index)
         self.P[a, a] += var_att_rad2
-        bg, ba = bias_indices(self.state_names, "bg"), bias_indices(self.state_names, "ba")
-        for idx, var in ((self.vel_index, var_v_m2_s2), (self.pos_index, var_p_m2), (bg or None, var_bg_rad2_s2),
-                         (ba or None, var_ba_m2_s4)):
+        for idx, var in ((self.vel_index, var_v_m2_s2), (self.pos_index, var_p_m2)):
             if idx is not None and var:
                 i = list(idx)
                 self.P[i, i] += var
+        widen_biases(self.P, self.state_names, var_bg_rad2_s2, var_ba_m2_s4)
 
     def diagnostics(self) -> dict:
         """Core-specific diagnostics (key -> value) for /diagnostics and the metrics JSON."""

@@ -109,8 +109,10 @@ class GradeCheck:
         sess.counters["grade_too_optimistic"] += 1
         sess.log("warn", "grade_too_optimistic", self.note)
         # the covariance must cover what the grade did not: both bias priors widened to the grade ``factor`` times
-        # noisier (what the user is told to pass), and the tilt the wider accelerometer bias leaves uncovered (b/g),
-        # so the estimate re-converges with honest sigmas (the flag follows them)
+        # noisier (what the user is told to pass), carried to the attitude through the covariance's regression on the
+        # biases (the yaw a gyro bias has turned since the start: base.widen_biases), and the tilt the wider
+        # accelerometer bias leaves uncovered (b/g), so the estimate re-converges with honest sigmas (the flag
+        # follows them)
         widen = self.factor ** 2 - before ** 2
         var_bg = widen * deg_h_to_rad_s(grade.gyro_bias_deg_h) ** 2
         var_ba = widen * mg_to_m_s2(grade.acc_bias_mg) ** 2
