@@ -47,6 +47,7 @@ def test_every_core_takes_its_noise_and_bias_priors_from_the_grade(core):
     # closed form, field by field
     assert cfg.gyro_arw_deg_sqrt_h == g.gyro_arw_deg_sqrt_h and cfg.acc_vrw_m_s_sqrt_h == g.acc_vrw_m_s_sqrt_h
     expect = {"gyro_arw_deg_sqrt_h": g.gyro_arw_deg_sqrt_h, "acc_vrw_m_s_sqrt_h": g.acc_vrw_m_s_sqrt_h,
+              "acc_vrw_up_m_s_sqrt_h": g.acc_vrw_up_m_s_sqrt_h,
               "gyro_bias_deg_h": g.gyro_bias_deg_h, "acc_bias_mg": g.acc_bias_mg,
               "gyro_bias_rw_deg_h_sqrt_h": g.gyro_bias_instability_deg_h,
               "acc_bias_rw_mg_sqrt_h": g.acc_bias_instability_mg}

@@ -15,6 +15,7 @@ with ``psi ~ N(0, P_att_n)`` (psi[2] is the azimuth error about Up).
 from __future__ import annotations
 
 import enum
+import math
 from collections.abc import Mapping
 from types import MappingProxyType
 from abc import ABC, abstractmethod
@@ -61,6 +62,23 @@ def bias_indices(state_names, block: str) -> list[int]:
     """Indices of the gyro-bias (``block`` "bg") or accelerometer-bias ("ba") error states in a core's state order
     (named ``bg_x``.. or ``dbg_x``..); empty when the core keeps no such block."""
     return [i for i, n in enumerate(state_names) if n.rstrip("_xyz").lstrip("d") == block]
+
+
+def accel_noise_b(C_b_n: np.ndarray, q_m2_s3: float, q_up_m2_s3: float) -> np.ndarray:
+    """The accelerometer's white-noise PSD per body axis [m^2/s^3]: ``q_m2_s3`` on each axis and ``q_up_m2_s3`` on the
+    body axis of the vehicle's vertical, the one within 25 deg of Up in the attitude ``C_b_n`` (body to ENU) of the
+    initialisation (a vehicle's vibration in motion is mostly along its own vertical); an IMU mounted so that no axis is
+    within 25 deg of Up gets ``q_up_m2_s3`` on every axis (the diagonal of the rotated matrix would under-state it along
+    the vertical)."""
+    q = np.full(3, float(q_m2_s3))
+    if q_up_m2_s3 <= 0.0 or q_up_m2_s3 == q_m2_s3:
+        return q
+    up_b = np.abs(np.asarray(C_b_n, float)[2, :])  # Up in the body frame
+    i = int(np.argmax(up_b))
+    if up_b[i] >= math.cos(math.radians(25.0)):
+        q[i] = q_up_m2_s3
+        return q
+    return np.full(3, max(float(q_m2_s3), float(q_up_m2_s3)))
 
 
 def widen_biases(P: np.ndarray, state_names, var_bg_rad2_s2: float, var_ba_m2_s4: float) -> None:

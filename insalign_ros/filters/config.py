@@ -112,6 +112,10 @@ class InMotionConfig(ConfigDict):
     gyro_arw_deg_sqrt_h: float = param(2.0, 'gyro angle random walk [deg/sqrt(h)] (IMU grade)')
     #: accelerometer velocity random walk [m/s/sqrt(h)] -> process noise of the velocity error
     acc_vrw_m_s_sqrt_h: float = param(0.2, 'accelerometer velocity random walk [m/s/sqrt(h)] (IMU grade)')
+    #: ... along the vehicle's vertical (the body axis within 25 deg of Up at initialisation; every axis when none is)
+    acc_vrw_up_m_s_sqrt_h: float = param(
+        0.0, "accelerometer velocity random walk along the vehicle's vertical [m/s/sqrt(h)]: vibration in motion "
+             "(IMU grade; 0: acc_vrw_m_s_sqrt_h)")
     #: initial 1-sigma attitude errors about the ENU axes [deg] used by the runners to build P_att_n.
     #: A 179 deg yaw error is not Gaussian in any parametrisation; see docs/inmotion_cores.md for the choice.
     init_sigma_roll_deg: float = param(10.0, range=(0.0, 180.0))

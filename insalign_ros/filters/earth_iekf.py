@@ -39,7 +39,7 @@ from ..core.mechanization_e import OMEGA_IE_E, v_e_from_vbar, vbar_from_v_e
 from ..core.units import (
     deg_h_to_rad_s, deg_sqrt_h_to_rad_sqrt_s, m_s_sqrt_h_to_m_s_sqrt_s, ug_sqrt_hz_to_m_s_sqrt_h, ug_to_m_s2,
 )
-from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, ImuSample, UpdateResult
+from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, ImuSample, UpdateResult, accel_noise_b
 from .config import InMotionConfig
 from .checks import check_imu, usable_imu_arrays
 from .eci_batch import liekf_transition_batch, prefix_products, propagate_eci_batch, step_increments_batch
@@ -143,6 +143,8 @@ class EarthIekf(AlignmentCore):
         self.last_reject_reason = ""
         self._q_gyro = deg_sqrt_h_to_rad_sqrt_s(self.cfg.gyro_arw_deg_sqrt_h) ** 2
         self._q_acc = m_s_sqrt_h_to_m_s_sqrt_s(self.cfg.acc_vrw_m_s_sqrt_h) ** 2
+        self._q_acc_up = m_s_sqrt_h_to_m_s_sqrt_s(self.cfg.acc_vrw_up_m_s_sqrt_h) ** 2
+        self._q_acc_b = np.full(3, self._q_acc)  # per body axis (left-invariant: body frame; base.accel_noise_b)
 
     @property
     def initialized(self) -> bool:
@@ -151,6 +153,7 @@ class EarthIekf(AlignmentCore):
     # ------------------------------------------------------------------ life cycle
     def initialize(self, stamp_s, lat_rad, lon_rad, h_m, C_b_n, v_n, P_att_n, sigma_v_m_s, sigma_p_m) -> None:
         C_b_n = np.asarray(C_b_n, float)
+        self._q_acc_b = accel_noise_b(C_b_n, self._q_acc, self._q_acc_up)
         C_n_e = earth.C_n_e(lat_rad, lon_rad)
         self.t_s = float(stamp_s)
         self.C = C_n_e @ C_b_n
@@ -292,7 +295,7 @@ class EarthIekf(AlignmentCore):
         Phi = bias_transitions(liekf_transition_batch(dC, dv_b, dp_b, dt), dt)
         q = np.zeros((dt.shape[0], 6))
         q[:, 0:3] = self._q_gyro * dt[:, None]
-        q[:, 3:6] = self._q_acc * dt[:, None]
+        q[:, 3:6] = self._q_acc_b * dt[:, None]
         return C1, v1, p1, covariance_batch_diag(P, Phi, q)
 
     # ------------------------------------------------------------------ zero-velocity update

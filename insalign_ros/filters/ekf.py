@@ -60,7 +60,7 @@ class ConventionalEkf(BatchedEciCore):
     state_blocks = frozenset({"gyro_bias", "acc_bias"})
 
     def _noise_diag(self, dt):
-        d = super()._noise_diag(dt)  # isotropic: C_hat Q C_hat^T = Q
+        d = super()._noise_diag(dt)  # isotropic parts: C_hat Q C_hat^T = Q (the velocity block: _transitions)
         d[:, 9:12] = self._q_bg * dt[:, None]
         d[:, 12:15] = self._q_ba * dt[:, None]
         return d
@@ -81,6 +81,8 @@ class ConventionalEkf(BatchedEciCore):
         Phi[:, 6:9, 3:6] = _I3 * dtt
         Qd = np.zeros((n, 15, 15))
         Qd[:, np.arange(15), np.arange(15)] = self._noise_diag(dt)
+        if np.ptp(self._q_acc_b) > 0.0:  # the accelerometer noise per body axis, in the inertial frame of dv
+            Qd[:, 3:6, 3:6] = np.einsum("nij,j,nkj->nik", C_prev, self._q_acc_b, C_prev) * dtt
         return Phi, Qd
 
     def _inject(self, dx):

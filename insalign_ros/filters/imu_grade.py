@@ -46,6 +46,9 @@ class ImuGrade:
     acc_bias_instability_mg: float
     #: where the numbers come from (docs/imu_grades.md has the table)
     source: str = ""
+    #: velocity random walk along the vehicle's vertical [m/s/sqrt(h)], 0: ``acc_vrw_m_s_sqrt_h`` (road, engine and
+    #: hull vibration in motion is mostly vertical; the in-motion cores put it on the body axis of the vertical)
+    acc_vrw_up_m_s_sqrt_h: float = 0.0
 
     def __post_init__(self):
         for f in fields(self):
@@ -66,7 +69,7 @@ class ImuGrade:
         v = {k: float(values.get(k, 0.0)) for k in GRADE_FIELDS}
         return cls(name, v["gyro_arw_deg_sqrt_h"], v["gyro_bias_deg_h"], v["gyro_bias_rw_deg_h_sqrt_h"] * h,
                    v["acc_vrw_m_s_sqrt_h"], v["acc_bias_mg"], v["acc_bias_rw_mg_sqrt_h"] * h,
-                   source="core configuration fields")
+                   source="core configuration fields", acc_vrw_up_m_s_sqrt_h=v["acc_vrw_up_m_s_sqrt_h"])
 
     @property
     def gyro_bias_rw_deg_h_sqrt_h(self) -> float:
@@ -118,8 +121,10 @@ GRADES: dict[str, ImuGrade] = {g.name: g for g in (
              "inverse-alignment paper Table 1 (0.002 deg/h, 0.0003 deg/sqrt(h), 20 ug, 20 ug/sqrt(Hz))"),
     ImuGrade("unknown_mems", 2.0, 360.0, 10.0, 0.2, 5.0, 0.1,
              "the default: no datasheet, only 'a MEMS IMU'. Noise at or above every MEMS datasheet above (ARW and "
-             "VRW of the paper's ship IMU: 2x the BMI088's); turn-on biases of a factory-calibrated MEMS part, "
-             "0.1 deg/s (360 deg/h) and 5 mg 1-sigma; a raw consumer chip: consumer_mems"),
+             "VRW of the paper's ship IMU: 2x the BMI088's), and a vehicle's vibration in motion along its vertical "
+             "(VRW 1.0 m/s/sqrt(h): a car's velocity against its reference, benchmarks/kitti_velocity_noise.py); "
+             "turn-on biases of a factory-calibrated MEMS part, 0.1 deg/s (360 deg/h) and 5 mg 1-sigma; a raw "
+             "consumer chip: consumer_mems", acc_vrw_up_m_s_sqrt_h=1.0),
 )}
 #: the user-facing default (SessionConfig.imu_grade, the node's imu_grade, insalign-align)
 DEFAULT_IMU_GRADE = "unknown_mems"
@@ -142,6 +147,7 @@ SCENARIO_IMU_GRADE = {"ship": "paper_ship", "car": "industrial_mems", "static": 
 _FIELD_FROM_GRADE = {
     "gyro_arw_deg_sqrt_h": lambda g: g.gyro_arw_deg_sqrt_h,
     "acc_vrw_m_s_sqrt_h": lambda g: g.acc_vrw_m_s_sqrt_h,
+    "acc_vrw_up_m_s_sqrt_h": lambda g: g.acc_vrw_up_m_s_sqrt_h,
     "gyro_bias_deg_h": lambda g: g.gyro_bias_deg_h,
     "acc_bias_mg": lambda g: g.acc_bias_mg,
     "gyro_bias_rw_deg_h_sqrt_h": lambda g: g.gyro_bias_rw_deg_h_sqrt_h,

@@ -39,7 +39,7 @@ import numpy as np
 from ..core import mechanization_numba as nb
 from ..core.mechanization import NavStateEci, navigation_from_state_eci, state_eci_from_geodetic
 from ..core.units import deg_sqrt_h_to_rad_sqrt_s, m_s_sqrt_h_to_m_s_sqrt_s
-from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, ImuSample, UpdateResult
+from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, ImuSample, UpdateResult, accel_noise_b
 from .checks import ImuBuffer, check_imu, usable_imu_arrays
 from .config import LiekfConfig
 from .eci_batch import covariance_batch, liekf_transition_batch, orthonormalize, retract_se23
@@ -80,6 +80,8 @@ class BatchedEciCore(AlignmentCore):
         vrw = m_s_sqrt_h_to_m_s_sqrt_s(self.cfg.acc_vrw_m_s_sqrt_h)
         self._q_gyro = arw * arw  # PSD [rad^2/s]
         self._q_acc = vrw * vrw  # PSD [m^2/s^3]
+        self._q_acc_up = m_s_sqrt_h_to_m_s_sqrt_s(self.cfg.acc_vrw_up_m_s_sqrt_h) ** 2  # along the vertical; 0: same
+        self._q_acc_b = np.full(3, self._q_acc)  # per body axis (set at the initialisation: base.accel_noise_b)
 
     config_class = LiekfConfig
 
@@ -98,6 +100,8 @@ class BatchedEciCore(AlignmentCore):
         self.b_a = np.zeros(3)
         self.omega_b = np.zeros(3)  # bias-corrected rate of the newest sample [rad/s] (lever-arm velocity)
         C_b_n = np.asarray(C_b_n, float)
+        self._q_acc_b = accel_noise_b(C_b_n, self._q_acc, self._q_acc_up)
+        self.__dict__.pop("_fused_cache", None)  # the fused kernel's noise PSDs follow it
         self.P = self._P0(C_b_n, np.asarray(P_att_n, float), float(sigma_v_m_s), float(sigma_p_m))
         self._P0_att = self.P[0:3, 0:3].copy()
         self._buf = ImuBuffer()
@@ -242,7 +246,7 @@ class BatchedEciCore(AlignmentCore):
     def _noise_diag(self, dt: np.ndarray) -> np.ndarray:
         d = np.zeros((dt.shape[0], self._n_states))
         d[:, 0:3] = self._q_gyro * dt[:, None]
-        d[:, 3:6] = self._q_acc * dt[:, None]
+        d[:, 3:6] = self._q_acc_b * dt[:, None]  # the velocity error is in the body frame (left-invariant)
         return d
 
     def _transitions(self, dC, dv_b, dp_b, dt, C_prev, f):

@@ -33,6 +33,7 @@ class AutoConfig(ConfigDict):
     acc_bias_mg: float = 1.0
     gyro_arw_deg_sqrt_h: float = 0.4
     acc_vrw_m_s_sqrt_h: float = 0.1
+    acc_vrw_up_m_s_sqrt_h: float = 0.0
     gyro_bias_rw_deg_h_sqrt_h: float = 10.0
     acc_bias_rw_mg_sqrt_h: float = 0.03
     #: in-motion core: floor of the fix sigma [m] (its ``gnss_sigma_floor_m``; e.g. 1 m for KITTI's RT3003, which
