@@ -134,12 +134,13 @@ def test_kitti_centimetre_sigmas_no_needless_restart(name):
     """The RT3003's centimetre sigmas as reported, auto: the fix-sigma floor from the filter's own error budget
     (session/guard.py model_floor_m) leaves no re-initialisation (0018 had 2, none needed, all at sharp turns), the
     yaw 3-sigma covers every flag-up output (was 0.51 on 0018) and no flag is up with the yaw > 3 deg off. Flag up
-    after its first rise: 0018 0.79 (was 0.37; the 1.6-s IMU gap at 156 s inflates the attitude to a 19-deg 3-sigma
-    and takes 39 s back), 0020 1.00 (was 0.32)."""
+    after its first rise (issue 24: >= 0.90): 0018 0.903 (the 1.6-s IMU gap at 156 s costs 22 s; with the datasheet's
+    vertical velocity random walk instead of the default grade's 1.0 m/s/sqrt(h) along the vertical, 0.843: the NIS
+    window also called the filter over-confident for 14 s at 213 s), 0020 1.00 (was 0.32)."""
     rec, _, (e,) = _one(name, "auto")
     assert e["restarts"] == []
     assert e["coverage"][2] >= 0.95 and e["up_wrong"] == 0
-    assert e["up_fraction"] >= (0.75 if name == "kitti_0018" else 0.9)
+    assert e["up_fraction"] >= 0.9, e["up_fraction"]
 
 
 def test_car_circles_flag_never_up_while_wrong():
