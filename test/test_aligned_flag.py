@@ -83,6 +83,29 @@ def test_flag_needs_fresh_updates_and_a_consistent_nis():
     assert len(f.nis) == 4 and f.last_update_s == 9.0
 
 
+def test_nis_test_starts_on_a_partial_window_with_the_band_of_the_updates_it_holds():
+    """nis_min_updates (5): the window of 10 is tested from its 5th update on, against the chi-square band of the
+    updates it holds (5 fixes x 3 dof: 99 % band [4.60, 32.80]); a sum outside that band fails as the full window's
+    would, and below 5 updates the flag waits."""
+    c = AlignedCriteria(nis_window=10, nis_min_updates=5, hold_s=0.0, max_update_age_s=5.0)
+    good = _P(0.1, 0.1, 0.3)
+    f = AlignedFlag(c)
+    for k in range(4):
+        f.on_update(float(k), True, 3.0)
+    assert not f.on_estimate(3.5, good) and "NIS window filling (4/5 updates)" in f.reason
+    f.on_update(4.0, True, 3.0)
+    assert f.on_estimate(4.5, good) and f.band == pytest.approx(nis_band(5, 3, 0.01))
+    assert f.band == pytest.approx((4.601, 32.801), abs=1e-3)
+    over = AlignedFlag(c)
+    for k in range(5):  # sum 40 > 32.8 (but inside the full window's 53.7): over-confident on what it holds
+        over.on_update(float(k), True, 8.0)
+    assert not over.on_estimate(4.5, good) and "NIS sum 40.0 above the chi-square band [4.6, 32.8]" in over.reason
+    full = AlignedFlag(AlignedCriteria(nis_window=10, nis_min_updates=10, hold_s=0.0))
+    for k in range(5):
+        full.on_update(float(k), True, 3.0)
+    assert not full.on_estimate(4.5, good) and "NIS window filling (5/10 updates)" in full.reason
+
+
 def test_nis_hysteresis_keeps_the_flag_between_the_two_bands():
     """Once up, the NIS test lowers the flag only outside the 1 - nis_alpha_drop band (99.9 %: 62.2 for 10 fixes),
     not when the sum leaves the 99 % band (53.7); a flag that is down rises only inside the 99 % band."""
@@ -142,7 +165,7 @@ def test_level_bound_is_at_least_a_margin_over_the_grade_floor():
 
 
 @pytest.mark.parametrize("bad", [dict(yaw_3sigma_deg=0.0), dict(level_floor_factor=-1.0), dict(nis_alpha=1.0), dict(nis_alpha_drop=0.02),
-                                 dict(nis_window=-1), dict(hold_s=-1.0), dict(roll_pitch_3sigma_deg=float("nan"))])
+                                 dict(nis_window=-1), dict(nis_min_updates=0), dict(hold_s=-1.0), dict(roll_pitch_3sigma_deg=float("nan"))])
 def test_bad_criteria_are_refused(bad):
     with pytest.raises(ValueError):
         AlignedCriteria(**bad).validate()

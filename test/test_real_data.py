@@ -123,7 +123,9 @@ def test_kitti_0020_with_the_oxts_velocities_as_a_gnss_velocity_topic():
     they are, and the flag was up 0.48 of the time after its first rise (the NIS window over-confident), the pitch
     inside its 3-sigma on 0.61 of the flag-up outputs."""
     rec, _, (e,) = _one("kitti_0020", "auto", vehicle="car", gnss_velocity=True)
-    assert rec.data.has_gnss_velocity and e["t_flag_s"] <= 12.0  # 11.1 s from the first sample (moving from it)
+    # issue 25: within 10 s of the first motion (moving from the first sample): 9.6 s (11.1 s while the flag's NIS
+    # test waited for a full window of 10 updates; aligned.nis_min_updates 5)
+    assert rec.data.has_gnss_velocity and e["t_flag_s"] <= 10.0, e["t_flag_s"]
     assert e["restarts"] == [] and e["up_wrong"] == 0
     assert e["coverage"][2] >= 0.95 and e["coverage"][1] >= 0.9  # yaw 1.00, pitch 0.95 (was 0.61)
     assert e["up_fraction"] >= 0.9  # 0.94 (was 0.48)

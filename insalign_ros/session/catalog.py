@@ -88,6 +88,7 @@ CRITERIA_META = {
     "yaw_3sigma_deg": ("3-sigma yaw bound of the aligned flag [deg]: THE aligned threshold (a core's own "
                        "status_yaw_3sigma_deg is not the flag)", (1e-6, 360.0)),
     "nis_window": ("NIS window [updates] (0: off)", (0, 10000)),
+    "nis_min_updates": ("the NIS test runs once the window holds this many updates (the band of those)", (1, 10000)),
     "nis_alpha": ("two-sided chi-square probability", (1e-12, 0.999999)),
     "nis_alpha_drop": ("once up: the flag drops on the NIS test only outside this wider band (hysteresis)",
                        (1e-12, 0.999999)),

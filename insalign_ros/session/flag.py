@@ -10,8 +10,8 @@ The flag is raised when, continuously for at least ``hold_s`` of data time:
    a bound at the floor would make the flag wait for the covariance's last hundredths;
 2. **innovations consistent with the covariance**: the normalized innovation squared (NIS) of the last
    ``nis_window`` accepted GNSS updates, summed, lies inside the two-sided chi-square band of probability
-   ``1 - nis_alpha`` with ``nis_window * dof`` degrees of freedom (a sum of independent chi-square(dof)
-   variables is chi-square(window*dof)); once the flag is up, inside the wider band of ``1 - nis_alpha_drop``
+   ``1 - nis_alpha`` with ``n * dof`` degrees of freedom for the n updates the window holds, at least
+   ``nis_min_updates`` (a sum of independent chi-square(dof) variables is chi-square(n*dof)); once the flag is up, inside the wider band of ``1 - nis_alpha_drop``
    (hysteresis: the window slides one update at a time, so the sum of a consistent filter leaves the narrower band
    every few minutes). Too large a sum means the filter is over-confident (the covariance
    in 1. cannot be trusted); too small means it is pessimistic (harmless for safety, but the model is off, so
@@ -53,6 +53,9 @@ class AlignedCriteria:
     yaw_3sigma_deg: float = 2.5
     #: number of recent accepted updates whose NIS sum is tested (0: no NIS test)
     nis_window: int = 10
+    #: the test runs once the window holds this many updates, with the band of the updates it holds (a filter that
+    #: meets the bounds a few fixes after its start is tested on those; the full window waits 10 s at 1 Hz)
+    nis_min_updates: int = 5
     #: two-sided probability outside the band (0.01: the 0.5 % and 99.5 % quantiles)
     nis_alpha: float = 0.01
     #: once the flag is up, the NIS test lowers it only outside the band of this smaller probability (hysteresis:
@@ -81,6 +84,8 @@ class AlignedCriteria:
             raise ValueError(f"nis_alpha_drop: must be in (0, nis_alpha], got {self.nis_alpha_drop}")
         if not (isinstance(self.nis_window, int) and 0 <= self.nis_window <= 10000):
             raise ValueError(f"nis_window: must be an integer in [0, 10000], got {self.nis_window!r}")
+        if not (isinstance(self.nis_min_updates, int) and 1 <= self.nis_min_updates <= 10000):
+            raise ValueError(f"nis_min_updates: must be an integer in [1, 10000], got {self.nis_min_updates!r}")
         if self.level_floor_factor < 0:
             raise ValueError(f"level_floor_factor: must be >= 0, got {self.level_floor_factor}")
         if self.hold_s < 0 or not self.max_update_age_s > 0:
@@ -184,10 +189,11 @@ class AlignedFlag:
         if age > c.max_update_age_s:
             return f"last accepted update {age:.1f} s ago (> {c.max_update_age_s:g} s)"
         if c.nis_window > 0:
-            if len(self.nis) < c.nis_window:
-                return f"NIS window filling ({len(self.nis)}/{c.nis_window} updates)"
+            need = min(c.nis_window, c.nis_min_updates)
+            if len(self.nis) < need:
+                return f"NIS window filling ({len(self.nis)}/{need} updates)"
             alpha = c.nis_alpha_drop if self.aligned else c.nis_alpha  # hysteresis: a wider band to stay up
-            self.band = lo, hi = nis_band(c.nis_window, self.nis_dof, alpha)
+            self.band = lo, hi = nis_band(len(self.nis), self.nis_dof, alpha)
             # the window's sum, recomputed only when an update changed it (outputs outnumber updates): the same
             # float as summing at every output (a running sum would round differently)
             if self._nis_total is None:
