@@ -123,7 +123,10 @@ def test_lagged_fixes_over_dds_give_the_on_time_result_and_the_watchdog_drops_th
         "imu_timeout_s": 1.0, "imu_grade": "paper_ship"}, fix_delay_s=0.3)
     try:
         diffs, _, n_off = _compare(mon, summary, on_time, float(d.t_s[0]))
-        assert len(diffs) >= 0.9 * n_off and diffs.max() < 1e-6, (len(diffs), n_off, diffs.max())
+        # every pose the monitor received equals the on-time run; the node publishes every output (its own count,
+        # checked below), and the monitor, starved on a loaded 2-core machine while the replay runs at 10x, misses
+        # some of them (the pose topic keeps the last 50: 339 of 401 with two CPU burners)
+        assert len(diffs) >= 0.5 * n_off and diffs.max() < 1e-6, (len(diffs), n_off, diffs.max())
         assert int(mon.diag["gnss_stale"]) == 0 and int(mon.diag["gnss_accepted"]) == len(d.gnss_t_s) - 1
         assert mon.diag.get("aligned_at_last_output") == "true", mon.diag
         # the stream has ended: no IMU for > imu_timeout_s -> the flag is down, WARN, the reason in the message
@@ -131,6 +134,7 @@ def test_lagged_fixes_over_dds_give_the_on_time_result_and_the_watchdog_drops_th
                             10.0), (mon.aligned_history, mon.diag)
         assert mon.diag["level"] == 1 and int(mon.diag["watchdog_trips"]) == 1, mon.diag
         assert math.isfinite(float(mon.diag["filter_time_s"]))
+        assert int(mon.diag["outputs_published"]) >= 0.95 * n_off, (mon.diag["outputs_published"], n_off)
     finally:
         stop_nodes(nodes)
         mon.close()
