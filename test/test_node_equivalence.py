@@ -52,6 +52,15 @@ def _run(tmp_path, ros_env, bag, node_params, fix_delay_s=0.0, name="alignment_n
         raise
 
 
+def _received_and_published(mon, diffs, n_off) -> None:
+    """The poses the monitor received are at least half of the offline outputs, and the node's own count says it
+    published (nearly) all of them: a monitor starved on a loaded 2-core machine misses some of a 10x replay's poses
+    (the topic keeps the last 50; 339 of 401 with two CPU burners), the node does not skip any. State, not time."""
+    assert len(diffs) >= 0.5 * n_off, (len(diffs), n_off)
+    assert mon.wait_for(lambda m: int(m.diag.get("outputs_published", "0")) >= 0.95 * n_off, 10.0), (
+        mon.diag.get("outputs_published"), n_off)
+
+
 def _compare(mon, summary, result, t0_s):
     """Max attitude difference [rad] between published poses and offline outputs at the same data times."""
     off = {round(float(t) - t0_s, 6): o.estimate.C_b_n for t, o in zip(result.t_s, result.outputs)}
@@ -98,7 +107,7 @@ def test_node_over_dds_equals_the_offline_api(tmp_path, ros_env, core, scenario)
         diffs, n_pub, n_off = _compare(mon, summary, ref, float(d.t_s[0]))
         print(f"{core}: {len(diffs)} common stamps of {n_pub} published / {n_off} offline; max difference "
               f"{diffs.max():.3g} rad")
-        assert len(diffs) >= 0.9 * n_off, (len(diffs), n_pub, n_off)
+        _received_and_published(mon, diffs, n_off)
         assert diffs.max() < 1e-9
     finally:
         stop_nodes(nodes)
@@ -123,10 +132,9 @@ def test_lagged_fixes_over_dds_give_the_on_time_result_and_the_watchdog_drops_th
         "imu_timeout_s": 1.0, "imu_grade": "paper_ship"}, fix_delay_s=0.3)
     try:
         diffs, _, n_off = _compare(mon, summary, on_time, float(d.t_s[0]))
-        # every pose the monitor received equals the on-time run; the node publishes every output (its own count,
-        # checked below), and the monitor, starved on a loaded 2-core machine while the replay runs at 10x, misses
-        # some of them (the pose topic keeps the last 50: 339 of 401 with two CPU burners)
-        assert len(diffs) >= 0.5 * n_off and diffs.max() < 1e-6, (len(diffs), n_off, diffs.max())
+        # every pose the monitor received equals the on-time run (_received_and_published: the counts)
+        _received_and_published(mon, diffs, n_off)
+        assert diffs.max() < 1e-6, diffs.max()
         assert int(mon.diag["gnss_stale"]) == 0 and int(mon.diag["gnss_accepted"]) == len(d.gnss_t_s) - 1
         assert mon.diag.get("aligned_at_last_output") == "true", mon.diag
         # the stream has ended: no IMU for > imu_timeout_s -> the flag is down, WARN, the reason in the message
@@ -134,7 +142,6 @@ def test_lagged_fixes_over_dds_give_the_on_time_result_and_the_watchdog_drops_th
                             10.0), (mon.aligned_history, mon.diag)
         assert mon.diag["level"] == 1 and int(mon.diag["watchdog_trips"]) == 1, mon.diag
         assert math.isfinite(float(mon.diag["filter_time_s"]))
-        assert int(mon.diag["outputs_published"]) >= 0.95 * n_off, (mon.diag["outputs_published"], n_off)
     finally:
         stop_nodes(nodes)
         mon.close()
