@@ -31,29 +31,13 @@ FROM_S = 60.0
 
 
 def one(name: str, root: Path, core: str, vrw_up: float) -> dict:
-    from insalign_ros.filters import imu_grade as IG
     from insalign_ros.io.kitti import convert_drive
-    from insalign_ros.session.config import SessionConfig
-    from insalign_ros.session.flag import AlignedCriteria
-    from insalign_ros.session.offline import result_from_outputs, run_session
-    from insalign_ros.session.session import AlignmentSession
 
     data, _ = convert_drive(root / "kitti_raw_oxts_sync" / RD.KITTI_DRIVES[name], gnss_rate_hz=1.0)
     ref_v, ref_att = data.v_n.copy(), RD.kitti_reference(data)
     valid = data.imu_valid if data.imu_valid is not None else np.ones(data.n, bool)
-    bare = RD.strip_truth(data)
-    saved = IG._FIELD_FROM_GRADE["acc_vrw_up_m_s_sqrt_h"]
-    IG._FIELD_FROM_GRADE["acc_vrw_up_m_s_sqrt_h"] = lambda g: vrw_up
-    try:
-        cfg = SessionConfig.from_dict({"core": core})
-        sess = AlignmentSession(cfg, None, AlignedCriteria())
-        try:
-            outs = run_session(sess, bare)
-            res = result_from_outputs(cfg.core, outs, sess, bare)
-        finally:
-            sess.close()
-    finally:
-        IG._FIELD_FROM_GRADE["acc_vrw_up_m_s_sqrt_h"] = saved
+    r = RD.run(RD.strip_truth(data), core, core_params={"acc_vrw_up_m_s_sqrt_h": vrw_up})
+    outs = r.result.outputs
     cover, z2 = [], []
     for o in outs:
         k = int(np.searchsorted(data.t_s, o.stamp_s))
@@ -65,11 +49,10 @@ def one(name: str, root: Path, core: str, vrw_up: float) -> dict:
         dv = e.v_n - ref_v[k]
         cover.append(np.abs(dv) <= 3.0 * sig)
         z2.append((dv / sig) ** 2)
-    ev = RD.evaluate(RD.Run(core, res, []), ref_att, float(data.t_s[0]), float(data.t_s[0]))
+    ev = RD.evaluate(r, ref_att, float(data.t_s[0]), float(data.t_s[0]))
     return {"drive": name, "core": core, "vrw": vrw_up, "n": len(cover), "cover": np.mean(cover, axis=0),
             "z2": np.mean(z2, axis=0), "t_flag": ev["t_flag_s"], "up": ev["up_fraction"],
-            "yaw_cover": ev["coverage"][2], "vel_acc": float(np.median(np.sqrt(bare.gnss_vel_R_n[:, 0, 0])))
-            if bare.has_gnss_velocity else float("nan")}
+            "yaw_cover": ev["coverage"][2]}
 
 
 def main(argv=None) -> int:

@@ -179,9 +179,10 @@ class Run:
     cpu_s: float = 0.0
 
 
-def run(data, core: str, vehicle: str = "unknown", criteria: dict | None = None) -> Run:
-    """``offline.align(data, core=core)`` with the defaults (and ``vehicle``), plus the re-initialisations the
-    session logs."""
+def run(data, core: str, vehicle: str = "unknown", criteria: dict | None = None,
+        core_params: dict | None = None) -> Run:
+    """``offline.align(data, core=core)`` with the defaults (and ``vehicle``, ``core_params``), plus the
+    re-initialisations the session logs."""
     cfg = SessionConfig.from_dict({"core": core, "vehicle": vehicle})
     events: list = []
     session = None
@@ -191,7 +192,7 @@ def run(data, core: str, vehicle: str = "unknown", criteria: dict | None = None)
             events.append((session.processed_t if session.processed_t is not None else float("nan"), key, text))
 
     t0, c0 = time.time(), time.process_time()
-    session = AlignmentSession(cfg, None, AlignedCriteria(**(criteria or {})), log=log)
+    session = AlignmentSession(cfg, core_params, AlignedCriteria(**(criteria or {})), log=log)
     try:
         outs = run_session(session, data)
         res = result_from_outputs(cfg.core, outs, session, data)
