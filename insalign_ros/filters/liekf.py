@@ -221,7 +221,7 @@ class BatchedEciCore(AlignmentCore):
 
     def _fused_setup(self):
         """(fused kernel usable, transition product wanted, noise PSDs per state: ``_noise_diag(dt) = qrate dt``),
-        evaluated once per core (the configuration is fixed after construction)."""
+        evaluated once per initialisation (the configuration is fixed; the noise follows the vertical found then)."""
         fs = self.__dict__.get("_fused_cache")
         if fs is None:
             fs = self._fused_cache = (self._fused_transition(), self._tracks_phi_since_update(),
