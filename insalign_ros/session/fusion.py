@@ -265,6 +265,8 @@ class Fusion:
             b.vel_t.pop(0)
             vel = b.vel.pop(0)
             sess.yaw_seed.velocity(vel)
+            if vel.stamp_s == sess._used_vel_stamp:
+                continue  # gave the initial velocity (session/initialiser.py): not fused twice
             if vel.stamp_s < sess.init_t:
                 sess.counters["gnss_vel_before_init"] += 1
                 continue

@@ -212,6 +212,7 @@ class AlignmentSession:
         self.last_input_wall: float | None = None
         self.watchdog_reason = ""
         self._used_fix_stamp: float | None = None
+        self._used_vel_stamp: float | None = None  # the GNSS velocity that gave the initial velocity (not fused again)
         self.flag_changes: list[tuple[float, bool, str]] = []
         self.flag.reset()
 
