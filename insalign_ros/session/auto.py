@@ -10,6 +10,8 @@ A state machine around two cores and the motion detector (session/motion.py), se
 * **static, fine**: the level 1-sigma is within 2x the b_acc/g floor. Heading: gyrocompassing only where the IMU
   grade's azimuth floor eps/(omega_ie cos lat) is below ``heading_floor_max_deg`` at this latitude; otherwise the
   status is WAITING_FOR_MOTION and the reason says "heading needs motion (floor X deg)";
+* **starting in motion**: moving from the start (no snapshot at rest; the GNSS speed or the IMU says so), until
+  three fixes within 3 s give the in-motion core its velocity and level window;
 * **in motion**: when the motion detector declares motion, the in-motion core (``motion_core``, default iekf) is
   initialised from a snapshot of the static solution taken before the onset of the motion (level, heading if
   trusted, their 3x3 covariance, the position, zero velocity, and the gyro bias measured over the rest window:
@@ -58,7 +60,7 @@ DETECTOR_MIN_INTERVALS = 10
 SHORT_REST_BLOCKS = 10
 FIX_NOISE_FLOOR_M = 0.1  #: the fixes' own noise (motion.FixNoise) is never below this [m] (a parked receiver drifts)
 #: state names (``AutoCore.state``), in the order a parked-then-driving run passes through them
-STATES = ("static, levelling", "static, fine", "in motion", "stopped")
+STATES = ("static, levelling", "static, fine", "starting in motion", "in motion", "stopped")
 
 
 class AutoCore(AlignmentCore):
@@ -78,6 +80,7 @@ class AutoCore(AlignmentCore):
         self._dts: list[float] = []
         self._early_speeds: deque = deque(maxlen=16)  # GNSS speeds before the detector exists (_push_speed)
         self._t: float | None = None
+        self._t_start = -math.inf  # the stamp of initialize (the fixes before it were shown, not its own)
         self.hist: deque = deque()  # (t, omega, f): the IMU samples the hand-over may replay
         #: (t, AlignmentEstimate, number of rest blocks done) of the static core at rest
         self.snaps: deque = deque()
@@ -116,6 +119,7 @@ class AutoCore(AlignmentCore):
         self.static = registry.make_core(cfg.static_core, cfg.static_params())
         self.static.initialize(stamp_s, lat_rad, lon_rad, h_m, C_b_n, v_n, P_att_n, sigma_v_m_s, sigma_p_m)
         self.sig_p, self.lat, self._t = float(sigma_p_m), float(lat_rad), float(stamp_s)
+        self._t_start = float(stamp_s)
         floor = cfg.azimuth_floor_rad(lat_rad) / D2R
         self.heading_floor_deg = floor
         self.grade_allows_heading = floor <= cfg.heading_floor_max_deg
@@ -325,7 +329,7 @@ class AutoCore(AlignmentCore):
         lvl, yaw = max(s[0], s[1]), s[2]
         floor_l = self.cfg.level_floor_rad()
         level = f"level 1-sigma {lvl / D2R:.3f} deg (floor b_acc/g {floor_l / D2R:.3f} deg)"
-        if lvl > 2.0 * floor_l and self.state == "static, levelling":
+        if lvl > 2.0 * floor_l and self.state in ("static, levelling", "starting in motion"):
             self._set_state(t, "static, levelling", level)
             return
         if self.grade_allows_heading:
@@ -340,11 +344,12 @@ class AutoCore(AlignmentCore):
         """Motion declared: start the in-motion core from the static solution before ``since_s`` and replay."""
         cfg = self.cfg
         before = [s for s in self.snaps if s[0] <= since_s - cfg.handover_margin_s]
-        if not before and (len(self._fixes) < 3 or self._fixes[-1][0] - self._fixes[-3][0] > 3.0):
+        own = [f for f in self._fixes if f[0] > self._t_start]  # the fixes before the start only told the detector
+        if not before and (len(own) < 3 or own[-1][0] - own[-3][0] > 3.0):
             # moving from the start: as the session's sensors initialisation of an in-motion core, wait for three
-            # fixes within 3 s (velocity and acceleration); the static core takes no zero-velocity update meanwhile
-            self._set_state(t, self.state, f"moving since {since_s:.2f} s: waiting for three GNSS fixes within 3 s "
-                                           "(initial velocity)")
+            # fixes within 3 s (velocity, acceleration, the level window in this core's IMU history); no ZUPT meanwhile
+            self._set_state(t, "starting in motion", f"moving since {since_s:.2f} s: waiting for three GNSS fixes "
+                                                     "within 3 s (initial velocity and level)")
             return
         if before:
             t0, est, n_blocks = before[-1]

@@ -15,7 +15,7 @@ import numpy as np
 from ..core import earth, lie
 from ..filters import registry
 from ..filters.base import AlignmentCore, AlignmentStatus
-from ..filters.measurements import GnssPosition
+from ..filters.measurements import GnssPosition, GnssVelocity
 from . import catalog
 from .guard import extrapolation_excess, fix_point
 from .truth import TruthSample
@@ -23,6 +23,9 @@ from .truth import TruthSample
 #: a static core's first initialisation with one fix waits for a second one when the gyros turn faster than this
 #: about the vertical [rad/s] (0.5 deg/s: 70 times the Earth's rate; a parked vehicle does not turn)
 TURN_WAIT_RAD_S = math.radians(0.5)
+#: the GNSS fixes and velocities of this span [s] before a core's start, which the session does not fuse, are shown
+#: to a core that does not fuse them either (core auto's motion detector: ``Initialiser.show_earlier_gnss``)
+EARLIER_GNSS_S = 3.0
 
 D2R = math.pi / 180.0
 
@@ -111,6 +114,7 @@ class Initialiser:
         sess._used_fix_stamp = used_fix.stamp_s if used_fix is not None else None
         self.pre_init.clear()
         sess.core = core
+        self.show_earlier_gnss(core, t, used_fix)
         if cfg.backtrack_passes > 0:
             from ..filters.backtrack import BacktrackingAligner
 
@@ -126,6 +130,22 @@ class Initialiser:
         sess.log("info", "init", f"initialised {cfg.core} at t={t + sess.stamp_offset_s:.3f} s, lat {pos[0] / D2R:.6f} deg, lon "
                                  f"{pos[1] / D2R:.6f} deg, h {pos[2]:.1f} m, rpy "
                                  f"{np.round(rpy / D2R, 2).tolist()} deg, v {np.round(v0, 3).tolist()} m/s{how}")
+
+    def show_earlier_gnss(self, core: AlignmentCore, t: float, used_fix) -> None:
+        """The fixes and GNSS velocities of the last ``EARLIER_GNSS_S`` up to the start ``t`` that the session will not
+        fuse (older than the start, or the fix that gave the position), shown to a core that does not fuse them
+        either: ``update`` of a model a core does not accept only lets it observe it (core auto's motion detector
+        takes their speed), so a vehicle driving at power-on is seen moving from its second fix, not after two fixes
+        of auto's own. A core that fuses them is shown nothing from before its start."""
+        b = self.s.buf
+        if GnssPosition not in core.accepts:
+            for fx in b.fix[:bisect.bisect_right(b.fix_t, t)]:
+                if t - fx.stamp_s <= EARLIER_GNSS_S and (fx.stamp_s < t or fx is used_fix):
+                    core.update(GnssPosition.of(fx))
+        if GnssVelocity not in core.accepts:
+            for vel in b.vel[:bisect.bisect_right(b.vel_t, t)]:
+                if t - vel.stamp_s <= EARLIER_GNSS_S and vel.stamp_s < t:
+                    core.update(GnssVelocity.of(vel))
 
     def _from_sensors(self, t: float) -> None:
         """init_mode 'sensors': no guess. Position from the newest fix; velocity from the last two fixes (0 for a
