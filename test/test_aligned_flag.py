@@ -106,6 +106,24 @@ def test_nis_test_starts_on_a_partial_window_with_the_band_of_the_updates_it_hol
     assert not full.on_estimate(4.5, good) and "NIS window filling (5/10 updates)" in full.reason
 
 
+def test_the_nis_window_restarts_when_its_stream_changes():
+    """The window tests one stream of innovations: core auto's parked static core answers the session's
+    zero-velocity updates ("zupt"), its in-motion core the fixes ("gnss") after the hand-over. A park's
+    over-confident zero-velocity innovations (a real car's vibration: NIS 80) do not count against the first fixes
+    of the filter that drives (KITTI 0057: the sum 168 against [14, 54] held the flag down, test_real_data.py)."""
+    c = AlignedCriteria(nis_window=10, nis_min_updates=5, hold_s=0.0, max_update_age_s=5.0)
+    good = _P(0.1, 0.1, 0.3)
+    f = AlignedFlag(c)
+    for k in range(10):
+        f.on_update(float(k), True, 80.0, source="zupt")
+    assert not f.on_estimate(9.5, good) and "above the chi-square band" in f.reason
+    for k in range(5):
+        f.on_update(10.0 + k, True, 3.0)
+    assert list(f.nis) == [3.0] * 5 and f.on_estimate(14.5, good), f.reason
+    f.on_update(15.0, True, 80.0, source="zupt")  # and back: the fixes' window is not the zero-velocity one's
+    assert list(f.nis) == [80.0]
+
+
 def test_nis_hysteresis_keeps_the_flag_between_the_two_bands():
     """Once up, the NIS test lowers the flag only outside the 1 - nis_alpha_drop band (99.9 %: 62.2 for 10 fixes),
     not when the sum leaves the 99 % band (53.7); a flag that is down rises only inside the 99 % band."""

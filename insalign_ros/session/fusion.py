@@ -316,7 +316,7 @@ class Fusion:
         sess.next_zupt_t = t + 1.0 / sess.cfg.zupt_rate_hz - 1e-9
         if res.accepted:
             sess.counters["zupt_accepted"] += 1
-        sess.flag.on_update(t, res.accepted, res.nis, len(res.innovation) or 3)
+        sess.flag.on_update(t, res.accepted, res.nis, len(res.innovation) or 3, source="zupt")
 
     def background(self, budget_s: float) -> None:
         sess = self.s
