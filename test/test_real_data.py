@@ -218,4 +218,4 @@ def test_table_prints_the_floor_and_one_row_per_core():
     text = RD.table(rec, [RD.Run("iekf", res), RD.Run("ekf", res)], ref)
     assert "Physical floor (reference 1-sigma) roll/pitch/yaw: 0.03 / 0.03 / 0.10 deg" in text
     rows = [line for line in text.splitlines() if line.startswith(("| iekf", "| ekf"))]
-    assert len(rows) == 2 and all(r.count("|") == 10 and "| never |" in r for r in rows)
+    assert len(rows) == 2 and all(r.count("|") == 11 and "| never |" in r for r in rows)
