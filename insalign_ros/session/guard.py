@@ -137,21 +137,22 @@ class DivergenceGuard:
         init_t = sess.init_t if sess.init_t is not None else t
         return (t, v_n), (dt, v, omega, min(max(t - init_t, dt), 3.0), lag, v * omega, q)
 
-    #: the span of processed IMU samples the sampling noise is measured over [s] (:meth:`_sampling_psd`; at most the
-    #: loop's history of 1,000 samples): the second differences are correlated, so it takes ~100 for a 20-% estimate
-    SAMPLING_SPAN_S = 10.0
+    #: the span of processed IMU samples the sampling noise is measured over [s] and at most that many samples
+    #: (:meth:`_sampling_psd`): the second differences are correlated, so it takes ~100 for a 20-% estimate
+    SAMPLING_SPAN_S, SAMPLING_MAX_SAMPLES = 10.0, 202
 
     def _sampling_psd(self, dt: float) -> float:
         """The horizontal specific-force noise per axis that the mechanization integrates as signal, beyond the declared
-        grade's VRW, as a PSD [m^2/s^3] (0: none). From the second differences of the last ``SAMPLING_SPAN_S`` of
-        samples: white sample noise of sigma gives them a variance of 6 sigma^2, a vehicle's own acceleration, smooth
-        at the IMU rate, hardly enters them; across the mean specific force (gravity: the vertical has its own VRW in
-        the grade). Integrating samples of sigma over dt leaves a velocity random walk of PSD sigma^2 dt. A 10-Hz
-        IMU that samples a car's vibration (KITTI's RT3003 rows) shows 0.07-0.17 m/s^2: 2-5 cm/s over a 1-s velocity
-        interval, which the RT3003's 1-3 cm/s velocities cannot be matched to (their NIS was 1.65x its dof on 0018, the
-        flag down 15 % of the time after its first rise); a clean 100-Hz IMU shows its white noise, the VRW itself."""
+        grade's VRW, as a PSD [m^2/s^3] (0: none). From the second differences of the samples of the last
+        ``SAMPLING_SPAN_S`` (at most ``SAMPLING_MAX_SAMPLES``): white sample noise of sigma gives them a variance of
+        6 sigma^2, a vehicle's own acceleration, smooth at the IMU rate, hardly enters them; across the mean specific
+        force (gravity: the vertical has its own VRW in the grade). Integrating samples of sigma over dt leaves a
+        velocity random walk of PSD sigma^2 dt. A 10-Hz IMU that samples a car's vibration (KITTI's RT3003 rows) shows
+        0.07-0.17 m/s^2: 2-5 cm/s over a 1-s velocity interval, which the RT3003's 1-3 cm/s velocities cannot be matched
+        to (their NIS was 1.65x its dof on 0018, the flag down 15 % of the time after its first rise); a clean 100-Hz
+        IMU shows its white noise, the VRW itself."""
         F = self.s.loop.hist_f.view()
-        n = min(len(F), int(round(self.SAMPLING_SPAN_S / dt)) + 2)
+        n = min(len(F), int(round(self.SAMPLING_SPAN_S / dt)) + 2, self.SAMPLING_MAX_SAMPLES)
         if n < 12:
             return 0.0
         F = np.asarray(F[-n:], float)
