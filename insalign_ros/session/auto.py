@@ -73,8 +73,7 @@ class AutoCore(AlignmentCore):
         self.cfg = cfg
         self.static: AlignmentCore | None = None
         self.motion: AlignmentCore | None = None
-        self.state = "waiting for data"
-        self.reason = ""
+        self.state, self.reason = "waiting for data", ""
         self.transitions: list[tuple[float, str, str]] = []
         self.detector: MotionDetector | None = None
         self._dts: list[float] = []
@@ -89,23 +88,18 @@ class AutoCore(AlignmentCore):
         self._stop_blocks: list[np.ndarray] = []  # REST_BLOCK_S gyro means of the current stop
         self._stop_applied = 0  # ... of which fused (zero-angular-rate updates)
         self.gyro_bias_prior: tuple[np.ndarray, np.ndarray] | None = None  # (b_g_b, P) given at the hand-over
-        self.heading_trusted = False
-        self.heading_floor_deg = math.nan
-        self.grade_allows_heading = False
-        self.sig_p = 1.0
-        self.lat = 0.0
+        self.heading_trusted, self.heading_floor_deg, self.grade_allows_heading = False, math.nan, False
+        self.sig_p, self.lat = 1.0, 0.0
         self._hold_p_e: np.ndarray | None = None
         #: driving faster than DETECTOR_SKIP_SPEED_M_S (the in-motion core's speed, checked every
         #: SPEED_CHECK_PERIOD_S): the motion detector is not fed (half of the auto core's time); below, it restarts
         #: its windows (a stop is declared only under stop_speed_max_m_s anyway)
-        self.detector_skipped = False
-        self._next_speed_check_t = -math.inf
+        self.detector_skipped, self._next_speed_check_t = False, -math.inf
         self._fixes: deque = deque()  # (t, p_e, R_e) of the fixes seen while static (GNSS speed for the detector)
         self._level_fixes: deque = deque(maxlen=8)  # ... the last ones (the velocity change over the level window)
         self._vels: deque = deque(maxlen=16)  # (t, v_n, R_n) of the GNSS velocities seen while static
         self._fix_noise = FixNoise()  # the fixes' own noise (the walking-speed veto's sigma)
-        self._next_hold_t = -math.inf
-        self._zupt_support = [0, 0]  # zero-velocity updates asked while static, accepted by the static core
+        self._next_hold_t, self._zupt_support = -math.inf, [0, 0]  # zero-velocity updates asked, accepted while static
         self._zupt_nis: deque = deque(maxlen=200)  # NIS per degree of freedom of the accepted ones
         self.counters = {"handovers": 0, "stops": 0, "stop_holds": 0, "zupt_rejected_moving": 0, "zero_rate_updates": 0,
                          "zero_rate_rejected": 0}
@@ -176,9 +170,15 @@ class AutoCore(AlignmentCore):
         return self.detector.push_imu(t, w, f)
 
     def _push_speed(self, *args) -> None:
-        """A GNSS speed (``MotionDetector.push_gnss_speed``'s arguments) to the detector, kept until it exists."""
+        """A GNSS speed (``MotionDetector.push_gnss_speed``'s arguments) to the detector, kept until it exists; until
+        then one above walking speed and the detector's GNSS bound is said in the state (not decided: at 10 Hz the
+        detector exists 1 s after the start)."""
         if self.detector is None:
             self._early_speeds.append(args)
+            mc = MotionConfig()
+            if self.state == "static, levelling" and args[1] > max(mc.walk_speed_m_s, mc.thresholds()[
+                    "gnss_speed_per_sigma"] * args[2]):
+                self._set_state(args[0], "starting in motion", f"GNSS speed {args[1]:.1f} m/s (detector filling)")
         else:
             self.detector.push_gnss_speed(*args)
 
