@@ -52,6 +52,7 @@ class DivergenceGuard:
         self._floor_prev = None  # (stamp [s], v_n horizontal [m/s]) at the last floored fix
         self.last_vel_floor_m_s = 0.0  # the model floor added to the last GNSS velocity's sigma [m/s]
         self._vel_floor_prev = None  # (stamp [s], v_n horizontal [m/s]) at the last floored GNSS velocity
+        self._psd_memo = None  # ((processed stamp, history length, dt), _sampling_psd) of the last call
 
     #: an antenna offset nobody configured: a roof antenna on a car within ~0.1 m of the configured lever arm (the
     #: part of an unmodelled lever arm the filter cannot absorb as a position offset is what a turn rotates away)
@@ -151,6 +152,13 @@ class DivergenceGuard:
         0.07-0.17 m/s^2: 2-5 cm/s over a 1-s velocity interval, which the RT3003's 1-3 cm/s velocities cannot be matched
         to (their NIS was 1.65x its dof on 0018, the flag down 15 % of the time after its first rise); a clean 100-Hz
         IMU shows its white noise, the VRW itself."""
+        key = (self.s.processed_t, len(self.s.loop.hist_f), dt)  # a fix and a velocity at one sample: computed once
+        if self._psd_memo is not None and self._psd_memo[0] == key:
+            return self._psd_memo[1]
+        self._psd_memo = (key, q := self._sampling_psd_now(dt))
+        return q
+
+    def _sampling_psd_now(self, dt: float) -> float:
         F = self.s.loop.hist_f.view()
         n = min(len(F), int(round(self.SAMPLING_SPAN_S / dt)) + 2, self.SAMPLING_MAX_SAMPLES)
         if n < 12:
