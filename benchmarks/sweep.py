@@ -214,8 +214,8 @@ class StageTimer:
             classes.update(type(core).__mro__)
             core.close()
         for klass in classes:
-            for m, stage in (("propagate", "propagate"), ("flush", "propagate"), ("update", "update"),
-                             ("estimate", "outputs")):
+            for m, stage in (("_propagate_arrays", "propagate"), ("_estimates_along", "propagate"),
+                             ("flush", "propagate"), ("update", "update"), ("estimate", "outputs")):
                 if m in getattr(klass, "__dict__", {}) and (klass, m) not in seen:
                     seen.add((klass, m))
                     self._wrap(klass, m, stage)

@@ -76,3 +76,55 @@ def test_default_align_outputs_are_the_per_output_ones():
             _same(o.euler_error_deg, np.degrees(earth.euler_error_rad(o.estimate.C_b_n, o.truth_C_b_n)))
     np.testing.assert_array_equal(r.sigma3_deg,
                                   np.array([o.euler_3sigma_deg for o in r.outputs]))
+
+
+def _run_cores(core_name, max_batch, split, n_hyp=0):
+    """Two identical cores over one simulated ship record: one through ``propagate(..., estimates_at)`` (the
+    compiled snapshots), one through the base class's segment-by-segment default; GNSS fixes in between."""
+    from insalign_ros.filters.base import AlignmentCore
+    from insalign_ros.filters.measurements import GnssPosition
+    from insalign_ros.filters.registry import make_core
+
+    d = ia.simulate("ship", duration_s=12.0, seed=3)
+    params = {"max_batch_samples": max_batch, **({"yaw_hypotheses": n_hyp} if n_hyp else {})}
+    cores = [make_core(core_name, params) for _ in range(2)]
+    for c in cores:
+        c.initialize(float(d.t_s[0]), float(d.lat_rad[0]), float(d.lon_rad[0]), float(d.h_m[0]),
+                     earth.C_b_n_from_rpy(0.02, -0.01, 0.5) @ d.C_b_n[0], np.zeros(3) + d.v_n[0],
+                     np.diag(np.radians([2.0, 2.0, 30.0])) ** 2, 0.1, 2.0)
+    ests = ([], [])
+    k0 = 1
+    for g, tg in enumerate(d.gnss_t_s):
+        k1 = int(np.searchsorted(d.t_s, tg, side="right"))
+        if k1 <= k0:
+            continue
+        km = (k0 + k1) // 2 + g % 5  # two calls per fix interval: the second starts with samples still buffered
+        for sl in (slice(k0, km), slice(km, k1)):
+            n = sl.stop - sl.start
+            ends = list(range(split - 1 - g % 3, n - 1, split))
+            ests[0].extend(cores[0].propagate(d.t_s[sl], d.omega_ib_b[sl], d.f_ib_b[sl], estimates_at=ends))
+            ests[1].extend(AlignmentCore._estimates_along(cores[1], d.t_s[sl], d.omega_ib_b[sl], d.f_ib_b[sl], ends))
+        for c in cores:
+            c.update(GnssPosition(float(tg), d.gnss_p_e[g], d.gnss_R_e[g]))
+        k0 = k1
+    return ests, cores
+
+
+def _assert_same_estimates(a, b):
+    assert len(a) == len(b) > 50
+    for x, y in zip(a, b):
+        assert x.stamp_s == y.stamp_s and x.lat_rad == y.lat_rad and x.h_m == y.h_m and x.reason == y.reason
+        for f in ("C_b_n", "v_n", "P_att_n", "P", "bias_gyro_b"):
+            np.testing.assert_array_equal(getattr(x, f), getattr(y, f))
+
+
+def test_compiled_snapshots_are_the_segment_by_segment_estimates():
+    """``propagate(..., estimates_at)`` of the ECI cores (one compiled call: mechanization_numba.eci_invariant_snapshots)
+    gives bit for bit the estimates of propagating each segment and calling ``estimate()`` after it, across batches
+    that end inside a segment (max_batch_samples 7 and 100) and samples left buffered between calls; so does a bank
+    of yaw hypotheses over them."""
+    for core, mb, split, n_hyp in (("iekf", 7, 10, 0), ("liekf", 100, 10, 0), ("iekf", 100, 3, 0),
+                                   ("liekf", 7, 13, 4)):
+        (a, b), cores = _run_cores(core, mb, split, n_hyp)
+        _assert_same_estimates(a, b)
+        np.testing.assert_array_equal(cores[0].estimate().P, cores[1].estimate().P)

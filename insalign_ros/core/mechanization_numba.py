@@ -416,6 +416,31 @@ def eci_navigation(t_s, t0_s, C_b_i, v_i, p_i, P_att, inertial, C_b_n, v_n, P_at
 
 
 @_jit
+def eci_invariant_snapshots(C, v, p, T, W, F, t_prev, b_g, b_a, zn, zj, P, qrate, ends, snap, t0_s, inertial,
+                            SP, SC, SV, SLLH, SPA):
+    """:func:`eci_invariant_block` over consecutive blocks of the rows (block ``b`` ends before row ``ends[b]``),
+    as a run of ``BatchedEciCore`` flushes would call it (no transition product), and after each block ``b`` with
+    ``snap[b] = s >= 0`` the estimate of that state in slot ``s``: the covariance (``SP[s]``) and
+    :func:`eci_navigation` (C_b_n ``SC[s]``, v_n ``SV[s]``, lat/lon/h ``SLLH[s]``, P_att_n ``SPA[s]``). Updates C, v,
+    p, P in place; returns the last block's corrected rate [rad/s]."""
+    nop = np.eye(1)
+    w_last = np.zeros(3)
+    i0 = 0
+    for b in range(ends.shape[0]):
+        i1 = ends[b]
+        w_last = eci_invariant_block(C, v, p, T[i0:i1], W[i0:i1], F[i0:i1], t_prev, b_g, b_a, zn, zj, P, qrate,
+                                     False, nop)
+        t_prev = T[i1 - 1]
+        s = snap[b]
+        if s >= 0:
+            SP[s, :, :] = P
+            SLLH[s, 0], SLLH[s, 1], SLLH[s, 2] = eci_navigation(
+                t_prev, t0_s, C, v, p, np.ascontiguousarray(P[0:3, 0:3]), inertial, SC[s], SV[s], SPA[s])
+        i0 = i1
+    return w_last
+
+
+@_jit
 def covariance_steps(P, Phi, q):
     """P <- Phi_k P Phi_k^T + diag(q_k) for k = 0..N-1 (Phi (N, d, d), q (N, d)); returns (P, Phi_N ... Phi_1).
 

@@ -39,9 +39,9 @@ class BacktrackLiekf(Liekf):
     name = "liekf_backtrack"
     supports_backtracking = True
 
-    def propagate(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
+    def _propagate_arrays(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
         if not backward:
-            super().propagate(t_s, omega_ib_b, f_ib_b)
+            super()._propagate_arrays(t_s, omega_ib_b, f_ib_b)
             return
         self.flush()
         D = np.ones(self._n_states)

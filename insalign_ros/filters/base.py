@@ -159,18 +159,42 @@ class AlignmentCore(ABC):
         """Start from an initial guess: position, ENU velocity [m/s], attitude C_b_n and its 3x3 covariance
         [rad^2] in ENU, velocity and position standard deviations."""
 
-    def propagate(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
+    def propagate(self, t_s, omega_ib_b, f_ib_b, backward: bool = False, estimates_at=None) -> list:
         """Propagate with arrays of IMU samples: ``t_s`` (N,) [s], ``omega_ib_b`` (N, 3) [rad/s], ``f_ib_b`` (N, 3)
         [m/s^2] (one sample: arrays of length 1). Sample ``k`` holds the average over ``(t_s[k-1], t_s[k]]``.
 
         ``backward`` (cores with ``supports_backtracking``, filters/backtrack.py): the inverse steps from the core's
         time back; ``t_s`` are then the times *after* each step (decreasing), sample ``k`` covering
-        ``(t_s[k], t_s[k-1]]``. Default: one ``_propagate_sample`` per row forward; cores with an array path override
-        this and give the same numbers."""
+        ``(t_s[k], t_s[k-1]]``.
+
+        ``estimates_at`` (forward): increasing row indices after which the estimate is wanted (the session's outputs
+        inside a run of samples); returns them, the numbers of propagating each segment and calling :meth:`estimate`
+        after it (a core with a compiled path takes them in one call: ``_estimates_along``). Otherwise returns []."""
+        if estimates_at:
+            if backward:
+                raise ValueError("estimates_at: forward propagation only")
+            return self._estimates_along(t_s, omega_ib_b, f_ib_b, estimates_at)
+        self._propagate_arrays(t_s, omega_ib_b, f_ib_b, backward)
+        return []
+
+    def _propagate_arrays(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
+        """:meth:`propagate` without estimates. Default: one ``_propagate_sample`` per row forward; cores with an array
+        path override this and give the same numbers."""
         if backward:
             raise NotImplementedError(f"{self.name} does not support backward propagation")
         for k in range(len(t_s)):
             self._propagate_sample(ImuSample(float(t_s[k]), omega_ib_b[k], f_ib_b[k]))
+
+    def _estimates_along(self, t_s, omega_ib_b, f_ib_b, ends) -> list[AlignmentEstimate]:
+        """``propagate(..., estimates_at=ends)``: segment by segment, :meth:`estimate` after each."""
+        out, k0 = [], 0
+        for k in ends:
+            self._propagate_arrays(t_s[k0:k + 1], omega_ib_b[k0:k + 1], f_ib_b[k0:k + 1])
+            out.append(self.estimate())
+            k0 = k + 1
+        if k0 < len(t_s):
+            self._propagate_arrays(t_s[k0:], omega_ib_b[k0:], f_ib_b[k0:])
+        return out
 
     def _propagate_sample(self, imu: ImuSample) -> None:
         """One IMU sample forward (the per-row step behind the default :meth:`propagate`; bad rows are rejected and

@@ -186,7 +186,7 @@ class EarthIekf(AlignmentCore):
         self._init = True
 
     # ------------------------------------------------------------------ propagation
-    def propagate(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
+    def _propagate_arrays(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
         """IMU rows buffered, as one sample at a time would be: a batch ends at ``max_batch_samples``, at an automatic
         zero-velocity update and at a change of direction (``flush`` ends it by hand), so a block gives the numbers of
         its rows fed one by one. Forward: an unusable row sends the call through the per-sample step (which rejects
@@ -208,7 +208,7 @@ class EarthIekf(AlignmentCore):
         else:
             arr = usable_imu_arrays(t_s, omega_ib_b, f_ib_b, t_last) if self._init else None
             if arr is None:
-                super().propagate(t_s, omega_ib_b, f_ib_b)
+                super()._propagate_arrays(t_s, omega_ib_b, f_ib_b)
                 return
             t, w, f, _ = arr
         self._buffer(t, w, f, -1 if backward else 1, t_last)

@@ -137,7 +137,7 @@ class YawHypothesisBank(AlignmentCore):
             h.inflate_navigation(var_att_rad2, var_v_m2_s2, var_p_m2, var_bg_rad2_s2, var_ba_m2_s4)
 
     # ------------------------------------------------------------------ events
-    def propagate(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
+    def _propagate_arrays(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
         for h in self.hyps:
             h.propagate(t_s, omega_ib_b, f_ib_b, backward)
 
@@ -229,10 +229,24 @@ class YawHypothesisBank(AlignmentCore):
         est = self.hyps[b].estimate()
         if len(self.hyps) == 1:
             return est
+        return self._mixed(b, est, [self.hyps[k].estimate() for k in range(len(self.hyps)) if k != b])
+
+    def _estimates_along(self, t_s, omega_ib_b, f_ib_b, ends) -> list[AlignmentEstimate]:
+        """Each hypothesis's own estimates (``propagate(..., estimates_at=ends)``), mixed per output as :meth:`estimate` mixes them."""
+        if not self._init or not self.hyps:
+            return super()._estimates_along(t_s, omega_ib_b, f_ib_b, ends)
+        per = [h.propagate(t_s, omega_ib_b, f_ib_b, estimates_at=ends) for h in self.hyps]
+        if len(per) == 1:
+            return per[0]
+        b = int(np.argmax(self.logw))
+        return [self._mixed(b, per[b][s], [per[k][s] for k in range(len(per)) if k != b]) for s in range(len(ends))]
+
+    def _mixed(self, b: int, est: AlignmentEstimate, other_ests: list) -> AlignmentEstimate:
+        """The estimate of the most probable hypothesis ``b`` with the weighted spread of the others' attitudes."""
         w = self.weights
         others = [k for k in range(len(self.hyps)) if k != b]
         # one scipy call for all the hypotheses (the same rotation vectors as one call each)
-        D = Rotation.from_matrix(np.array([self.hyps[k].estimate().C_b_n @ est.C_b_n.T for k in others])).as_rotvec()
+        D = Rotation.from_matrix(np.array([e.C_b_n @ est.C_b_n.T for e in other_ests])).as_rotvec()
         spread = np.zeros((3, 3))
         for d, k in zip(D, others):
             spread += w[k] * np.outer(d, d)

@@ -140,14 +140,14 @@ class BatchedEciCore(AlignmentCore):
             return
         self._propagate_block(*self._buf.take())
 
-    def propagate(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
+    def _propagate_arrays(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
         """Forward: whole arrays without a Python step per sample, in the same batches as one sample at a time (so
         the same numbers); any unusable row (non-finite, stamps not increasing, a gap > 1 s) sends the call through
         the per-sample step, which rejects and counts it."""
         arr = usable_imu_arrays(t_s, omega_ib_b, f_ib_b, self._buf.last_t if self._buf.n else self.t_s) \
             if self._init and not backward else None
         if arr is None:
-            super().propagate(t_s, omega_ib_b, f_ib_b, backward)
+            super()._propagate_arrays(t_s, omega_ib_b, f_ib_b, backward)
             return
         t, w, f, _ = arr
         n = t.shape[0]
@@ -162,6 +162,54 @@ class BatchedEciCore(AlignmentCore):
             i += mb
         if i < n:
             self._buf.add_block(t[i:], w[i:], f[i:])
+
+    def _estimates_along(self, t_s, omega_ib_b, f_ib_b, ends) -> list[AlignmentEstimate]:
+        """:meth:`propagate` with the estimates after the rows ``ends`` in one compiled call on the fused path
+        (``mechanization_numba.eci_invariant_snapshots``): the same batches as ``propagate`` of each segment and
+        ``estimate()`` after it, so the same numbers; elsewhere the base class's segment by segment."""
+        fs = self._fused_setup() if self._init else (False,)
+        arr = usable_imu_arrays(t_s, omega_ib_b, f_ib_b, self._buf.last_t if self._buf.n else self.t_s) \
+            if fs[0] and not fs[1] and len(ends) else None
+        if arr is None:
+            return super()._estimates_along(t_s, omega_ib_b, f_ib_b, ends)
+        t, w, f, _ = arr
+        n0 = self._buf.n
+        last = int(ends[-1]) + 1
+        if n0:
+            tb, wb, fb = self._buf.take()
+            T = np.concatenate((tb, t[:last]))
+            W = np.concatenate((wb, w[:last]))
+            F = np.concatenate((fb, f[:last]))
+        else:
+            T, W, F = t[:last], w[:last], f[:last]
+        bounds, snap = _flush_plan(n0, [n0 + int(k) + 1 for k in ends], self.cfg.max_batch_samples)
+        m = len(ends)
+        d = self._n_states
+        SP, SC, SV = np.empty((m, d, d)), np.empty((m, 3, 3)), np.empty((m, 3))
+        SLLH, SPA = np.empty((m, 3)), np.empty((m, 3, 3))
+        C, v, p = self.C.copy(), self.v.copy(), self.p.copy()
+        P = np.array(self.P, dtype=float)
+        self.omega_b = nb.eci_invariant_snapshots(
+            C, v, p, np.ascontiguousarray(T, float), np.ascontiguousarray(W, float), np.ascontiguousarray(F, float),
+            self.t_s, np.asarray(self.b_g, float), np.asarray(self.b_a, float), nb._ZONAL_N, nb._ZONAL_J, P,
+            fs[2], np.array(bounds, np.int64), np.array(snap, np.int64), self.t0_s, self._att_error_inertial,
+            SP, SC, SV, SLLH, SPA)
+        self.P, self.C, self.v, self.p = P, C, v, p
+        self.t_s = float(T[-1])
+        self.counters["imu"] += last
+        b_g, b_a = self._bias_out()
+        Tl = T.tolist()
+        out = []
+        for s, e in enumerate(bounds_of_snapshots(bounds, snap)):
+            est = self._estimate_from(Tl[e - 1], SC[s], SV[s], *SLLH[s].tolist(), SPA[s], SP[s])
+            if b_g is not None and s:
+                est.bias_gyro_b, est.bias_acc_b = b_g.copy(), b_a.copy()
+            elif b_g is not None:
+                est.bias_gyro_b, est.bias_acc_b = b_g, b_a
+            out.append(est)
+        if last < t.shape[0]:
+            self._propagate_arrays(t[last:], w[last:], f[last:])
+        return out
 
     def _propagate_block(self, t: np.ndarray, w: np.ndarray, f: np.ndarray) -> None:
         """Propagate state and covariance over samples (t (N,) [s], raw omega_ib_b, f_ib_b (N, 3))."""
@@ -296,20 +344,55 @@ class BatchedEciCore(AlignmentCore):
         self.flush()
         lat, lon, h, C_b_n, v_n, P_att = navigation_from_state_eci(
             NavStateEci(self.t_s, self.C, self.v, self.p), self.t0_s, self.P[0:3, 0:3], self._att_error_inertial)
+        est = self._estimate_from(self.t_s, C_b_n, np.asarray(v_n), lat, lon, h, P_att, self.P.copy())
+        est.bias_gyro_b, est.bias_acc_b = self._bias_out()
+        return est
+
+    def _estimate_from(self, t_s, C_b_n, v_n, lat, lon, h, P_att, P) -> AlignmentEstimate:
         sig_yaw3 = 3.0 * math.degrees(math.sqrt(max(P_att[2, 2], 0.0)))
-        if sig_yaw3 < self.cfg.status_yaw_3sigma_deg:
-            status, reason = AlignmentStatus.ALIGNED, f"3-sigma yaw {sig_yaw3:.2f} deg"
-        else:
-            status, reason = AlignmentStatus.CONVERGING, f"3-sigma yaw {sig_yaw3:.2f} deg"
-        b_g, b_a = self._bias_out()
-        return AlignmentEstimate(
-            stamp_s=self.t_s, C_b_n=C_b_n, v_n=np.asarray(v_n), lat_rad=lat, lon_rad=lon, h_m=h, P_att_n=P_att,
-            P=self.P.copy(), state_names=self.state_names, bias_gyro_b=b_g, bias_acc_b=b_a, status=status,
-            reason=reason,
-        )
+        status = AlignmentStatus.ALIGNED if sig_yaw3 < self.cfg.status_yaw_3sigma_deg else AlignmentStatus.CONVERGING
+        return AlignmentEstimate(stamp_s=t_s, C_b_n=C_b_n, v_n=v_n, lat_rad=lat, lon_rad=lon, h_m=h, P_att_n=P_att,
+                                 P=P, state_names=self.state_names, status=status,
+                                 reason=f"3-sigma yaw {sig_yaw3:.2f} deg")
 
     def _bias_out(self):
         return None, None
+
+
+def _flush_plan(n0: int, ends: list[int], mb: int) -> tuple[list[int], list[int]]:
+    """The batches ``BatchedEciCore.propagate`` of each segment ``[ends[s-1], ends[s])`` then ``estimate()`` make,
+    with ``n0`` rows already buffered (rows ``0 .. n0-1``) and batches of at most ``mb`` rows: the end row of each
+    batch, and per batch the segment whose estimate follows it (-1: none)."""
+    bounds: list[int] = []
+    snap: list[int] = []
+    buf, pos = n0, n0
+    for s, end in enumerate(ends):
+        i = min(end - pos, mb - buf)  # the pending batch completed first
+        buf += i
+        pos += i
+        if buf >= mb:
+            bounds.append(pos)
+            snap.append(-1)
+            buf = 0
+        while end - pos >= mb:
+            pos += mb
+            bounds.append(pos)
+            snap.append(-1)
+        if pos < end:
+            buf += end - pos
+            pos = end
+        if buf:  # estimate(): flush
+            bounds.append(pos)
+            snap.append(s)
+            buf = 0
+        else:
+            snap[-1] = s
+    return bounds, snap
+
+
+def bounds_of_snapshots(bounds: list[int], snap: list[int]) -> list[int]:
+    """The end row of the batch after which each snapshot is taken, in snapshot order."""
+    return [b for b, s in zip(bounds, snap) if s >= 0]
 
 
 class Liekf(BatchedEciCore):

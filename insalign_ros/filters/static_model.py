@@ -249,12 +249,12 @@ class StaticZuptCore(AlignmentCore):
         self.t_s = float(imu.stamp_s)
         self._buf.add(dt, imu.omega_ib_b, imu.f_ib_b)  # buffered: the compiled loop runs on the next flush
 
-    def propagate(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
+    def _propagate_arrays(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
         """Forward: whole arrays appended to the interval buffer when every row is usable (finite, 0 < dt <= 1 s);
         otherwise sample by sample (which skips and handles the bad rows)."""
         arr = usable_imu_arrays(t_s, omega_ib_b, f_ib_b, self.t_s) if self._init and not backward else None
         if arr is None:
-            super().propagate(t_s, omega_ib_b, f_ib_b, backward)
+            super()._propagate_arrays(t_s, omega_ib_b, f_ib_b, backward)
             return
         t, w, f, dt = arr
         self._buf.add_block(dt, w, f)

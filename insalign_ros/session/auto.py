@@ -182,7 +182,7 @@ class AutoCore(AlignmentCore):
         else:
             self.detector.push_gnss_speed(*args)
 
-    def propagate(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
+    def _propagate_arrays(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
         """Row by row: the motion decision and the hand-over fall between two samples."""
         if backward:
             raise NotImplementedError("auto does not support backward propagation")

@@ -172,7 +172,7 @@ class Loop:
                     out: list[Output]) -> int:
         """Process the run ``i:j`` of the plan (its intervals ``d``) as ``_step`` would sample by sample."""
         sess = self.s
-        core, cfg = sess.core, sess.cfg
+        core, cfg, b = sess.core, sess.cfg, sess.buf
         Tl = plan.Tl
         if mc is None:
             mc = (min(self.dts), c0, c0, self.dts)
@@ -216,20 +216,36 @@ class Loop:
             sess.yaw_seed.imu_arrays(T, W, F)
             # the outputs due inside the run: the core propagated up to each output's sample, which gets what
             # events_at gives any sample there (no fix, velocity or scheduled update falls due before t_end)
-            k0, n_in = 0, m - 1 if t >= t_end else m  # the last sample, when an event ends the run: events_at
+            # (the core's estimates at those samples in one call: core.propagate(..., estimates_at))
+            n_in = m - 1 if t >= t_end else m  # the last sample, when an event ends the run: events_at
+            ks, k, due = [], 0, sess.next_out_t
             while True:
-                k = bisect.bisect_left(Tl, sess.next_out_t - 1e-9, i + k0, i + n_in) - i
+                k = bisect.bisect_left(Tl, due - 1e-9, i + k, i + n_in) - i
                 if k >= n_in:
                     break
-                core.propagate(T[k0:k + 1], W[k0:k + 1], F[k0:k + 1])
-                sess._est_memo = None
-                self.events_at(Tl[i + k], out)
-                k0 = k + 1
-                if sess.core is not core:  # a restart at an output: the rest of the run is dropped, as after a fault
-                    return j
+                ks.append(k)
+                due = Tl[i + k] + cfg.output_period_s  # what events_at sets next_out_t to
+                k += 1
+            k0, q0 = 0, 0
+            while q0 < len(ks):
+                # a GNSS heading is fused at the first output at or after its stamp (not an end of the run): the
+                # estimates are taken up to that output, the rest after its update
+                ht = b.heading_t[0] if b.heading_t else math.inf
+                q = q0
+                while q < len(ks) - 1 and Tl[i + ks[q]] < ht:
+                    q += 1
+                kc = ks[q]
+                ests = core.propagate(T[k0:kc + 1], W[k0:kc + 1], F[k0:kc + 1],
+                                      estimates_at=[k - k0 for k in ks[q0:q + 1]])
+                for k, est in zip(ks[q0:q + 1], ests):
+                    sess._est_memo = (core, est)
+                    self.events_at(Tl[i + k], out)
+                    if sess.core is not core:  # a restart at an output: the rest of the run is dropped (as after
+                        return j  # a fault)
+                k0, q0 = kc + 1, q + 1
+            sess._est_memo = None
             if k0 < m:
                 core.propagate(T[k0:], W[k0:], F[k0:])
-                sess._est_memo = None
             if t >= t_end:
                 self.events_at(t, out)
         except Exception as exc:  # noqa: BLE001 - a core failure is a fault; the alignment restarts
