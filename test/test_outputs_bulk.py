@@ -128,3 +128,45 @@ def test_compiled_snapshots_are_the_segment_by_segment_estimates():
         (a, b), cores = _run_cores(core, mb, split, n_hyp)
         _assert_same_estimates(a, b)
         np.testing.assert_array_equal(cores[0].estimate().P, cores[1].estimate().P)
+
+
+def test_align_with_bulk_estimates_is_one_output_at_a_time(monkeypatch):
+    """``ia.align`` defaults on a car with ``vehicle: car`` (GNSS headings off the fix stamps, the non-holonomic
+    constraint scheduled once the hand-over makes the in-motion core accept it), at 0.1-s and 0.03-s outputs (then
+    the hand-over falls inside a run with outputs after it): every output, with the estimates of each run taken at
+    once (ECI snapshots, the yaw bank's mixes, auto's cruise blocks; auto one at a time while parked), is the output
+    of interleaving one output at a time (propagate to the output's sample, its events, then on: each core returns
+    only its first estimate, which the contract allows)."""
+    from dataclasses import replace
+
+    from insalign_ros.filters.base import AlignmentCore
+    from insalign_ros.filters.hypotheses import YawHypothesisBank
+    from insalign_ros.filters.liekf import BatchedEciCore
+    from insalign_ros.session.auto import AutoCore
+
+    def first_only(orig):
+        def along(self, t_s, omega_ib_b, f_ib_b, ends):
+            if not len(ends):
+                return orig(self, t_s, omega_ib_b, f_ib_b, ends)
+            k = ends[0] + 1
+            orig(self, t_s[:k], omega_ib_b[:k], f_ib_b[:k], ())
+            return [self.estimate()]
+        return along
+
+    d = ia.simulate("car", duration_s=60.0, seed=2, gnss_heading_sigma_deg=0.5)
+    d = replace(d, heading_t_s=d.heading_t_s + 0.37)
+    runs = []
+    for bulk in (True, False):
+        with monkeypatch.context() as m:
+            if not bulk:
+                for cls in (AlignmentCore, BatchedEciCore, YawHypothesisBank, AutoCore):
+                    m.setattr(cls, "_estimates_along", first_only(cls.__dict__["_estimates_along"]))
+            runs.append([ia.align(d, core=c, vehicle="car", output_period_s=p) for c in ("auto", "iekf")
+                         for p in (0.1, 0.03)])
+    for a, b in zip(*runs):
+        assert a.counters == b.counters and a.counters["nhc_accepted"] > 100 and a.counters["gnss_heading_fused"] > 30
+        assert len(a.outputs) == len(b.outputs) > 300
+        for x, y in zip(a.outputs, b.outputs):
+            assert (x.stamp_s, x.aligned, x.reason) == (y.stamp_s, y.aligned, y.reason)
+            np.testing.assert_array_equal(x.estimate.P, y.estimate.P)
+            np.testing.assert_array_equal(x.estimate.C_b_n, y.estimate.C_b_n)

@@ -169,7 +169,9 @@ class AlignmentCore(ABC):
 
         ``estimates_at`` (forward): increasing row indices after which the estimate is wanted (the session's outputs
         inside a run of samples); returns them, the numbers of propagating each segment and calling :meth:`estimate`
-        after it (a core with a compiled path takes them in one call: ``_estimates_along``). Otherwise returns []."""
+        after it (a core with a compiled path takes them in one call: ``_estimates_along``). A core whose ``accepts``
+        changes on the way (``auto``'s hand-over) may return fewer: it then stopped after the row of its last
+        estimate, and the caller propagates the rest. Otherwise returns []."""
         if estimates_at:
             if backward:
                 raise ValueError("estimates_at: forward propagation only")

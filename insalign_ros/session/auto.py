@@ -15,8 +15,9 @@ A state machine around two cores and the motion detector (session/motion.py), se
 * **in motion**: when the motion detector declares motion, the in-motion core (``motion_core``, default iekf) is
   initialised from a snapshot of the static solution taken before the onset of the motion (level, heading if
   trusted, their 3x3 covariance, the position, zero velocity, and the gyro bias measured over the rest window:
-  :func:`gyro_bias_from_rest`) and the buffered IMU samples since the snapshot are replayed into it; a bank of ``unknown_heading_hypotheses`` yaw hypotheses when the heading is not trusted. From
-  then on ``accepts`` is the in-motion core's: the session fuses the fixes, gates them and stops its zero-velocity updates;
+  :func:`gyro_bias_from_rest`) and the buffered IMU samples since the snapshot are replayed into it; a bank of
+  ``unknown_heading_hypotheses`` yaw hypotheses when the heading is not trusted. From then on ``accepts`` is the
+  in-motion core's: the session fuses the fixes, gates them and stops its zero-velocity updates;
 * **stopped**: the detector declares rest again: the in-motion core keeps running (no reset) and takes a
   zero-velocity constraint at 10 Hz as a position hold (a pseudo-fix at the position where it stopped, 1-sigma
   ``stop_hold_sigma_m``; the in-motion cores have no velocity update) besides the real fixes, and a
@@ -41,7 +42,8 @@ from ..filters.hypotheses import YawHypothesisBank
 from ..filters.measurements import GnssPosition, GnssVelocity, GyroBiasPrior, ZeroAngularRate, ZeroVelocity
 from .auto_config import AutoConfig, D2R
 from .motion import FixNoise, MotionConfig, MotionDetector, rate_hz_from_intervals
-from .rest import REST_BLOCK_S, _BlockMean, block_variance, gyro_bias_from_rest, rest_rate_mean
+from .rest import (REST_BLOCK_S, _BlockMean, block_variance, gyro_bias_from_rest, rest_rate_mean,
+                   static_heading_support)
 
 
 #: hand-over without a snapshot at rest (moving from the start): the vehicle acceleration [m/s^2] assumed when the
@@ -183,28 +185,48 @@ class AutoCore(AlignmentCore):
             self.detector.push_gnss_speed(*args)
 
     def _propagate_arrays(self, t_s, omega_ib_b, f_ib_b, backward: bool = False) -> None:
-        """Row by row: the motion decision and the hand-over fall between two samples."""
         if backward:
             raise NotImplementedError("auto does not support backward propagation")
+        self._estimates_along(t_s, omega_ib_b, f_ib_b, ())
+
+    def _estimates_along(self, t_s, omega_ib_b, f_ib_b, ends) -> list[AlignmentEstimate]:
+        """Row by row: the motion decision and the hand-over fall between two samples; the estimate after each row
+        in ``ends``, only the first while parked or after a hand-over (the rows after it are left to the caller:
+        the session's events at each output follow ``accepts``). Driving with the detector skipped, the rows up to the next speed check go to the in-motion core
+        in one block (with the estimates wanted in it: its ``propagate(..., estimates_at)``)."""
         T, W, F = np.asarray(t_s, float), np.asarray(omega_ib_b, float), np.asarray(f_ib_b, float)
-        k, n = 0, T.shape[0]
+        out, k, n, e, ends, m0 = [], 0, T.shape[0], 0, list(ends), self.motion
         while k < n:
             if self.motion is not None and self.state == "in motion" and self.detector_skipped:
                 # driving, the detector skipped: nothing is decided before the next speed check; one block
                 j = k + int(np.searchsorted(T[k:], self._next_speed_check_t, side="left"))
                 if j > k:
-                    self._cruise(T[k:j], W[k:j], F[k:j])
-                    k = j
+                    q = e
+                    while q < len(ends) and ends[q] < j:
+                        q += 1
+                    j = ends[q - 1] + 1 if q > e else j
+                    self._remember(T[k:j], W[k:j], F[k:j])
+                    ests = self.motion.propagate(T[k:j], W[k:j], F[k:j], estimates_at=[x - k for x in ends[e:q]])
+                    out += [self._dressed(est) for est in ests]
+                    k, e = j, q
                     continue
+            stop = ends[e] + 1 if e < len(ends) else n
+            j = k
             if self.motion is None and self.detector is not None:
                 # static: the rows the detector takes at once, up to the one that declares motion
-                j = k + self.detector.push_imu_arrays(T[k:], W[k:], F[k:], until_moving=True)
+                j = k + self.detector.push_imu_arrays(T[k:stop], W[k:stop], F[k:stop], until_moving=True)
                 if j > k:
                     self._static_rows(T[k:j], W[k:j], F[k:j], self.detector.decision)
-                    k = j
-                    continue
-            self._row(T[k:k + 1], W[k:k + 1], F[k:k + 1])
-            k += 1
+            if j == k:
+                self._row(T[k:k + 1], W[k:k + 1], F[k:k + 1])
+                j = k + 1
+            k = j
+            if k == stop and e < len(ends):
+                out.append(self.estimate())
+                e += 1
+                if self.motion is None or self.motion is not m0:  # parked, a hand-over may change what the
+                    return out  # session fuses at the next output (accepts): one estimate per call
+        return out
 
     def _static_rows(self, T: np.ndarray, W: np.ndarray, F: np.ndarray, dec) -> None:
         """Rows before the hand-over, their motion decisions made (``dec``: the last one's, None before the detector):
@@ -220,12 +242,6 @@ class AutoCore(AlignmentCore):
         self.static.propagate(T, W, F)
         if dec is not None and dec.moving:
             self._handover(self._t, dec.since_s)
-
-    def _cruise(self, T: np.ndarray, W: np.ndarray, F: np.ndarray) -> None:
-        """Rows of :meth:`_row` while in motion with the detector skipped, as one block (the same samples in the same
-        order to the in-motion core; the history the hand-over and the level window read)."""
-        self._remember(T, W, F)
-        self.motion.propagate(T, W, F)
 
     def _remember(self, T: np.ndarray, W: np.ndarray, F: np.ndarray) -> None:
         """The rows into the last 6 s of history (the hand-over's replay and level window); the last stamp taken."""
@@ -547,36 +563,19 @@ class AutoCore(AlignmentCore):
 
     # ------------------------------------------------------------------ outputs
     def estimate(self) -> AlignmentEstimate:
-        est = self.active.estimate()
+        return self._dressed(self.active.estimate())
+
+    def _dressed(self, est: AlignmentEstimate) -> AlignmentEstimate:
+        """The active core's estimate with the state in its reason (and, parked, the heading support)."""
         if self.motion is None and self.state == "static, fine" and not self.grade_allows_heading:
             est.status = AlignmentStatus.WAITING_FOR_MOTION
         est.reason = f"{self.state}: {self.reason}" if self.reason else self.state
         if self.motion is None and est.P_att_n is not None:
-            est.P_att_n, why = self._static_heading_support(np.array(est.P_att_n, float))
+            est.P_att_n, why = static_heading_support(np.array(est.P_att_n, float), self._zupt_support, self._zupt_nis,
+                                                      self.cfg.azimuth_floor_rad(self.lat))
             if why:
                 est.reason += f"; {why}"
         return est
-
-    def _static_heading_support(self, P: np.ndarray) -> tuple[np.ndarray, str]:
-        """Parked: the heading variance the flag sees is at least the gyrocompassing floor (eps_east / (omega_ie
-        cos lat))^2, scaled by 1 / the fraction of zero-velocity updates accepted (under 0.9, from 20 asked), their mean NIS
-        per dof when over 2 (from 50). A real parked car: 992 of 2,991 accepted, yaw 3.7 deg off at a 2.24 3-sigma."""
-        asked, ok = self._zupt_support
-        k, why = 1.0, ""
-        if asked >= 20 and ok < 0.9 * asked:  # a few refused (a person getting in) say nothing about the model
-            k = asked / max(ok, 1)
-        nis = float(np.mean(self._zupt_nis)) if len(self._zupt_nis) >= 50 else 0.0
-        if nis > 2.0:
-            k *= nis
-        if k > 1.0 + 1e-9:
-            P[2, :] *= math.sqrt(k)
-            P[:, 2] *= math.sqrt(k)
-            why = (f"heading variance x{k:.2f}: zero-velocity updates accepted {ok} of {asked}"
-                   + (f", mean NIS per dof {nis:.2f}" if nis > 2.0 else ""))
-        floor = self.cfg.azimuth_floor_rad(self.lat)
-        if math.isfinite(floor) and P[2, 2] < floor * floor:
-            P[2, 2] = floor * floor
-        return P, why
 
     def diagnostics(self) -> dict:
         d = {"state": self.state, "state_reason": self.reason,

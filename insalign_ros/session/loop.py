@@ -242,7 +242,10 @@ class Loop:
                     self.events_at(Tl[i + k], out)
                     if sess.core is not core:  # a restart at an output: the rest of the run is dropped (as after
                         return j  # a fault)
-                k0, q0 = kc + 1, q + 1
+                if not ests:
+                    raise RuntimeError(f"{core.name}: propagate(estimates_at) returned no estimate")
+                q = q0 + len(ests) - 1  # fewer: the core stopped after its last estimate (auto's hand-over)
+                k0, q0 = ks[q] + 1, q + 1
             sess._est_memo = None
             if k0 < m:
                 core.propagate(T[k0:], W[k0:], F[k0:])
