@@ -235,13 +235,21 @@ class Loop:
                 while q < len(ks) - 1 and Tl[i + ks[q]] < ht:
                     q += 1
                 kc = ks[q]
+                if q == q0:  # one output: the core's estimate read by the output itself (no list to build)
+                    core.propagate(T[k0:kc + 1], W[k0:kc + 1], F[k0:kc + 1])
+                    sess._est_memo = None
+                    self.events_at(Tl[i + kc], out)
+                    if sess.core is not core:  # a restart at an output: the rest of the run is dropped (as after
+                        return j  # a fault)
+                    k0, q0 = kc + 1, q + 1
+                    continue
                 ests = core.propagate(T[k0:kc + 1], W[k0:kc + 1], F[k0:kc + 1],
                                       estimates_at=[k - k0 for k in ks[q0:q + 1]])
                 for k, est in zip(ks[q0:q + 1], ests):
                     sess._est_memo = (core, est)
                     self.events_at(Tl[i + k], out)
-                    if sess.core is not core:  # a restart at an output: the rest of the run is dropped (as after
-                        return j  # a fault)
+                    if sess.core is not core:
+                        return j
                 if not ests:
                     raise RuntimeError(f"{core.name}: propagate(estimates_at) returned no estimate")
                 q = q0 + len(ests) - 1  # fewer: the core stopped after its last estimate (auto's hand-over)
