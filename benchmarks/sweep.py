@@ -198,14 +198,17 @@ class StageTimer:
         from insalign_ros.filters import registry
         from insalign_ros.filters.base import AlignmentCore
         from insalign_ros.session import offline
+        from insalign_ros.session.inputs import InputStage
+        from insalign_ros.session.outputs import Outputs
         from insalign_ros.session.session import AlignmentSession
 
-        self._wrap(offline, "load_source", "read")
-        self._wrap(offline, "truth_samples", "read")
-        self._wrap(offline, "truth_table", "read")
+        for f in ("load_source", "truth_samples", "truth_table"):
+            if hasattr(offline, f):
+                self._wrap(offline, f, "read")
         for m in ("push_imu", "push_imu_arrays", "push_fix", "push_truth", "push_truth_table"):
             self._wrap(AlignmentSession, m, "input")
-        self._wrap(AlignmentSession, "_output", "outputs")
+        self._wrap(InputStage, "push_imu_checked", "input")  # the offline path's checked slices
+        self._wrap(Outputs, "output", "outputs")
         self._wrap(offline, "result_from_outputs", "outputs")
         seen = set()
         classes = {AlignmentCore}

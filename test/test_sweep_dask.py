@@ -83,3 +83,23 @@ def test_local_cluster_workers_run_one_solver_thread(monkeypatch):
             client.close()
             cluster.close()
         assert got == [expected]
+
+
+def test_stage_timer_splits_a_default_run():
+    """``--stage-timing`` (sweep.StageTimer): the session's entry points are wrapped where they are now, each stage of
+    a default ``ia.align`` gets time, the stages add up to the total, and everything is unwrapped afterwards."""
+    import time
+
+    import insalign_ros as ia
+    from insalign_ros.session.outputs import Outputs
+
+    d = ia.simulate("ship", duration_s=10.0, seed=0)
+    before = Outputs.output
+    with sweep.StageTimer() as st:
+        t0 = time.perf_counter()
+        ia.align(d, core="iekf")
+        st.total_s = time.perf_counter() - t0
+    s = st.stages()
+    assert all(s[k] > 0.0 for k in ("input", "propagate", "update", "outputs")), s
+    assert abs(sum(v for k, v in s.items() if k != "total") - s["total"]) < 1e-9 * s["total"] + 1e-12
+    assert Outputs.output is before
