@@ -14,10 +14,45 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from insalign_ros.core import earth, lie
+from insalign_ros.core.mechanization import propagate_eci, propagate_eci_inverse
 from insalign_ros.filters import (
     checks, earth_iekf, ekf10, liekf, measurements, pi_liekf, pkf, static_model, update,
 )
 from insalign_ros.filters.eci_batch import covariance_batch, propagate_eci_batch, step_increments_batch
+
+
+# ------------------------------------------------------------------- Earth-frame mechanization (mechanization_e)
+OMEGA_IE_E = earth.OMEGA_IE_E
+
+
+def C_i_e_step(dt_s: float) -> np.ndarray:
+    """Rotation of the ECEF frame over dt [s] seen from the ECI frame frozen at the step start: exp(-omega dt)."""
+    return lie.so3_exp(-OMEGA_IE_E * dt_s)
+
+
+def propagate_e(C_b_e, vbar_e, p_e, omega_ib_b, f_ib_b, dt_s):
+    """One forward step of eqs. (21), (22), (26): returns (C_b_e, vbar_e, p_e) at the end of the step."""
+    C, v, p = propagate_eci(C_b_e, vbar_e, p_e, omega_ib_b, f_ib_b, dt_s)
+    R = C_i_e_step(dt_s)
+    return R @ C, R @ v, R @ p
+
+
+def propagate_e_inverse(C_b_e, vbar_e, p_e, omega_ib_b, f_ib_b, dt_s):
+    """Inverse step (backward in time, paper eqs. (6)-(10) in the Earth frame): the state at the step start
+    from the state at its end and the same sample."""
+    Rt = C_i_e_step(dt_s).T
+    return propagate_eci_inverse(Rt @ C_b_e, Rt @ vbar_e, Rt @ p_e, omega_ib_b, f_ib_b, dt_s)
+
+
+def vector_field_e(X: np.ndarray, omega_ib_b: np.ndarray, f_ib_b: np.ndarray, gbar_e: np.ndarray) -> np.ndarray:
+    """dX/dt of eq. (33) as a 5x5 matrix (top three rows; bottom rows zero) with a frozen gravitation gbar_e."""
+    C, v, p = X[0:3, 0:3], X[0:3, 3], X[0:3, 4]
+    W = lie.hat3(OMEGA_IE_E)
+    out = np.zeros((5, 5))
+    out[0:3, 0:3] = C @ lie.hat3(omega_ib_b) - W @ C
+    out[0:3, 3] = C @ f_ib_b - W @ v + gbar_e
+    out[0:3, 4] = v - W @ p
+    return out
 
 
 # ------------------------------------------------------------------------------------------- Kalman update

@@ -3,9 +3,8 @@
 import numpy as np
 
 from insalign_ros.core import earth, lie
-from insalign_ros.core.mechanization_e import (
-    propagate_e, propagate_e_inverse, v_e_from_vbar, vbar_from_v_e, vector_field_e,
-)
+from insalign_ros.core.mechanization_e import v_e_from_vbar, vbar_from_v_e
+from oracles import propagate_e, propagate_e_inverse, vector_field_e
 from insalign_ros.sim.scenarios import make_scenario
 
 

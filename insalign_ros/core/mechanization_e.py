@@ -9,17 +9,18 @@ Inverse-alignment paper (Liu et al. 2025, "group affine inverse alignment"), eqs
   cancels;
 * position, eq. (26): ``dp/dt = vbar_e - omega_ie_e x p_e``.
 
-Exact relation to the ECI mechanization (the implementation uses it): with an ECI epoch at the start of a step,
-``(C_b_e, vbar_e, p_e) = C_i_e(t) (C_b_i, v_i, p_i)``, because ``v_i = C_e_i (v_e + omega x p_e)``. A step of the
-Earth-frame mechanization is therefore one step of core/mechanization.propagate_eci with the epoch at the step
-start, followed by the rotation ``C_i_e(dt) = exp(-omega_ie_e dt)``. This keeps the IMU-sample timing convention
-of core/mechanization.py (sample k is the average over (t_{k-1}, t_k]) and makes the simulators' data (discrete-
-consistent with propagate_eci) integrate to the truth in this frame too. The inverse step (eqs. (6)-(10) of the
-paper, in the Earth frame) undoes the rotation and calls propagate_eci_inverse, so forward then inverse returns to
-the start to rounding error (test/test_mechanization_e.py).
+Exact relation to the ECI mechanization (the implementation, filters/earth_iekf.py, uses it; its numpy form, one step
+forward and back, is test/oracles.py ``propagate_e`` / ``propagate_e_inverse``): with an ECI epoch at the start of a
+step, ``(C_b_e, vbar_e, p_e) = C_i_e(t) (C_b_i, v_i, p_i)``, because ``v_i = C_e_i (v_e + omega x p_e)``. A step of
+the Earth-frame mechanization is therefore one step of core/mechanization.propagate_eci with the epoch at the step
+start, followed by the rotation ``C_i_e(dt) = exp(-omega_ie_e dt)``. This keeps the IMU-sample timing convention of
+core/mechanization.py (sample k is the average over (t_{k-1}, t_k]) and makes the simulators' data (discrete-
+consistent with propagate_eci) integrate to the truth in this frame too. The inverse step (eqs. (6)-(10) of the paper,
+in the Earth frame) undoes the rotation and calls propagate_eci_inverse, so forward then inverse returns to the start
+to rounding error (test/test_mechanization_e.py).
 
 The 5x5 element ``X = [[C_b_e, vbar_e, p_e], [0, 1, 0], [0, 0, 1]]`` (eq. (32)) obeys a group-affine vector field
-(eq. (33)) when ``gbar`` is frozen over a step; :func:`vector_field_e` gives it for the test of the identity
+(eq. (33)) when ``gbar`` is frozen over a step; test/oracles.py ``vector_field_e`` gives it for the test of the identity
 ``f(AB) = f(A) B + A f(B) - A f(I) B`` (docs/backtracking.md has the proof).
 """
 
@@ -27,29 +28,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import earth, lie
-from .mechanization import propagate_eci, propagate_eci_inverse
+from . import earth
 
 OMEGA_IE_E = earth.OMEGA_IE_E
-
-
-def C_i_e_step(dt_s: float) -> np.ndarray:
-    """Rotation of the ECEF frame over dt [s] seen from the ECI frame frozen at the step start: exp(-omega dt)."""
-    return lie.so3_exp(-OMEGA_IE_E * dt_s)
-
-
-def propagate_e(C_b_e, vbar_e, p_e, omega_ib_b, f_ib_b, dt_s):
-    """One forward step of eqs. (21), (22), (26): returns (C_b_e, vbar_e, p_e) at the end of the step."""
-    C, v, p = propagate_eci(C_b_e, vbar_e, p_e, omega_ib_b, f_ib_b, dt_s)
-    R = C_i_e_step(dt_s)
-    return R @ C, R @ v, R @ p
-
-
-def propagate_e_inverse(C_b_e, vbar_e, p_e, omega_ib_b, f_ib_b, dt_s):
-    """Inverse step (backward in time, paper eqs. (6)-(10) in the Earth frame): the state at the step start
-    from the state at its end and the same sample."""
-    Rt = C_i_e_step(dt_s).T
-    return propagate_eci_inverse(Rt @ C_b_e, Rt @ vbar_e, Rt @ p_e, omega_ib_b, f_ib_b, dt_s)
 
 
 def vbar_from_v_e(v_e: np.ndarray, p_e: np.ndarray) -> np.ndarray:
@@ -60,14 +41,3 @@ def vbar_from_v_e(v_e: np.ndarray, p_e: np.ndarray) -> np.ndarray:
 def v_e_from_vbar(vbar_e: np.ndarray, p_e: np.ndarray) -> np.ndarray:
     """ECEF velocity relative to the Earth [m/s] from the auxiliary velocity."""
     return np.asarray(vbar_e, float) - np.cross(OMEGA_IE_E, p_e)
-
-
-def vector_field_e(X: np.ndarray, omega_ib_b: np.ndarray, f_ib_b: np.ndarray, gbar_e: np.ndarray) -> np.ndarray:
-    """dX/dt of eq. (33) as a 5x5 matrix (top three rows; bottom rows zero) with a frozen gravitation gbar_e."""
-    C, v, p = X[0:3, 0:3], X[0:3, 3], X[0:3, 4]
-    W = lie.hat3(OMEGA_IE_E)
-    out = np.zeros((5, 5))
-    out[0:3, 0:3] = C @ lie.hat3(omega_ib_b) - W @ C
-    out[0:3, 3] = C @ f_ib_b - W @ v + gbar_e
-    out[0:3, 4] = v - W @ p
-    return out

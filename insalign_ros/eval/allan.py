@@ -82,18 +82,6 @@ class AxisFit:
     def is_gyro(self) -> bool:
         return self.axis.startswith("gyro")
 
-    def model_adev(self, taus_s) -> np.ndarray:
-        """The fitted sum of the terms at ``taus_s``."""
-        t = np.asarray(taus_s, float)
-        v = np.zeros_like(t)
-        if self.white is not None:
-            v += self.white**2 / t
-        if self.bias_instability is not None and self.bias_instability_bound == "fit":
-            v += (FLICKER_FACTOR * self.bias_instability) ** 2
-        if self.rrw is not None:
-            v += self.rrw**2 * t / 3.0
-        return np.sqrt(v)
-
     def in_units(self) -> dict:
         """The terms in datasheet units: gyro deg/sqrt(h), deg/h, deg/h/sqrt(h); accelerometer m/s/sqrt(h), mg,
         mg/sqrt(h)."""

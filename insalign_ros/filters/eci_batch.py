@@ -120,18 +120,6 @@ def liekf_transition_batch(dC: np.ndarray, dv_b: np.ndarray, dp_b: np.ndarray, d
     return Phi
 
 
-def liekf_A_eq41(omega_ib_b: np.ndarray, f_ib_b: np.ndarray, dt_s: float) -> np.ndarray:
-    """The paper's first-order A of eq. (41): ``I + [[-w_x,0,0],[-f_x,-w_x,0],[0,I,-w_x]] T_s``."""
-    W, Fx = lie.hat3(omega_ib_b), lie.hat3(f_ib_b)
-    Ac = np.zeros((9, 9))
-    Ac[0:3, 0:3] = -W
-    Ac[3:6, 0:3] = -Fx
-    Ac[3:6, 3:6] = -W
-    Ac[6:9, 3:6] = _I3
-    Ac[6:9, 6:9] = -W
-    return np.eye(9) + Ac * dt_s
-
-
 def covariance_batch(P: np.ndarray, Phi: np.ndarray, Qd: np.ndarray):
     """P_N = Phi_N ... Phi_1 P (..)^T + sum_k (Phi_N..Phi_{k+1}) Q_k (..)^T for (N, d, d) Phi and Q.
 

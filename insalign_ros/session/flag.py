@@ -237,23 +237,14 @@ class AlignedFlag:
         return self.aligned
 
 
-def euler_rate_matrix(C_b_n: np.ndarray) -> np.ndarray:
-    """E with ``psi = E d(roll, pitch, yaw)`` for ZYX Euler angles and a small ENU rotation ``psi``
-    (``C_true = exp(psi_x) C_est``): columns Rz(yaw) Ry(pitch) e1, Rz(yaw) e2, e3."""
-    C = np.asarray(C_b_n, float)
-    pitch = -math.asin(max(-1.0, min(1.0, C[2, 0])))
-    yaw = math.atan2(C[1, 0], C[0, 0])
-    cp, sp, cy, sy = math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
-    return np.array([[cy * cp, -sy, 0.0], [sy * cp, cy, 0.0], [-sp, 0.0, 1.0]])
-
-
 def euler_3sigma_deg(C_b_n: np.ndarray, P_att_n: np.ndarray) -> np.ndarray:
     """3-sigma [deg] of roll, pitch, yaw for an attitude C_b_n with ENU error covariance P_att_n.
 
     Maps the covariance of ``psi`` (C_true = exp(psi_x) C_est) through the Jacobian of the Euler angles,
-    ``d(rpy)/d(psi) = E^-1`` (:func:`euler_rate_matrix`), so roll and pitch are about the body axes, not East and
-    North. Closed form (test_session.py checks it against central differences); singular at pitch +-90 deg,
-    where the roll/yaw split is undefined and the result is infinite."""
+    ``d(rpy)/d(psi) = E^-1`` (E: ``psi = E d(roll, pitch, yaw)``, columns Rz(yaw) Ry(pitch) e1, Rz(yaw) e2, e3),
+    so roll and pitch are about the body axes, not East and North. Closed form (test_session.py checks it against
+    central differences); singular at pitch +-90 deg, where the roll/yaw split is undefined and the result is
+    infinite."""
     C = np.asarray(C_b_n, float)
     sp = max(-1.0, min(1.0, float(C[2, 0])))  # sin(pitch) = -C[2, 0]: only its magnitude and tan matter below
     cp = math.sqrt(1.0 - sp * sp)  # det(E) = cos(pitch)
