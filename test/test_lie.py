@@ -7,6 +7,7 @@ import pytest
 from scipy.linalg import expm
 
 from insalign_ros.core import lie
+import lie_ref  # noqa: E402  (test/lie_ref.py: the SE2(3) functions only the tests use)
 
 RNG = np.random.default_rng(20261123)
 
@@ -30,7 +31,7 @@ def _random_tangents(n):
 
 def test_hat_vee_round_trip():
     for xi in _random_tangents(50):
-        assert np.allclose(lie.se23_vee(lie.se23_hat(xi)), xi, atol=0)
+        assert np.allclose(lie_ref.se23_vee(lie_ref.se23_hat(xi)), xi, atol=0)
         assert np.allclose(lie.vee3(lie.hat3(xi[:3])), xi[:3], atol=0)
         assert np.allclose(lie.hat3(xi[:3]) @ xi[3:6], np.cross(xi[:3], xi[3:6]))
 
@@ -39,7 +40,7 @@ def test_exp_log_round_trip_10000():
     xis = _random_tangents(10_000)
     worst = 0.0
     for xi in xis:
-        back = lie.se23_log(lie.se23_exp(xi))
+        back = lie_ref.se23_log(lie.se23_exp(xi))
         scale = np.array([1, 1, 1] + [max(1.0, np.abs(xi[3:]).max())] * 6)
         worst = max(worst, float(np.max(np.abs(back - xi) / scale)))
     assert worst < 1e-9, worst
@@ -47,15 +48,15 @@ def test_exp_log_round_trip_10000():
 
 def test_exp_matches_matrix_exponential():
     for xi in _random_tangents(200):
-        assert np.allclose(lie.se23_exp(xi), expm(lie.se23_hat(xi)), atol=1e-9 * max(1, np.abs(xi).max()))
+        assert np.allclose(lie.se23_exp(xi), expm(lie_ref.se23_hat(xi)), atol=1e-9 * max(1, np.abs(xi).max()))
 
 
 def test_group_axioms():
     X, Y, Z = (lie.se23_exp(xi) for xi in _random_tangents(3))
     I5 = np.eye(5)
     assert np.allclose((X @ Y) @ Z, X @ (Y @ Z), atol=1e-9)
-    assert np.allclose(X @ lie.se23_inv(X), I5, atol=1e-12)
-    assert np.allclose(lie.se23_inv(X) @ X, I5, atol=1e-12)
+    assert np.allclose(X @ lie_ref.se23_inv(X), I5, atol=1e-12)
+    assert np.allclose(lie_ref.se23_inv(X) @ X, I5, atol=1e-12)
     assert np.allclose(X @ I5, X)
     C = (X @ Y)[:3, :3]
     assert np.allclose(C.T @ C, np.eye(3), atol=1e-12)  # closure: the product stays in SE2(3)
@@ -66,22 +67,23 @@ def test_group_axioms():
 def test_adjoint_identity():
     for xi_x, xi in zip(_random_tangents(100), _random_tangents(100)):
         X = lie.se23_exp(xi_x)
-        lhs = lie.se23_exp(lie.se23_adjoint(X) @ xi)
-        rhs = X @ lie.se23_exp(xi) @ lie.se23_inv(X)
+        lhs = lie.se23_exp(lie_ref.se23_adjoint(X) @ xi)
+        rhs = X @ lie.se23_exp(xi) @ lie_ref.se23_inv(X)
         assert np.allclose(lhs, rhs, atol=1e-8 * max(1.0, np.abs(rhs).max()))
         # ad is the derivative of Ad: Ad_exp(xi) = expm(ad_xi)
-        assert np.allclose(lie.se23_adjoint(lie.se23_exp(xi)), expm(lie.se23_ad(xi)), atol=1e-7 * max(1, np.abs(xi).max()))
+        assert np.allclose(lie_ref.se23_adjoint(lie.se23_exp(xi)), expm(lie_ref.se23_ad(xi)),
+                           atol=1e-7 * max(1, np.abs(xi).max()))
 
 
 def _fd_left_jacobian(xi, h=1e-6):
     """J_l by central differences: exp(xi + d) = exp(J_l d) exp(xi)."""
     J = np.zeros((9, 9))
-    X_inv = lie.se23_inv(lie.se23_exp(xi))
+    X_inv = lie_ref.se23_inv(lie.se23_exp(xi))
     for k in range(9):
         d = np.zeros(9)
         d[k] = h
-        plus = lie.se23_log(lie.se23_exp(xi + d) @ X_inv)
-        minus = lie.se23_log(lie.se23_exp(xi - d) @ X_inv)
+        plus = lie_ref.se23_log(lie.se23_exp(xi + d) @ X_inv)
+        minus = lie_ref.se23_log(lie.se23_exp(xi - d) @ X_inv)
         J[:, k] = (plus - minus) / (2 * h)
     return J
 
@@ -90,20 +92,21 @@ def _fd_left_jacobian(xi, h=1e-6):
 def test_left_and_right_jacobians_vs_finite_differences(phi_norm):
     xi = RNG.normal(size=9)
     xi[:3] *= phi_norm / np.linalg.norm(xi[:3])
-    Jl = lie.se23_left_jacobian(xi)
+    Jl = lie_ref.se23_left_jacobian(xi)
     assert np.allclose(Jl, _fd_left_jacobian(xi), atol=1e-6)
     # right Jacobian: exp(xi + d) = exp(xi) exp(J_r d)
-    X_inv = lie.se23_inv(lie.se23_exp(xi))
+    X_inv = lie_ref.se23_inv(lie.se23_exp(xi))
     h = 1e-6
     Jr_fd = np.column_stack([
-        (lie.se23_log(X_inv @ lie.se23_exp(xi + h * e)) - lie.se23_log(X_inv @ lie.se23_exp(xi - h * e))) / (2 * h)
+        (lie_ref.se23_log(X_inv @ lie.se23_exp(xi + h * e))
+         - lie_ref.se23_log(X_inv @ lie.se23_exp(xi - h * e))) / (2 * h)
         for e in np.eye(9)
     ])
-    assert np.allclose(lie.se23_right_jacobian(xi), Jr_fd, atol=1e-6)
-    assert np.allclose(lie.se23_left_jacobian_inv(xi) @ Jl, np.eye(9), atol=1e-10)
-    assert np.allclose(lie.se23_right_jacobian_inv(xi) @ lie.se23_right_jacobian(xi), np.eye(9), atol=1e-10)
+    assert np.allclose(lie_ref.se23_right_jacobian(xi), Jr_fd, atol=1e-6)
+    assert np.allclose(lie_ref.se23_left_jacobian_inv(xi) @ Jl, np.eye(9), atol=1e-10)
+    assert np.allclose(lie_ref.se23_right_jacobian_inv(xi) @ lie_ref.se23_right_jacobian(xi), np.eye(9), atol=1e-10)
     # J_l = J_r Ad_exp(xi)^T ... equivalently J_l = Ad_exp(xi) J_r
-    assert np.allclose(Jl, lie.se23_adjoint(lie.se23_exp(xi)) @ lie.se23_right_jacobian(xi), atol=1e-9)
+    assert np.allclose(Jl, lie_ref.se23_adjoint(lie.se23_exp(xi)) @ lie_ref.se23_right_jacobian(xi), atol=1e-9)
 
 
 def test_so3_blocks_against_series():

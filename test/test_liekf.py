@@ -15,6 +15,7 @@ from insalign_ros.filters import eci_batch as LK
 from insalign_ros.filters.registry import make_core
 
 from reference_loops import EventRunner, initial_guess
+import lie_ref  # noqa: E402  (test/lie_ref.py: the SE2(3) functions only the tests use)
 
 CORES = ("liekf", "pi_liekf", "iekf", "ekf")
 
@@ -46,7 +47,7 @@ def _fd_transition(s, w, f, dt):
             X0 = X0_hat @ lie.se23_exp(xi)
             C, v, p = lie.se23_parts(X0)
             C2, v2, p2 = M.propagate_eci(C, v, p, w, f, dt)
-            J[:, j] += sgn * lie.se23_box_minus(lie.se23_from(C2, v2, p2), X1_hat) / (2 * eps)
+            J[:, j] += sgn * lie_ref.se23_box_minus(lie.se23_from(C2, v2, p2), X1_hat) / (2 * eps)
     return J
 
 
