@@ -197,15 +197,10 @@ class BatchedEciCore(AlignmentCore):
         self.P, self.C, self.v, self.p = P, C, v, p
         self.t_s = float(T[-1])
         self.counters["imu"] += last
-        b_g, b_a = self._bias_out()
-        Tl = T.tolist()
         out = []
         for s, e in enumerate(bounds_of_snapshots(bounds, snap)):
-            est = self._estimate_from(Tl[e - 1], SC[s], SV[s], *SLLH[s].tolist(), SPA[s], SP[s])
-            if b_g is not None and s:
-                est.bias_gyro_b, est.bias_acc_b = b_g.copy(), b_a.copy()
-            elif b_g is not None:
-                est.bias_gyro_b, est.bias_acc_b = b_g, b_a
+            est = self._estimate_from(float(T[e - 1]), SC[s], SV[s], *SLLH[s].tolist(), SPA[s], SP[s])
+            est.bias_gyro_b, est.bias_acc_b = self._bias_out()  # the biases do not move between updates
             out.append(est)
         if last < t.shape[0]:
             self._propagate_arrays(t[last:], w[last:], f[last:])
