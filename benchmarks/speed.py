@@ -13,14 +13,17 @@ loop measured in the same minute, before and after each repetition):
 * ``insalign-align BAG``: the command line end to end (``insalign_ros.cli.align.main``: read the bag, align from the
   sensors at its default 2-Hz outputs, write CSV, JSON and PNG);
 * lab configuration (extra column, how the research benchmarks run): ``ia.align(data, init_mode="truth",
-  output_period_s=1.0)``.
+  output_period_s=1.0)``;
+* ``--floors`` (two more columns, what the default path would reach if its outputs cost nothing): the default with
+  one output per hour of data (``output_period_s=3600``, no outputs inside the run), and the same from the truth
+  (``init_mode="truth"``: no search for the heading either); what is left is the filtering and the per-fix stages.
 
 Data: ``ship`` (100 Hz, GNSS at 1 Hz) for the in-motion cores and ``auto``, ``static`` (125 Hz, engine vibration,
 GNSS fixes give the site) for the static ones and ``auto``; both written once to bags in a temporary directory.
 The machine's load average is printed with the table.
 
     nice .venv/bin/python benchmarks/speed.py [--rows iekf:ship,liekf:ship,pkf:static,ekf10:static,auto:ship,auto:static]
-        [--duration 300] [--reps 3]
+        [--duration 300] [--reps 3] [--floors]
 """
 
 from __future__ import annotations
@@ -48,6 +51,9 @@ DEFAULT_ROWS = "iekf:ship,liekf:ship,pkf:static,ekf10:static,auto:ship,auto:stat
 #: the lab configuration of the research benchmarks (truth initialisation, 1-s outputs)
 LAB = dict(init_mode="truth", init_rpy_error_deg=[1.0, 1.0, 10.0], output_period_s=1.0)
 COLUMNS = ("bag", "data", "cli", "lab")
+#: ``--floors``: the default without outputs inside the run, and without them from the truth
+NO_OUTPUTS = dict(output_period_s=3600.0)
+FLOORS = {"no_out": NO_OUTPUTS, "no_out_truth": dict(NO_OUTPUTS, init_mode="truth", init_rpy_error_deg=[1.0, 1.0, 10.0])}
 
 
 def numpy_loop(omega_ib_b: np.ndarray, dt_s: float = 0.01) -> float:
@@ -92,7 +98,7 @@ def timed(fn) -> float:
         return time.perf_counter() - t0
 
 
-def run_row(core: str, data, bag: Path, out_dir: Path) -> dict:
+def run_row(core: str, data, bag: Path, out_dir: Path, floors: bool = False) -> dict:
     """Seconds of each column for one (core, data) row."""
     from insalign_ros.cli.align import main as cli_main
 
@@ -100,10 +106,13 @@ def run_row(core: str, data, bag: Path, out_dir: Path) -> dict:
         if cli_main(cli_args(bag, core, out_dir)) != 0:
             raise RuntimeError(f"insalign-align {bag.name} --core {core} failed")
 
-    return {"bag": timed(lambda: ia.align(str(bag), core=core)),
-            "data": timed(lambda: ia.align(data, core=core)),
-            "cli": timed(cli),
-            "lab": timed(lambda: ia.align(data, core=core, **LAB))}
+    out = {"bag": timed(lambda: ia.align(str(bag), core=core)),
+           "data": timed(lambda: ia.align(data, core=core)),
+           "cli": timed(cli),
+           "lab": timed(lambda: ia.align(data, core=core, **LAB))}
+    for name, kw in FLOORS.items() if floors else ():
+        out[name] = timed(lambda: ia.align(data, core=core, **kw))
+    return out
 
 
 def main(argv=None) -> int:
@@ -111,6 +120,8 @@ def main(argv=None) -> int:
     ap.add_argument("--rows", default=DEFAULT_ROWS, help="core:scenario pairs")
     ap.add_argument("--duration", type=float, default=300.0, help="seconds of each scenario")
     ap.add_argument("--reps", type=int, default=3, help="repetitions (interleaved); the best of them is reported")
+    ap.add_argument("--floors", action="store_true",
+                    help="also the default without outputs inside the run, and that from the truth")
     ap.add_argument("--json-out", default="")
     args = ap.parse_args(argv)
     rows = [tuple(r.split(":")) for r in args.rows.split(",")]
@@ -128,14 +139,17 @@ def main(argv=None) -> int:
             short = ia.simulate(sc, seed=1, duration_s=20.0)
             ia.align(short, core=core)
             ia.align(short, core=core, **LAB)
+            for kw in FLOORS.values() if args.floors else ():
+                ia.align(short, core=core, **kw)
         run_row(rows[0][0], data[rows[0][1]], bags[rows[0][1]], tmp / "out")
         load0 = os.getloadavg()
-        res = {r: {c: [] for c in COLUMNS} for r in rows}
+        cols = COLUMNS + (tuple(FLOORS) if args.floors else ())
+        res = {r: {c: [] for c in cols} for r in rows}
         loop = []
         for _ in range(args.reps):
             loop.append(numpy_loop(omega))
             for core, sc in rows:
-                for c, s in run_row(core, data[sc], bags[sc], tmp / "out").items():
+                for c, s in run_row(core, data[sc], bags[sc], tmp / "out", args.floors).items():
                     res[(core, sc)][c].append(data[sc].n / s)
             loop.append(numpy_loop(omega))
         load1 = os.getloadavg()
@@ -159,13 +173,15 @@ def table(rows, res, loop, data, load0, load1, cmd, args) -> str:
          + f"; best of {args.reps} interleaved repetitions.", "",
          "Samples/s and the ratio to the numpy loop (x):", "",
          "| core | data | `ia.align(bag)` default | x | `ia.align(data)` default | x | `insalign-align BAG` | x "
-         "| CLI time / `ia.align(bag)` | lab: truth init, 1-s outputs | x |",
-         "|---|---|---|---|---|---|---|---|---|---|---|"]
+         "| CLI time / `ia.align(bag)` | lab: truth init, 1-s outputs | x |"
+         + (" no outputs | x | no outputs, truth init | x |" if args.floors else ""),
+         "|---|---|---|---|---|---|---|---|---|---|---|" + ("---|---|---|---|" if args.floors else "")]
     for core, sc in rows:
         r = {k: max(v) for k, v in res[(core, sc)].items()}
         L.append(f"| {core} | {sc} | {r['bag']:,.0f} | {r['bag'] / base:.2f} | {r['data']:,.0f} | "
                  f"{r['data'] / base:.2f} | {r['cli']:,.0f} | {r['cli'] / base:.2f} | {r['bag'] / r['cli']:.2f} | "
-                 f"{r['lab']:,.0f} | {r['lab'] / base:.2f} |")
+                 f"{r['lab']:,.0f} | {r['lab'] / base:.2f} |"
+                 + "".join(f" {r[c]:,.0f} | {r[c] / base:.2f} |" for c in FLOORS if c in r))
     return "\n".join(L)
 
 

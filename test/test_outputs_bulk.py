@@ -170,3 +170,52 @@ def test_align_with_bulk_estimates_is_one_output_at_a_time(monkeypatch):
             assert (x.stamp_s, x.aligned, x.reason) == (y.stamp_s, y.aligned, y.reason)
             np.testing.assert_array_equal(x.estimate.P, y.estimate.P)
             np.testing.assert_array_equal(x.estimate.C_b_n, y.estimate.C_b_n)
+
+
+def test_zero_velocity_updates_inside_runs_are_the_run_ends(monkeypatch):
+    """The static cores take the session's 10-Hz zero-velocity updates with the run's samples (``propagate(...,
+    updates)``, ``updates_inside_runs``) instead of the run ending at each: every output, counter and flag change is
+    the one of ending the run at each update, also at outputs off the updates' samples (0.07 s). When the core fails
+    in the middle of a run, the outputs and updates before the failure are the same and the session restarts; the
+    rest of that run (up to the next fix) is dropped, as after a failure at an output."""
+    from insalign_ros.filters.static_model import StaticZuptCore
+
+    d = ia.simulate("static", duration_s=40.0, seed=4)
+    calls = {"n": 0}
+    fuse = StaticZuptCore._fuse
+
+    def failing(self, meas):  # the 150th zero-velocity update of the run fails (a core fault)
+        calls["n"] += 1
+        if calls["n"] == 150:
+            raise FloatingPointError("injected")
+        return fuse(self, meas)
+
+    runs, failed = [], []
+    for inside in (True, False):
+        with monkeypatch.context() as m:
+            m.setattr(StaticZuptCore, "updates_inside_runs", inside)
+            runs.append([ia.align(d, core=c, output_period_s=p) for c in ("pkf", "ekf10") for p in (0.1, 0.07)])
+            calls["n"] = 0
+            m.setattr(StaticZuptCore, "_fuse", failing)
+            failed.append(ia.align(d, core="pkf"))
+    for a, b in zip(*runs):
+        assert a.counters == b.counters and a.counters["zupt_accepted"] > 150
+        assert a.metrics["events"] == b.metrics["events"]
+        _same_outputs(a.outputs, b.outputs)
+    a, b = failed
+    assert a.counters["core_faults"] == b.counters["core_faults"] == 1
+    t_fault = next(e["t_s"] for e in b.metrics["events"] if e["event"] == "restart")
+    assert [e for e in a.metrics["events"] if e["t_s"] < t_fault] == [e for e in b.metrics["events"]
+                                                                       if e["t_s"] < t_fault]
+    t_fault_a = next(e["t_s"] for e in a.metrics["events"] if e["event"] == "restart")
+    assert t_fault <= t_fault_a <= t_fault + 1.0  # the end of the run it failed in: the next 1-Hz fix
+    _same_outputs([o for o in a.outputs if o.stamp_s <= t_fault], [o for o in b.outputs if o.stamp_s <= t_fault])
+    assert a.metrics["final_aligned"] == b.metrics["final_aligned"]  # both re-initialise and go on to the end
+
+
+def _same_outputs(xs, ys):
+    assert len(xs) == len(ys) > 100
+    for x, y in zip(xs, ys):
+        assert (x.stamp_s, x.aligned, x.reason) == (y.stamp_s, y.aligned, y.reason)
+        np.testing.assert_array_equal(x.estimate.P, y.estimate.P)
+        np.testing.assert_array_equal(x.estimate.C_b_n, y.estimate.C_b_n)

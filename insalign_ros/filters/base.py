@@ -129,6 +129,9 @@ class AlignmentCore(ABC):
     #: the core runs its own zero-velocity updates (earth_iekf's ``auto_zupt_period_s``: its backward passes need
     #: them inside the passes); the session then schedules none for it
     schedules_own_zero_velocity: bool = False
+    #: ``propagate(..., updates=...)``: the session may hand the core the updates it schedules inside a run of samples
+    #: (the static cores' 10-Hz zero-velocity updates); its ``accepts`` does not change on the way
+    updates_inside_runs: bool = False
     #: state indices of the attitude and velocity error blocks in ``P`` (for :meth:`inflate_navigation`);
     #: ``None``: the core keeps no such covariance
     att_index: tuple[int, ...] | None = None
@@ -159,7 +162,8 @@ class AlignmentCore(ABC):
         """Start from an initial guess: position, ENU velocity [m/s], attitude C_b_n and its 3x3 covariance
         [rad^2] in ENU, velocity and position standard deviations."""
 
-    def propagate(self, t_s, omega_ib_b, f_ib_b, backward: bool = False, estimates_at=None) -> list:
+    def propagate(self, t_s, omega_ib_b, f_ib_b, backward: bool = False, estimates_at=None, updates=None,
+                  results: list | None = None) -> list:
         """Propagate with arrays of IMU samples: ``t_s`` (N,) [s], ``omega_ib_b`` (N, 3) [rad/s], ``f_ib_b`` (N, 3)
         [m/s^2] (one sample: arrays of length 1). Sample ``k`` holds the average over ``(t_s[k-1], t_s[k]]``.
 
@@ -171,7 +175,19 @@ class AlignmentCore(ABC):
         inside a run of samples); returns them, the numbers of propagating each segment and calling :meth:`estimate`
         after it (a core with a compiled path takes them in one call: ``_estimates_along``). A core whose ``accepts``
         changes on the way (``auto``'s hand-over) may return fewer: it then stopped after the row of its last
-        estimate, and the caller propagates the rest. Otherwise returns []."""
+        estimate, and the caller propagates the rest. Otherwise returns [].
+
+        ``updates`` (forward, cores with ``updates_inside_runs``): ``(row, model)`` pairs in row order, each model
+        fused (:meth:`update`) after its row and before that row's estimate. The update results and the estimates
+        are appended to ``results`` (returned; a new list when None) in row order as they are made, so that a
+        failure leaves those made before it: the numbers of propagating each segment and calling :meth:`update` and
+        :meth:`estimate` after it (``_updates_along``)."""
+        if updates:
+            if backward or not self.updates_inside_runs:
+                raise ValueError(f"{self.name}: updates inside a run: forward, cores with updates_inside_runs")
+            out = [] if results is None else results
+            self._updates_along(t_s, omega_ib_b, f_ib_b, list(estimates_at or ()), updates, out)
+            return out
         if estimates_at:
             if backward:
                 raise ValueError("estimates_at: forward propagation only")
@@ -197,6 +213,24 @@ class AlignmentCore(ABC):
         if k0 < len(t_s):
             self._propagate_arrays(t_s[k0:], omega_ib_b[k0:], f_ib_b[k0:])
         return out
+
+    def _updates_along(self, t_s, omega_ib_b, f_ib_b, ends: list, updates, out: list) -> None:
+        """``propagate(..., estimates_at=ends, updates=updates, results=out)``: segment by segment, the updates at a
+        row and then its estimate."""
+        k0 = e = u = 0
+        while e < len(ends) or u < len(updates):
+            k = min(ends[e] if e < len(ends) else math.inf, updates[u][0] if u < len(updates) else math.inf)
+            if k >= k0:
+                self._propagate_arrays(t_s[k0:k + 1], omega_ib_b[k0:k + 1], f_ib_b[k0:k + 1])
+                k0 = k + 1
+            while u < len(updates) and updates[u][0] == k:
+                out.append(self.update(updates[u][1]))
+                u += 1
+            if e < len(ends) and ends[e] == k:
+                out.append(self.estimate())
+                e += 1
+        if k0 < len(t_s):
+            self._propagate_arrays(t_s[k0:], omega_ib_b[k0:], f_ib_b[k0:])
 
     def _propagate_sample(self, imu: ImuSample) -> None:
         """One IMU sample forward (the per-row step behind the default :meth:`propagate`; bad rows are rejected and

@@ -198,6 +198,7 @@ class StaticZuptCore(AlignmentCore):
     convention = "static"
     own_models = frozenset({ZeroVelocity})  # its own fused zero-velocity step (_fuse)
     _fused_zupt = True  #: this class's hooks are the ones :func:`_zupt_step_nb` implements (declared per class)
+    updates_inside_runs = True  # the session's 10-Hz zero-velocity updates go in with the run's samples
     vel_index = (0, 1)  # dvN dvE
     att_index = (2, 3, 4)  # phiN phiE phiD
 

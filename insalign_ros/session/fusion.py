@@ -5,6 +5,7 @@ docs/session.md, "Schedule"."""
 
 from __future__ import annotations
 
+import bisect
 import math
 
 import numpy as np
@@ -310,9 +311,28 @@ class Fusion:
                 and ZeroVelocity in c.accepts and GnssPosition not in c.accepts)
 
     def _zupt(self, t: float) -> None:
+        self.s._est_memo = None
+        self.zupt_done(t, self.s.core.update(self.zupt_model(t)))
+
+    def zupt_model(self, t: float) -> ZeroVelocity:
+        return ZeroVelocity(t, self.s.cfg.zupt_sigma_m_s)
+
+    def zupt_rows(self, Tl: list, lo: int, hi: int) -> list:
+        """The rows ``lo:hi`` of the stamps ``Tl`` at which scheduled zero-velocity updates fall due, if each is made
+        (``zupt_done``) before the next row (the session's schedule: the first sample at or after ``next_zupt_t``,
+        the next one period later)."""
+        rows, nxt, period = [], self.s.next_zupt_t, 1.0 / self.s.cfg.zupt_rate_hz
+        k = bisect.bisect_left(Tl, nxt, lo, hi)
+        while k < hi:
+            rows.append(k)
+            nxt = Tl[k] + period - 1e-9
+            k = bisect.bisect_left(Tl, nxt, k + 1, hi)
+        return rows
+
+    def zupt_done(self, t: float, res) -> None:
+        """The session's side of a zero-velocity update at ``t`` that the core made (result ``res``): the schedule,
+        the counter, the flag's NIS window."""
         sess = self.s
-        sess._est_memo = None
-        res = sess.core.update(ZeroVelocity(t, sess.cfg.zupt_sigma_m_s))
         sess.next_zupt_t = t + 1.0 / sess.cfg.zupt_rate_hz - 1e-9
         if res.accepted:
             sess.counters["zupt_accepted"] += 1

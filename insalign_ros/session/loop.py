@@ -105,8 +105,8 @@ class Loop:
             t_end = b.vel_t[0]
         if b.wheel_t and b.wheel_t[0] < t_end and sess.fusion.wheel_speed_used():
             t_end = b.wheel_t[0]  # a wheel speed is fused at its stamp (a 0.1-s delay at 2 m/s^2 is 0.2 m/s)
-        if sess.next_zupt_t < t_end and sess.fusion.zupt_due(math.inf):  # the session schedules zero-velocity updates
-            t_end = sess.next_zupt_t
+        if sess.next_zupt_t < t_end and sess.fusion.zupt_due(math.inf) and not self._zupts_in_run(core):
+            t_end = sess.next_zupt_t  # the session schedules zero-velocity updates (at the end of a run, or inside it)
         t_nhc = max(sess.next_nhc_t, sess.nhc_off_until_t)  # ... and the vehicle's non-holonomic constraint
         if t_nhc < t_end and sess.fusion.nhc_due(t_nhc):
             t_end = t_nhc
@@ -226,6 +226,8 @@ class Loop:
                 ks.append(k)
                 due = Tl[i + k] + cfg.output_period_s  # what events_at sets next_out_t to
                 k += 1
+            if sess.fusion.zupt_due(math.inf) and self._zupts_in_run(core):
+                return self._run_with_updates(core, plan, i, j, ks, n_in, t >= t_end, out)
             k0, q0 = 0, 0
             while q0 < len(ks):
                 # a GNSS heading is fused at the first output at or after its stamp (not an end of the run): the
@@ -260,6 +262,55 @@ class Loop:
             if t >= t_end:
                 self.events_at(t, out)
         except Exception as exc:  # noqa: BLE001 - a core failure is a fault; the alignment restarts
+            sess._fault(exc)
+        return j
+
+    def _zupts_in_run(self, core) -> bool:
+        """The scheduled zero-velocity updates go into the core with the run's samples (``propagate(...,
+        updates)``) instead of ending the run: a core that takes them (``updates_inside_runs``), no GNSS heading
+        waiting (fused at an output: the per-output path)."""
+        return core.updates_inside_runs and not self.s.buf.heading_t
+
+    def _run_with_updates(self, core, plan: "FastPlan", i: int, j: int, ks: list, n_in: int, ends_at_event: bool,
+                          out: list[Output]) -> int:
+        """The rest of ``_finish_run`` for a run with its zero-velocity updates inside: the core propagates the run
+        with the updates due at its rows and the estimates at its outputs in one call, then the session's side of
+        each in row order (the update's schedule, counter and NIS; the output), as one sample at a time would make
+        them. A failure in the core ends the run after what it made (a fault); a restart at an output drops the
+        rest of the run."""
+        sess, Tl = self.s, plan.Tl
+        zs = sess.fusion.zupt_rows(Tl, i, i + n_in)
+        ups = [(k - i, sess.fusion.zupt_model(Tl[k])) for k in zs]
+        res: list = []
+        fault = None
+        try:
+            core.propagate(plan.T[i:j], plan.W[i:j], plan.F[i:j], estimates_at=ks, updates=ups, results=res)
+        except Exception as exc:  # noqa: BLE001 - a core failure is a fault; the alignment restarts
+            fault = exc
+        zset, kset = {k - i for k in zs}, set(ks)
+        made = iter(res)
+        try:
+            for k in sorted(zset | kset):
+                if k in zset:
+                    r = next(made, None)
+                    if r is None:
+                        break
+                    sess._est_memo = None
+                    sess.fusion.zupt_done(Tl[i + k], r)
+                if k in kset:
+                    est = next(made, None)
+                    if est is None:
+                        break
+                    sess._est_memo = (core, est)
+                    self.events_at(Tl[i + k], out)
+                    if sess.core is not core:
+                        return j
+            sess._est_memo = None
+            if fault is not None:
+                raise fault
+            if ends_at_event:
+                self.events_at(Tl[j - 1], out)
+        except Exception as exc:  # noqa: BLE001
             sess._fault(exc)
         return j
 
