@@ -110,6 +110,28 @@ def test_validation_reasons():
     assert "no fix" in validation.check_fix(45.0, 7.0, 100.0, status=-1)
 
 
+def test_covariance_check_decides_as_the_eigenvalues():
+    """check_covariance's shortcut (positive definite when the leading minors are clearly positive) gives the verdict
+    of the smallest eigenvalue on covariances of every kind: well and badly conditioned, semi-definite, indefinite,
+    fix-like (1e-4 to 1e4 m^2)."""
+    def reference(c):
+        ev = np.linalg.eigvalsh(0.5 * (c + c.T))
+        return ev[0] < -1e-12 * max(float(np.trace(c)), 1e-300)
+
+    rng = np.random.default_rng(5)
+    n_pd = n_not = 0
+    for _ in range(3000):
+        Q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        ev = 10.0 ** rng.uniform(-4, 4, 3) * rng.choice([1.0, 1.0, 1.0, 0.0, -1e-13, -1e-6], 3)
+        c = Q @ np.diag(ev) @ Q.T
+        c = 0.5 * (c + c.T)
+        r = validation.check_covariance(c)
+        assert (r is not None and "semi-definite" in r) == reference(c), (ev, r)
+        n_pd += r is None
+        n_not += r is not None
+    assert n_pd > 1000 and n_not > 300
+
+
 def test_simulate_cli(tmp_path, capsys):
     from insalign_ros.cli.simulate import main
 

@@ -312,6 +312,12 @@ def test_session_buffers_and_float_helpers():
     from insalign_ros.session import buffers, guard, loop, outputs
 
     rng = np.random.default_rng(3)
+    from insalign_ros.session import gaps
+
+    for n in (1, 2, 7, 100, 101):  # the session's median (run bookkeeping, the rate model) is numpy's, bit for bit
+        for _ in range(50):
+            x = (rng.normal(size=n) * 10.0 ** rng.uniform(-6, 3)).tolist()
+            assert gaps.median(x) == float(np.median(x))
     X = rng.normal(size=(4000, 2, 3)) * rng.lognormal(0.0, 3.0, size=(4000, 2, 1))
     # to the last bit or two: numpy's norm is a BLAS dot, whose summation (FMA, SIMD width) depends on the CPU
     assert all(math.isclose(loop.dist3(a.tolist(), b.tolist()), float(np.linalg.norm(a - b)), rel_tol=5e-16)

@@ -362,3 +362,55 @@ def _body_from_ned(C, a, b, c, sign, out, add):
     for i in range(3):
         y = sign * (C[0, i] * a + C[1, i] * b + C[2, i] * c)
         out[i] = out[i] + y if add else y
+
+
+@nb._jit
+def static_run_nb(DT, W, F, ev_row, ev_upd, ev_est, mech, lp, x, P, zargs, m, qrate, N_k, R2, qm, m_rate,
+                  INNOV, SS, NIS, SX, SP, SC, SV, SACC, SGYRO):
+    """A run of :class:`StaticZuptCore` with its zero-velocity updates and estimates in one call: for each event
+    (rows ``ev_row``, increasing; at a row the update ``ev_upd`` before the estimate ``ev_est``) the flush of the rows
+    since the last one (``mechanization_numba.local_level_steps``), then the update of ``_fuse`` (the interval's mean
+    specific force in NED, its low-pass, :func:`_zupt_step_nb`) and the estimate's state (x, P, C_b_n, v_n, the
+    corrections) into the snapshot arrays. ``mech`` = (C, v, gyro_corr, acc_corr, omega_ie_n, g_n, f_sum), ``lp`` =
+    (f_lp, [dt_acc, has_lp, tau]), ``zargs`` = [lat, r_m, with_G, oc_w_h, pkf_p, re, az_thr] as ``_zupt_compiled``
+    passes them. Updates everything in place; returns the first row not flushed."""
+    C, v, gyro_corr, acc_corr, omega_ie_n, g_n, f_sum, geo = mech
+    f_lp, st = lp
+    n = x.shape[0]
+    N_next = np.zeros(n)
+    Phi_raw = np.empty((n, n))
+    f_np = np.empty(3)
+    k0 = iu = ie = 0
+    for e in range(ev_row.shape[0]):
+        k = ev_row[e]
+        if k >= k0:
+            st[0] += nb.local_level_steps(C, v, W[k0:k + 1], F[k0:k + 1], DT[k0:k + 1], gyro_corr, acc_corr,
+                                          omega_ie_n, g_n, geo[0], geo[1], geo[2], f_sum)
+            k0 = k + 1
+        if ev_upd[e]:
+            dt = st[0]
+            f_np[0], f_np[1], f_np[2] = f_sum[1] / dt, f_sum[0] / dt, -(f_sum[2] / dt)  # ned_from_enu(f_sum / dt)
+            f_sum[:] = 0.0
+            st[0] = 0.0
+            if st[1] == 0.0 or st[2] <= 0:
+                f_lp[:] = f_np
+                st[1] = 1.0
+            else:
+                a = min(1.0, dt / st[2])
+                for i in range(3):
+                    f_lp[i] = f_lp[i] + a * (f_np[i] - f_lp[i])
+            NIS[iu] = _zupt_step_nb(x, P, f_lp.copy(), zargs[0], zargs[1], m, dt, zargs[2] > 0, qrate, zargs[3], N_k,
+                                    R2[iu], int(zargs[4]), zargs[5], qm, m_rate, C, v, acc_corr, gyro_corr, zargs[6],
+                                    INNOV[iu], SS[iu], N_next, Phi_raw)
+            if zargs[3] > 0:
+                N_k[:] = N_next
+            iu += 1
+        if ev_est[e]:
+            SX[ie] = x
+            SP[ie] = P
+            SC[ie] = C
+            SV[ie] = v
+            SACC[ie] = acc_corr
+            SGYRO[ie] = gyro_corr
+            ie += 1
+    return k0

@@ -32,6 +32,7 @@ from ..core.units import G0_M_S2
 from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, ImuSample, UpdateResult
 from .config import ConfigDict, param
 from .static_kernels import _corrected_attitude_nb, _f_model_nb, _jacobian_nb, _M0, _zupt_step_nb, misaligned_attitude_nb
+from . import static_run
 from .checks import ImuBuffer, usable_imu_arrays
 from .measurements import ZeroVelocity
 
@@ -234,6 +235,7 @@ class StaticZuptCore(AlignmentCore):
         self.status = AlignmentStatus.CONVERGING
         self.reason = "zero-velocity alignment running"
         self.r_m = math.sqrt(self.mech.R_N_m * self.mech.R_E_m)
+        self._floor_key = None  # _consider_floor's
         self._init = True
 
     def _init_bias_cov(self) -> None:
@@ -378,6 +380,11 @@ class StaticZuptCore(AlignmentCore):
         self.t_last_update_s = stamp_s
         return UpdateResult(True, innovation=innov, S=S, nis=nis)
 
+    def _updates_along(self, t_s, omega_ib_b, f_ib_b, ends: list, updates, out: list) -> None:
+        """In one compiled call where the run allows it (filters/static_run.py), else segment by segment."""
+        if not static_run.run_with_updates(self, t_s, omega_ib_b, f_ib_b, ends, updates, out, StaticModelInputs):
+            super()._updates_along(t_s, omega_ib_b, f_ib_b, ends, updates, out)
+
     def _oc_w_h(self) -> float:
         """The fused kernel's OC-EKF switch: w_h of the nullspace (``_nullspace``), 0 for a core without one."""
         return 0.0
@@ -503,22 +510,34 @@ class StaticZuptCore(AlignmentCore):
                                      self.state_names, status=AlignmentStatus.WAITING_FOR_DATA,
                                      reason="not initialized")
         self.flush()
-        P_att = T_NED_ENU @ self.P[2:5, 2:5] @ T_NED_ENU
+        m = self.mech
+        return self._estimate_of(self.t_s, self.x, self.P, m.C_b_n, m.v_n, m.gyro_correction_b, m.acc_correction_b)
+
+    def _estimate_of(self, t_s, x, P, C_b_n, v_n, gyro_corr, acc_corr) -> AlignmentEstimate:
+        """The estimate of the state (x, P, the mechanization's C_b_n, v_n and corrections) at ``t_s``."""
+        P_att = T_NED_ENU @ P[2:5, 2:5] @ T_NED_ENU
         if self.n_bias == 0:
-            g = float(np.linalg.norm(self.mech.g_n))
-            w_h = earth.OMEGA_IE_RAD_S * math.cos(self.mech.lat_rad)
-            lvl = (self.cfg.acc_bias_mg * MG / g) ** 2
-            P_att = P_att + np.diag([lvl, lvl, (self.cfg.gyro_bias_deg_h * DEG_H / w_h) ** 2])
+            P_att = P_att + self._consider_floor()
         yaw3 = 3.0 * math.sqrt(max(P_att[2, 2], 0.0))
         status = AlignmentStatus.ALIGNED if yaw3 < self.cfg.status_yaw_3sigma_deg * D2R else AlignmentStatus.CONVERGING
         reason = ("3-sigma azimuth %.3g deg" % (yaw3 / D2R))
         if self._boot:
             status, reason = AlignmentStatus.CONVERGING, "azimuth bootstrap (open-loop drift fit) running"
+        C = misaligned_attitude_nb(float(x[2]), float(x[3]), float(x[4]), np.ascontiguousarray(C_b_n, float))
         return AlignmentEstimate(
-            self.t_s, self.attitude_estimate(), self.mech.v_n.copy(), self.mech.lat_rad, self.mech.lon_rad,
-            self.mech.h_m, P_att, self.P.copy(), self.state_names,
-            bias_gyro_b=self.mech.gyro_correction_b.copy(), bias_acc_b=self.mech.acc_correction_b.copy(),
-            status=status, reason=reason)
+            t_s, C, v_n.copy(), self.mech.lat_rad, self.mech.lon_rad, self.mech.h_m, P_att, P.copy(),
+            self.state_names, bias_gyro_b=gyro_corr.copy(), bias_acc_b=acc_corr.copy(), status=status, reason=reason)
+
+    def _consider_floor(self) -> np.ndarray:
+        """The 5-state cores' attitude floor of the declared biases (ENU): the level's accelerometer bias over g, the
+        azimuth's gyro bias over the horizontal Earth rate (constant over an alignment: computed once)."""
+        key = (self.mech.lat_rad, self.mech.g_n.tobytes())
+        if self._floor_key != key:
+            g = float(np.linalg.norm(self.mech.g_n))
+            w_h = earth.OMEGA_IE_RAD_S * math.cos(self.mech.lat_rad)
+            lvl = (self.cfg.acc_bias_mg * MG / g) ** 2
+            self._floor_key, self._floor = key, np.diag([lvl, lvl, (self.cfg.gyro_bias_deg_h * DEG_H / w_h) ** 2])
+        return self._floor
 
     @property
     def state_names(self) -> tuple[str, ...]:

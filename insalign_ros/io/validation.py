@@ -78,8 +78,11 @@ def check_covariance(cov, name: str = "covariance", require_positive_diag: bool 
     scale = max(float(np.max(np.abs(c))), 1e-300)
     if float(np.max(np.abs(c - c.T))) > 1e-9 * scale:
         return f"{name}: not symmetric"
-    ev = np.linalg.eigvalsh(0.5 * (c + c.T))
-    if ev[0] < -1e-12 * max(float(np.trace(c)), 1e-300):
+    a, b, d, e, f, k = c[0, 0], c[0, 1], c[0, 2], c[1, 1], c[1, 2], c[2, 2]
+    if a > 0.0 and a * e - b * b > 1e-9 * a * e and \
+            a * (e * k - f * f) - b * (b * k - f * d) + d * (b * f - e * d) > 1e-9 * a * e * k:
+        pass  # leading minors clearly positive (Sylvester): positive definite, no eigenvalues needed (every fix)
+    elif (ev := np.linalg.eigvalsh(0.5 * (c + c.T)))[0] < -1e-12 * max(float(np.trace(c)), 1e-300):
         return f"{name}: not positive semi-definite (min eigenvalue {ev[0]:.3g})"
     if require_positive_diag and not np.all(np.diag(c) > 0):
         return f"{name}: zero or negative variance on the diagonal"

@@ -14,6 +14,7 @@ from collections import deque
 import numpy as np
 
 from . import gaps
+from .gaps import median
 from .buffers import Ring, row_norms
 from .outputs import Output
 
@@ -522,14 +523,6 @@ class LazySpread:
         W = np.vstack([np.asarray(hw, float).reshape(-1, 3), rw])[-maxlen:]
         F = np.vstack([np.asarray(hf, float).reshape(-1, 3), rf])[-maxlen:]
         return (float(np.linalg.norm(np.std(W, axis=0))), float(np.linalg.norm(np.std(F, axis=0))))
-
-
-def median(x: list) -> float:
-    """``float(np.median(x))`` for a list of floats, bit for bit (the middle value, or the mean of the two middle
-    ones), without numpy's per-call overhead."""
-    s = sorted(x)
-    h = len(s) // 2
-    return float(s[h]) if len(s) % 2 else float((s[h - 1] + s[h]) / 2.0)
 
 
 def dist3(a: list, b: list) -> float:
