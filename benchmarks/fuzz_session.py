@@ -367,11 +367,11 @@ def physical_floor(duration_s: float = 40.0, seeds=(0, 1)) -> dict:
     return out
 
 
-def random_case(rng: np.random.Generator) -> Case:
+def random_case(rng: np.random.Generator, scenarios=SCENARIOS, cores=("iekf", "iekf", "auto")) -> Case:
     faults = tuple(Fault(str(rng.choice(FAULTS)), float(rng.uniform(0.05, 0.95)), float(rng.uniform()),
                          int(rng.integers(1, 40))) for _ in range(int(rng.integers(1, 6))))
-    return Case(str(rng.choice(SCENARIOS)), int(rng.integers(0, 4)), float(rng.choice([20.0, 30.0, 40.0, 60.0])),
-                str(rng.choice(["iekf", "iekf", "auto"])), faults)
+    return Case(str(rng.choice(scenarios)), int(rng.integers(0, 4)), float(rng.choice([20.0, 30.0, 40.0, 60.0])),
+                str(rng.choice(cores)), faults)
 
 
 def main(argv=None) -> int:
@@ -379,11 +379,15 @@ def main(argv=None) -> int:
     ap.add_argument("--minutes", type=float, default=1.0)
     ap.add_argument("--seed", type=int, default=None, help="random seed (default: from the clock)")
     ap.add_argument("--no-floor", action="store_true", help="skip the fault-free runs (the physical floor)")
+    ap.add_argument("--static", action="store_true",
+                    help="the static cores (pkf, ekf10) on the static scenario instead (their runs with the "
+                         "zero-velocity updates inside); no physical-floor runs")
     a = ap.parse_args(argv)
+    pick = dict(scenarios=("static",), cores=("pkf", "ekf10")) if a.static else {}
     seed = a.seed if a.seed is not None else int(time.time())
     rng = np.random.default_rng(seed)
     print(f"seed {seed}, margin {MARGIN} x 3-sigma + {FLOOR_DEG} deg")
-    if not a.no_floor:
+    if not (a.no_floor or a.static):
         for key, (v, n_up) in physical_floor().items():
             print(f"physical floor {key[0]:10s} {key[1]:5s}: largest (|err| - {FLOOR_DEG:g} deg) / 3-sigma with the "
                   f"flag up {v:.2f} ({n_up} flag-up outputs, 40 s, seeds 0-1)")
@@ -393,7 +397,7 @@ def main(argv=None) -> int:
     worst_all_case = None
     by_fault = {k: 0 for k in FAULTS}
     while time.monotonic() < t_end:
-        case = random_case(rng)
+        case = random_case(rng, **pick)
         rep = run(case)
         n += 1
         flag_up += rep.flag_up
