@@ -219,3 +219,24 @@ def _same_outputs(xs, ys):
         assert (x.stamp_s, x.aligned, x.reason) == (y.stamp_s, y.aligned, y.reason)
         np.testing.assert_array_equal(x.estimate.P, y.estimate.P)
         np.testing.assert_array_equal(x.estimate.C_b_n, y.estimate.C_b_n)
+
+
+def test_deferred_truth_is_the_truth_at_each_output(monkeypatch):
+    """Offline with a valid truth table the outputs' truth is looked up in the table at the end (``defer_truth``):
+    each output's truth is the table's row at its stamp, and its Euler error the one of looking the truth up at
+    each output as it is made (the per-sample path, which defers nothing)."""
+    from insalign_ros.session.session import AlignmentSession
+
+    d = ia.simulate("car", duration_s=30.0, seed=1)
+    runs = []
+    for fast in (True, False):
+        monkeypatch.setattr(AlignmentSession, "fast_path", fast)
+        runs.append(ia.align(d, core="iekf"))
+    a, b = runs
+    assert len(a.outputs) == len(b.outputs) > 200
+    for x, y in zip(a.outputs, b.outputs):
+        k = int(np.searchsorted(d.t_s, x.stamp_s))
+        assert d.t_s[k] == x.stamp_s
+        np.testing.assert_array_equal(x.truth_C_b_n, d.C_b_n[k])
+        np.testing.assert_array_equal(x.truth_C_b_n, y.truth_C_b_n)
+        _same(x.euler_error_deg, y.euler_error_deg)

@@ -35,6 +35,9 @@ class Outputs:
     def __init__(self, session) -> None:
         self.s = session
         self._deferred_s3: list[Output] = []  # outputs whose 3-sigma is filled in by ``fill_deferred_errors``
+        #: offline with a valid truth table (``defer_truth``): the outputs' truth is looked up in it at the end
+        self._truth_table = None
+        self._deferred_truth: list[Output] = []
 
     def reset(self) -> None:
         pass
@@ -68,11 +71,14 @@ class Outputs:
         if not now and est.status == AlignmentStatus.WAITING_FOR_MOTION:  # issue 14: core auto, heading needs motion
             sess.status = est.status
         sess.reason = sess.flag.reason if not est.reason else f"{sess.flag.reason}; {est.reason}"
-        tr = self.truth_at(t)
         deferred = sess._deferred_errors is not None
+        late = deferred and self._truth_table is not None
+        tr = self.truth_at(t, prune_only=late)
         o = Output(t, est, now, sess.status, sess.reason, None if deferred else euler_3sigma_deg(est.C_b_n, P), None, tr)
         if deferred:
             self._deferred_s3.append(o)
+        if late:
+            self._deferred_truth.append(o)
         if tr is not None:
             if deferred:
                 sess._deferred_errors.append(o)
@@ -81,10 +87,25 @@ class Outputs:
         sess.last_output = o
         return o
 
+    def defer_truth(self, table) -> None:
+        """Offline (``run_session``, with the outputs' errors deferred): ``table`` (a valid TruthTable, the one pushed
+        with ``push_truth_table``, rows at every IMU stamp) gives the outputs' truth at the end, looked up at once:
+        an output falls on an IMU sample, whose row the table holds, which is what ``truth_at`` finds there."""
+        self._truth_table = table
+
     def fill_deferred_errors(self) -> None:
         """The Euler errors and 3-sigma of the outputs deferred by ``run_session``, in one vectorised call each
         (numpy's elementwise functions: the numbers of one call per output, test_speed_paths); deferring ends."""
         sess = self.s
+        outs_t, self._deferred_truth, table, self._truth_table = self._deferred_truth, [], self._truth_table, None
+        if outs_t:
+            T = np.array([o.stamp_s for o in outs_t])
+            k = np.minimum(np.searchsorted(table.t_s, T - 1e-6, side="left"), len(table.t_s) - 1)
+            hit = np.abs(table.t_s[k] - T) <= 1e-6
+            for o, kk, h in zip(outs_t, k.tolist(), hit.tolist()):
+                o.truth_C_b_n = np.asarray(table.C_b_n[kk], float) if h else None
+                if h and sess._deferred_errors is not None:
+                    sess._deferred_errors.append(o)
         outs3, self._deferred_s3 = self._deferred_s3, []
         if outs3:
             S3 = euler_3sigma_deg_many(np.array([o.estimate.C_b_n for o in outs3], float),
@@ -98,9 +119,10 @@ class Outputs:
             for o, e in zip(outs, E):
                 o.euler_error_deg = e
 
-    def truth_at(self, t: float) -> np.ndarray | None:
+    def truth_at(self, t: float, prune_only: bool = False) -> np.ndarray | None:
         """Truth attitude at ``t``: the pose stamped there (within 1 us), else the slerp between the two poses that
-        bracket ``t`` within 0.25 s (a truth topic at its own rate), else None."""
+        bracket ``t`` within 0.25 s (a truth topic at its own rate), else None. ``prune_only``: only forget what is
+        behind (the look-up is deferred: ``defer_truth``)."""
         sess = self.s
         b = sess.buf
         tt = b.truth_t
@@ -113,6 +135,9 @@ class Outputs:
         if isinstance(b.truth, TruthDict):
             if not tt:  # the pending rows come after every stamp in the dict
                 b.truth.drop_pending_before(t - 2.0)
+        if prune_only:
+            return None
+        if isinstance(b.truth, TruthDict):
             before, after = b.truth.around(t - 1e-6)
         else:
             i = bisect.bisect_left(tt, t - 1e-6)
