@@ -513,8 +513,9 @@ class StaticZuptCore(AlignmentCore):
         m = self.mech
         return self._estimate_of(self.t_s, self.x, self.P, m.C_b_n, m.v_n, m.gyro_correction_b, m.acc_correction_b)
 
-    def _estimate_of(self, t_s, x, P, C_b_n, v_n, gyro_corr, acc_corr) -> AlignmentEstimate:
-        """The estimate of the state (x, P, the mechanization's C_b_n, v_n and corrections) at ``t_s``."""
+    def _estimate_of(self, t_s, x, P, C_b_n, v_n, gyro_corr, acc_corr, own: bool = False) -> AlignmentEstimate:
+        """The estimate of the state (x, P, the mechanization's C_b_n, v_n and corrections) at ``t_s``; ``own``: the
+        arrays are the estimate's own (a run's snapshots), not copied."""
         P_att = T_NED_ENU @ P[2:5, 2:5] @ T_NED_ENU
         if self.n_bias == 0:
             P_att = P_att + self._consider_floor()
@@ -524,9 +525,11 @@ class StaticZuptCore(AlignmentCore):
         if self._boot:
             status, reason = AlignmentStatus.CONVERGING, "azimuth bootstrap (open-loop drift fit) running"
         C = misaligned_attitude_nb(float(x[2]), float(x[3]), float(x[4]), np.ascontiguousarray(C_b_n, float))
-        return AlignmentEstimate(
-            t_s, C, v_n.copy(), self.mech.lat_rad, self.mech.lon_rad, self.mech.h_m, P_att, P.copy(),
-            self.state_names, bias_gyro_b=gyro_corr.copy(), bias_acc_b=acc_corr.copy(), status=status, reason=reason)
+        if not own:
+            v_n, P, gyro_corr, acc_corr = v_n.copy(), P.copy(), gyro_corr.copy(), acc_corr.copy()
+        return AlignmentEstimate(t_s, C, v_n, self.mech.lat_rad, self.mech.lon_rad, self.mech.h_m, P_att, P,
+                                 self.state_names, bias_gyro_b=gyro_corr, bias_acc_b=acc_corr, status=status,
+                                 reason=reason)
 
     def _consider_floor(self) -> np.ndarray:
         """The 5-state cores' attitude floor of the declared biases (ENU): the level's accelerometer bias over g, the

@@ -71,7 +71,7 @@ def run_with_updates(core, t_s, omega_ib_b, f_ib_b, ends: list, updates, out: li
             out.append(UpdateResult(True, innovation=INNOV[iu], S=SS[iu], nis=float(NIS[iu])))
             iu += 1
         if is_e:
-            out.append(core._estimate_of(float(t[r - n0]), SX[ie], SP[ie], SC[ie], SV[ie], SG[ie], SA[ie]))
+            out.append(core._estimate_of(float(t[r - n0]), SX[ie], SP[ie], SC[ie], SV[ie], SG[ie], SA[ie], True))
             ie += 1
     if k0 < DT.shape[0]:
         core._buf.add_block(DT[k0:], W[k0:], F[k0:])
