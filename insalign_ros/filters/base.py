@@ -15,6 +15,7 @@ with ``psi ~ N(0, P_att_n)`` (psi[2] is the azimuth error about Up).
 from __future__ import annotations
 
 import enum
+import functools
 import math
 from collections.abc import Mapping
 from types import MappingProxyType
@@ -58,10 +59,16 @@ class AlignmentEstimate:
     reason: str = ""
 
 
-def bias_indices(state_names, block: str) -> list[int]:
+def bias_indices(state_names, block: str) -> tuple[int, ...]:
     """Indices of the gyro-bias (``block`` "bg") or accelerometer-bias ("ba") error states in a core's state order
-    (named ``bg_x``.. or ``dbg_x``..); empty when the core keeps no such block."""
-    return [i for i, n in enumerate(state_names) if n.rstrip("_xyz").lstrip("d") == block]
+    (named ``bg_x``.. or ``dbg_x``..); empty when the core keeps no such block. (Once per state order: the grade
+    check reads them at every fix.)"""
+    return _bias_indices(tuple(state_names), block)
+
+
+@functools.lru_cache(maxsize=64)
+def _bias_indices(state_names: tuple, block: str) -> tuple[int, ...]:
+    return tuple(i for i, n in enumerate(state_names) if n.rstrip("_xyz").lstrip("d") == block)
 
 
 def accel_noise_b(C_b_n: np.ndarray, q_m2_s3: float, q_up_m2_s3: float) -> np.ndarray:

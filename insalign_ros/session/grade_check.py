@@ -61,21 +61,24 @@ class GradeCheck:
             idx = bias_indices(names, "bg" if kind == "gyro" else "ba")
             if b is None or len(idx) != 3:
                 continue
-            blocks.append((kind, np.asarray(b, float), np.array([est.P[i, i] for i in idx]), unit, scale))
+            Pd = est.P.diagonal()
+            blocks.append((kind, np.asarray(b, float).tolist(), [float(Pd[i]) for i in idx], unit, scale))
         if sess.core is not self._core:  # a new core (initialisation, hand-over): its prior is what it holds now
-            self._core, self._b0, self._P0 = sess.core, [bl[1].copy() for bl in blocks], [bl[2].copy() for bl in blocks]
+            self._core, self._b0, self._P0 = sess.core, [bl[1] for bl in blocks], [bl[2] for bl in blocks]
             return []
         findings = []
         for (kind, b, P, unit, scale), b0, P0 in zip(blocks, self._b0, self._P0):
-            learned = P < 0.5 * P0
-            if not np.any(learned):
+            # per axis in plain floats (three of them at every fix): the IEEE operations numpy's would do
+            learned = [p < 0.5 * p0 for p, p0 in zip(P, P0)]
+            if not any(learned):
                 continue
-            db = np.abs(b - b0)
-            z = np.where(learned, db / np.sqrt(np.maximum(P0 - P, 1e-30)), 0.0)
-            i = int(np.argmax(z))
-            self.z_max = max(self.z_max, float(z[i]))
+            db = [abs(x - x0) for x, x0 in zip(b, b0)]
+            z = [d / math.sqrt(max(p0 - p, 1e-30)) if ok else 0.0 for d, p, p0, ok in zip(db, P, P0, learned)]
+            # np.argmax's axis: the first NaN (a lost filter: no finding), else the first of the largest
+            i = next((j for j, x in enumerate(z) if x != x), max(range(len(z)), key=z.__getitem__))
+            self.z_max = max(self.z_max, z[i])
             if z[i] > self.Z_MAX:
-                k = float(db[i] / math.sqrt(P0[i]))
+                k = db[i] / math.sqrt(P0[i])
                 # the attitude error such a bias leaves uncovered: a tilt of b/g for the accelerometer's (its
                 # horizontal part is what levelling cannot tell from tilt); the gyro's is left to the innovations
                 findings.append((max(k, 1.0), f"the {kind} bias estimate moved {db[i] * scale:.3g} {unit} from its "
