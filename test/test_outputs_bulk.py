@@ -175,7 +175,8 @@ def test_align_with_bulk_estimates_is_one_output_at_a_time(monkeypatch):
 def test_zero_velocity_updates_inside_runs_are_the_run_ends(monkeypatch):
     """The static cores take the session's 10-Hz zero-velocity updates with the run's samples (``propagate(...,
     updates)``, ``updates_inside_runs``) instead of the run ending at each: every output, counter and flag change is
-    the one of ending the run at each update, also at outputs off the updates' samples (0.07 s). When the core fails
+    the one of ending the run at each update, also at outputs off the updates' samples (0.07 s) and on a 100-Hz IMU
+    whose every 10th stamp is where the schedule falls (its rounding decides the row). When the core fails
     in the middle of a run, the outputs and updates before the failure are the same and the session restarts; the
     rest of that run (up to the next fix) is dropped, as after a failure at an output."""
     from insalign_ros.filters.static_model import StaticZuptCore
@@ -190,11 +191,13 @@ def test_zero_velocity_updates_inside_runs_are_the_run_ends(monkeypatch):
             raise FloatingPointError("injected")
         return fuse(self, meas)
 
+    d100 = ia.simulate("static", duration_s=40.0, seed=4, rate_hz=100.0)  # the 10-Hz schedule on every 10th stamp
     runs, failed = [], []
     for inside in (True, False):
         with monkeypatch.context() as m:
             m.setattr(StaticZuptCore, "updates_inside_runs", inside)
-            runs.append([ia.align(d, core=c, output_period_s=p) for c in ("pkf", "ekf10") for p in (0.1, 0.07)])
+            runs.append([ia.align(d, core=c, output_period_s=p) for c in ("pkf", "ekf10") for p in (0.1, 0.07)]
+                        + [ia.align(d100, core="pkf")])
             calls["n"] = 0
             m.setattr(StaticZuptCore, "_fuse", failing)
             failed.append(ia.align(d, core="pkf"))
