@@ -235,7 +235,7 @@ class StaticZuptCore(AlignmentCore):
         self.status = AlignmentStatus.CONVERGING
         self.reason = "zero-velocity alignment running"
         self.r_m = math.sqrt(self.mech.R_N_m * self.mech.R_E_m)
-        self._floor_key = None  # _consider_floor's
+        self._floor = None  # _consider_floor's
         self._init = True
 
     def _init_bias_cov(self) -> None:
@@ -533,13 +533,12 @@ class StaticZuptCore(AlignmentCore):
 
     def _consider_floor(self) -> np.ndarray:
         """The 5-state cores' attitude floor of the declared biases (ENU): the level's accelerometer bias over g, the
-        azimuth's gyro bias over the horizontal Earth rate (constant over an alignment: computed once)."""
-        key = (self.mech.lat_rad, self.mech.g_n.tobytes())
-        if self._floor_key != key:
+        azimuth's gyro bias over the horizontal Earth rate (the site is fixed at ``initialize``: computed once)."""
+        if self._floor is None:
             g = float(np.linalg.norm(self.mech.g_n))
             w_h = earth.OMEGA_IE_RAD_S * math.cos(self.mech.lat_rad)
             lvl = (self.cfg.acc_bias_mg * MG / g) ** 2
-            self._floor_key, self._floor = key, np.diag([lvl, lvl, (self.cfg.gyro_bias_deg_h * DEG_H / w_h) ** 2])
+            self._floor = np.diag([lvl, lvl, (self.cfg.gyro_bias_deg_h * DEG_H / w_h) ** 2])
         return self._floor
 
     @property

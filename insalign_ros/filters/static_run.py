@@ -4,14 +4,14 @@ segment-by-segment path (test/test_outputs_bulk.py)."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .base import UpdateResult
 from .checks import usable_imu_arrays
 from .measurements import ZeroVelocity
 from .static_kernels import _M0, static_run_nb
-
-D2R = np.pi / 180.0
 
 
 def run_with_updates(core, t_s, omega_ib_b, f_ib_b, ends: list, updates, out: list, inputs) -> bool:
@@ -28,12 +28,13 @@ def run_with_updates(core, t_s, omega_ib_b, f_ib_b, ends: list, updates, out: li
     DT0, W0, F0 = core._buf.take() if core._buf.n else (np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)))
     n0 = DT0.shape[0]
     DT, W, F = (np.concatenate((DT0, dt)), np.concatenate((W0, w)), np.concatenate((F0, f))) if n0 else (dt, w, f)
-    rows = sorted({u[0] for u in updates} | set(ends))
     upd_rows, est_rows = [u[0] for u in updates], set(ends)
-    if len(set(upd_rows)) != len(upd_rows):
+    upd_set = set(upd_rows)
+    if len(upd_set) != len(upd_rows):
         raise ValueError("static cores: one zero-velocity update per row")
+    rows = sorted(upd_set | est_rows)
     ev_row = np.array(rows, np.int64) + n0
-    ev_upd = np.array([r in set(upd_rows) for r in rows])
+    ev_upd = np.array([r in upd_set for r in rows])
     ev_est = np.array([r in est_rows for r in rows])
     m, nu, ne, n = core.mech, len(upd_rows), len(est_rows), core.x.shape[0]
     C, v = np.array(m.C_b_n, dtype=float), np.array(m.v_n, dtype=float)
@@ -45,7 +46,7 @@ def run_with_updates(core, t_s, omega_ib_b, f_ib_b, ends: list, updates, out: li
         core._N_prev if core._N_prev is not None else core._nullspace(core.x[4]), dtype=float)
     p, re, qm, m_rate = core._pkf_args()
     zargs = np.array([m.lat_rad, core.r_m, float(core.n_bias > 0), oc_w_h, p, re,
-                      core.cfg.azimuth_feedback_sigma_deg * D2R])
+                      math.radians(core.cfg.azimuth_feedback_sigma_deg)])
     P = np.array(core.P, dtype=float)
     INNOV, SS, NIS = np.empty((nu, 2)), np.empty((nu, 2, 2)), np.empty(nu)
     SX, SP, SC, SV, SA, SG = (np.empty((ne, n)), np.empty((ne, n, n)), np.empty((ne, 3, 3)), np.empty((ne, 3)),
