@@ -50,3 +50,33 @@ def test_heading_variance_is_never_below_the_gyrocompassing_floor():
     assert abs(floor - expected) < 1e-3 * expected and abs(floor / D2R - 0.0582) < 1e-3
     P, _ = _support(core, np.diag([1e-6, 1e-6, 1e-10]))
     assert abs(math.sqrt(P[2, 2]) - floor) < 1e-12
+
+
+def test_rest_blocks_of_a_run_are_the_blocks_of_one_sample_at_a_time():
+    """The 1-s gyro block means of a run of samples at rest (``add_rest_rows``, per run while parked) are those of
+    ``add`` one sample at a time, bit for bit: jittered 125-Hz stamps, repeated stamps (skipped), runs of 1-40 rows,
+    a block left unfinished between runs; and a block flagged not at rest is dropped by both."""
+    from insalign_ros.session.rest import _BlockMean
+
+    rng = np.random.default_rng(7)
+    T = np.cumsum(rng.uniform(0.004, 0.012, 2000))
+    rep = rng.integers(1, 2000, 20)
+    T[rep] = T[rep - 1]  # a few stamps not after the one before
+    W = rng.normal(0.0, 0.01, (2000, 3)) + 7.3e-5
+    one, many = _BlockMean(), _BlockMean()
+    one.ok = many.ok = False  # the first block (after a sample not at rest) is dropped by both
+    ref, got, prev, k = [], [], None, 0
+    for t, w in zip(T.tolist(), W):
+        if prev is not None and t > prev:
+            m = one.add(t - prev, w)
+            if m is not None:
+                ref.append(m)
+        prev = t
+    prev = None
+    while k < len(T):
+        n = int(rng.integers(1, 40))
+        got += many.add_rest_rows(prev, T[k:k + n].tolist(), W[k:k + n])
+        prev, k = float(T[min(k + n, len(T)) - 1]), k + n
+    assert len(ref) == len(got) >= 10
+    assert all(np.array_equal(a, b) for a, b in zip(ref, got))
+    assert np.array_equal(one.int_w, many.int_w) and one.T == many.T

@@ -43,7 +43,7 @@ from ..filters.measurements import GnssPosition, GnssVelocity, GyroBiasPrior, Ze
 from .auto_config import AutoConfig, D2R
 from .motion import FixNoise, MotionConfig, MotionDetector, rate_hz_from_intervals
 from .rest import (REST_BLOCK_S, _BlockMean, block_variance, gyro_bias_from_rest, rest_rate_mean,
-                   static_heading_support)
+                   static_heading_support, zupt_nis_mean)
 
 
 #: hand-over without a snapshot at rest (moving from the start): the vehicle acceleration [m/s^2] assumed when the
@@ -103,6 +103,7 @@ class AutoCore(AlignmentCore):
         self._fix_noise = FixNoise()  # the fixes' own noise (the walking-speed veto's sigma)
         self._next_hold_t, self._zupt_support = -math.inf, [0, 0]  # zero-velocity updates asked, accepted while static
         self._zupt_nis: deque = deque(maxlen=200)  # NIS per degree of freedom of the accepted ones
+        self._nis_mean: float | None = None  # rest.zupt_nis_mean of them (None: to compute; read per output)
         self.counters = {"handovers": 0, "stops": 0, "stop_holds": 0, "zupt_rejected_moving": 0, "zero_rate_updates": 0,
                          "zero_rate_rejected": 0}
         with_static = registry.make_core(cfg.static_core, cfg.static_params())
@@ -231,13 +232,8 @@ class AutoCore(AlignmentCore):
     def _static_rows(self, T: np.ndarray, W: np.ndarray, F: np.ndarray, dec) -> None:
         """Rows before the hand-over, their motion decisions made (``dec``: the last one's, None before the detector):
         the history, the rest blocks, the static core (one block); the hand-over when ``dec`` declares motion."""
-        prev = self._t
-        for t, w in zip(T.tolist(), W):
-            if prev is not None and t > prev:  # the sample is the mean rate over (t_prev, t]
-                mean = self._block.add(t - prev, w)
-                if mean is not None:
-                    self._blocks.append(mean)
-            prev = t
+        # (each sample is the mean rate over (t_prev, t])
+        self._blocks.extend(self._block.add_rest_rows(self._t, T.tolist(), W))
         self._remember(T, W, F)
         self.static.propagate(T, W, F)
         if dec is not None and dec.moving:
@@ -333,6 +329,7 @@ class AutoCore(AlignmentCore):
             self._zupt_support[1] += 1
             if math.isfinite(res.nis) and len(res.innovation):
                 self._zupt_nis.append(res.nis / len(res.innovation))
+                self._nis_mean = None
         est = self.static.estimate()
         self.snaps.append((float(stamp_s), est, len(self._blocks)))
         while len(self.snaps) > 2 and self.snaps[1][0] < stamp_s - 5.0:
@@ -341,7 +338,8 @@ class AutoCore(AlignmentCore):
         return res
 
     def _static_state(self, t: float, est: AlignmentEstimate) -> None:
-        s = np.sqrt(np.clip(np.diag(est.P_att_n), 0.0, None))
+        # np.sqrt(np.clip(np.diag(P), 0, None)) in floats (per zero-velocity update; NaN stays NaN)
+        s = [math.sqrt(0.0 if x < 0.0 else x) for x in np.diag(est.P_att_n).tolist()]
         lvl, yaw = max(s[0], s[1]), s[2]
         floor_l = self.cfg.level_floor_rad()
         level = f"level 1-sigma {lvl / D2R:.3f} deg (floor b_acc/g {floor_l / D2R:.3f} deg)"
@@ -571,8 +569,10 @@ class AutoCore(AlignmentCore):
             est.status = AlignmentStatus.WAITING_FOR_MOTION
         est.reason = f"{self.state}: {self.reason}" if self.reason else self.state
         if self.motion is None and est.P_att_n is not None:
+            if self._nis_mean is None:
+                self._nis_mean = zupt_nis_mean(self._zupt_nis)
             est.P_att_n, why = static_heading_support(np.array(est.P_att_n, float), self._zupt_support, self._zupt_nis,
-                                                      self.cfg.azimuth_floor_rad(self.lat))
+                                                      self.cfg.azimuth_floor_rad(self.lat), self._nis_mean)
             if why:
                 est.reason += f"; {why}"
         return est

@@ -427,7 +427,8 @@ class MotionDetector:
         self.learner = VibrationLearner(cfg)
         self._W = n["window"]
         self._nb_args = (int(n["window"]), int(n["dv"]), int(n["ref"]), 1.0 / cfg.rate_hz)  # window_stats_nb's
-        self._blk: list = []  # the samples (omega, f) of the spread block being filled
+        self._blk: list = []  # the samples (omega, f) of the spread block being filled (slices of the rows taken)
+        self._nblk = 0  # ... their number
         self.rejected = {"imu": 0, "gnss": 0}
         self.last_reject_reason = ""
 
@@ -463,7 +464,7 @@ class MotionDetector:
             return self.decision
         if self._t and t - self._t[-1] > GAP_FACTOR / self.cfg.rate_hz:
             self._t.clear()  # a gap restarts the windows
-            self._blk = []
+            self._blk, self._nblk = [], 0
         self._take([t], np.concatenate([omega, f])[None, :])
         return self.decision
 
@@ -493,26 +494,56 @@ class MotionDetector:
         window_stats_nb(np.concatenate([self._ring[i + 1 + L - hist:i + 1 + L], rows]), hist, *self._nb_args, out)
         sf, so, dv = out.T.tolist()
         taken = m
+        # the row loop in locals (per sample; the statistics, GNSS flags and evidence are _evidence's and
+        # _Hysteresis.step's operations, bit for bit, test_motion): the thresholds change only at a block's end
+        cfg, hyst, learner, gq, W = self.cfg, self._hyst, self.learner, self._gnss, self._W
+        thr = self.thresholds = learner.thresholds
+        dv_thr, f_thr, w_thr = thr["dv_h_m_s"], thr["spread_f_m_s2"], thr["spread_omega_rad_s"]
+        g_key, g_moving = None, False
+        blk, nb = self._blk, self._nblk
+        a = 0  # the first row of this call not in blk yet
         for r in range(m):
             t = Tl[r]
-            self._stats = st = {"spread_f": sf[r], "spread_omega": so[r], "dv_h": dv[r]}
-            while len(self._gnss) > 1 and self._gnss[1][0] <= t:
-                self._gnss.popleft()
-            g = self._gnss[0] if self._gnss and self._gnss[0][0] <= t else None
-            fresh = g is not None and t - g[0] <= self.cfg.gnss_timeout_s
-            self._gnss_now = (g[1], g[2], g[3], t - g[0]) if fresh else (None, None, 0, math.nan)
-            self._blk.append(rows[r])
-            if len(self._blk) == self._W:
-                b = np.array(self._blk)
-                self._blk = []
+            while len(gq) > 1 and gq[1][0] <= t:
+                gq.popleft()
+            g = gq[0] if gq and gq[0][0] <= t else None
+            if g is not None and t - g[0] <= cfg.gnss_timeout_s:
+                self._gnss_now = (g[1], g[2], g[3], t - g[0])
+                if g is not g_key:
+                    g_key, g_moving = g, _gnss_flags(g[1:4], thr, cfg)[0]
+                gm = g_moving
+            else:
+                self._gnss_now = (None, None, 0, math.nan)
+                gm = False
+            nb += 1
+            if nb == W:
+                blk.append(rows[a:r + 1])
+                b = np.concatenate(blk) if len(blk) > 1 else np.array(blk[0])
+                blk.clear()
+                nb, a = 0, r + 1
                 sp = np.sqrt(np.maximum(b.var(axis=0), 0.0).reshape(2, 3).sum(axis=1))
-                self.learner.add(t, float(sp[1]), float(sp[0]), not st["dv_h"] > self.learner.prior["dv_h_m_s"],
-                                 self._gnss_now[:3], self._hyst.state is True)
-            self.thresholds = self.learner.thresholds
-            self._hyst.step(t, *_evidence(st, self._gnss_now[:3], self.thresholds, self.cfg))
-            if until_moving and self._hyst.state is True:
+                learner.add(t, float(sp[1]), float(sp[0]), not dv[r] > learner.prior["dv_h_m_s"],
+                            self._gnss_now[:3], hyst.state is True)
+                thr = self.thresholds = learner.thresholds
+                dv_thr, f_thr, w_thr = thr["dv_h_m_s"], thr["spread_f_m_s2"], thr["spread_omega_rad_s"]
+                g_key = None
+                if self._gnss_now[0] is not None:
+                    g_key, g_moving = g, _gnss_flags(g[1:4], thr, cfg)[0]
+            d = dv[r]
+            if not math.isfinite(d):  # windows not full: only GNSS can tell (_evidence)
+                motion, rest = gm, False
+            else:
+                imu_moving = d > dv_thr
+                motion = imu_moving or gm
+                rest = sf[r] < f_thr and so[r] < w_thr and not imu_moving and not gm
+            hyst.step(t, motion, rest)
+            if until_moving and hyst.state is True:
                 taken = r + 1
                 break
+        if a < taken:
+            blk.append(rows[a:taken])
+        self._nblk = nb
+        self._stats = {"spread_f": sf[taken - 1], "spread_omega": so[taken - 1], "dv_h": dv[taken - 1]}
         self._t.extend(Tl[:taken])
         k = min(taken, L)  # only the last L rows stay in the ring, each at j and j + L
         idx = (i + 1 + np.arange(taken - k, taken)) % L
