@@ -33,6 +33,7 @@ from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, ImuSample, 
 from .config import ConfigDict, param
 from .static_kernels import _corrected_attitude_nb, _f_model_nb, _jacobian_nb, _M0, _zupt_step_nb, misaligned_attitude_nb
 from . import static_run
+from .static_bootstrap import bootstrap_fit
 from .checks import ImuBuffer, usable_imu_arrays
 from .measurements import ZeroVelocity
 
@@ -232,6 +233,7 @@ class StaticZuptCore(AlignmentCore):
                       and self.P[4, 4] > (self.cfg.azimuth_bootstrap_above_sigma_deg * D2R) ** 2)
         self._boot_t: list[float] = []
         self._boot_v: list[np.ndarray] = []
+        self._boot_breaks: list[int] = []  # bootstrap points after which a gap or a widening broke the fit
         self.status = AlignmentStatus.CONVERGING
         self.reason = "zero-velocity alignment running"
         self.r_m = math.sqrt(self.mech.R_N_m * self.mech.R_E_m)
@@ -417,27 +419,26 @@ class StaticZuptCore(AlignmentCore):
         self._boot_v.append(ned_from_enu(self.mech.v_n)[0:2].copy())
         self.t_last_update_s = stamp_s
         T = stamp_s - self.t0_s
-        if T < self.cfg.azimuth_bootstrap_s or len(self._boot_t) < 10:
+        brk = self._boot_breaks
+        if T < self.cfg.azimuth_bootstrap_s or len(self._boot_t) - (brk[-1] if brk else 0) < 10:
             return UpdateResult(False, reason="azimuth bootstrap: %.1f of %.1f s" % (T, self.cfg.azimuth_bootstrap_s))
         t = np.array(self._boot_t)
         V = np.array(self._boot_v)
-        A = np.stack([np.ones_like(t), t, t * t], -1)
-        coef, *_ = np.linalg.lstsq(A, V, rcond=None)  # (3, 2): rows c0, c1, c2; columns vN, vE
+        c2, slope_T, k_rate, k_level, n = bootstrap_fit(t, V, brk, T)  # (after a gap: a segment each side)
         g = float(np.linalg.norm(self.mech.g_n))
         w_h = earth.OMEGA_IE_RAD_S * math.cos(self.mech.lat_rad)
-        rE, rN = 2.0 * coef[2, 0] / g, -2.0 * coef[2, 1] / g
-        pE_T = (coef[1, 0] + 2.0 * coef[2, 0] * T) / g
-        pN_T = -(coef[1, 1] + 2.0 * coef[2, 1] * T) / g
+        rE, rN = 2.0 * c2[0] / g, -2.0 * c2[1] / g
+        pE_T = slope_T[0] / g
+        pN_T = -slope_T[1] / g
         a = math.atan2(rE, w_h - rN)
         # covariance: rate from the fit (velocity noise sigma_v; std of the t^2 coefficient ~ sigma_v sqrt(180/N)/T^2)
         # and from the angle random walk (fitted slope of a random-walk tilt ~ ARW sqrt(12 / (5 T))); level from the
         # fit, the accelerometer-bias floor and the random-walk tilt ARW sqrt(T); the gyro-bias part of the azimuth
         # is added by _bootstrap_azimuth_cov
-        n = len(t)
-        s_r_fit = 2.0 * sigma_v_m_s * math.sqrt(180.0 / n) / (g * T * T)
+        s_r_fit = 2.0 * sigma_v_m_s * math.sqrt(180.0 / n) / (g * T * T) * k_rate
         s_r_arw = self.cfg.gyro_arw_deg_sqrt_h * D2R / 60.0 * math.sqrt(12.0 / (5.0 * T))
         s_noise_rad = math.hypot(s_r_fit, s_r_arw) / w_h
-        s_lvl = float(np.linalg.norm([sigma_v_m_s * math.sqrt(12.0 / n) / (g * T),
+        s_lvl = float(np.linalg.norm([sigma_v_m_s * math.sqrt(12.0 / n) / (g * T) * k_level,
                                       self.cfg.acc_bias_mg * MG / g,
                                       self.cfg.gyro_arw_deg_sqrt_h * D2R / 60.0 * math.sqrt(T)]))
         self.x[:] = 0.0
@@ -452,6 +453,14 @@ class StaticZuptCore(AlignmentCore):
         self._f_lp_ned = None  # the open-loop mechanization's tilt is about to be corrected: restart the low-pass
         self._feedback()
         return UpdateResult(True, reason="azimuth bootstrap done: %.2f deg" % math.degrees(a))
+
+    def inflate_navigation(self, var_att_rad2, var_v_m2_s2, var_p_m2=0.0, var_bg_rad2_s2=0.0, var_ba_m2_s4=0.0):
+        """The base class's; while the open-loop bootstrap runs, also a break of its fit (the gap bridge may have
+        stepped the tilt and velocity, which a single quadratic cannot follow: static_bootstrap.py)."""
+        super().inflate_navigation(var_att_rad2, var_v_m2_s2, var_p_m2, var_bg_rad2_s2, var_ba_m2_s4)
+        if self._init and self._boot and self._boot_t and (not self._boot_breaks
+                                                           or self._boot_breaks[-1] != len(self._boot_t)):
+            self._boot_breaks.append(len(self._boot_t))
 
     def _nullspace(self, phiD: float) -> np.ndarray | None:
         """Unobservable direction of the error state at azimuth phiD (None: the state has none)."""
