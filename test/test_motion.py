@@ -243,3 +243,23 @@ def test_walking_speed_vetoes_static_with_a_consumer_gnss():
     t3 = sc.t_s[g][np.flatnonzero(speed > 1.5)[2]]  # the third speed over walking speed
     assert tr.moving[fast & (sc.t_s >= t3)].all()
     assert not (tr.decided & ~tr.moving)[fast & (sc.t_s >= t3)].any()
+
+
+def test_fix_noise_restarts_at_a_stamp_not_after_the_last_one():
+    """motion.FixNoise: the robust sigma of the second differences of the last 10 fixes (white noise of sigma s: s);
+    a repeated or earlier stamp restarts the history (it used to divide by a zero interval: NaN and a RuntimeWarning,
+    seen by benchmarks/fuzz_session.py), as a 2-s gap does."""
+    import warnings
+
+    from insalign_ros.session.motion import FixNoise
+
+    rng = np.random.default_rng(3)
+    fn = FixNoise()
+    p = rng.normal(0.0, 0.5, (400, 3)) + np.outer(np.arange(400.0), [3.0, 1.0, 0.0])
+    got = [fn.push(float(k), p[k]) for k in range(400)]
+    assert all(np.isinf(got[:9])) and 0.35 < np.median(got[9:]) < 0.65
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert np.isinf(fn.push(399.0, p[399])) and len(fn.h) == 1  # the same stamp again
+        assert all(np.isinf(fn.push(399.0 + k, p[k])) for k in range(1, 9))
+        assert np.isfinite(fn.push(408.0, p[9]))

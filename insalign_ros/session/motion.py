@@ -391,9 +391,10 @@ class FixNoise:
         self.h: deque = deque(maxlen=n)  # (t, p_e) of the last fixes
 
     def push(self, t: float, p_e) -> float:
-        """A fix (stamp [s], ECEF position [m]); returns the noise with it [m] (a 2-s gap restarts the history)."""
+        """A fix (stamp [s], ECEF position [m]); returns the noise with it [m] (a 2-s gap, or a stamp not after the
+        last one, restarts the history: inf until it holds ``n`` fixes again)."""
         h = self.h
-        if h and t - h[-1][0] > 2.0:
+        if h and not 0.0 < t - h[-1][0] <= 2.0:
             h.clear()
         h.append((t, np.asarray(p_e, float)))
         if len(h) < h.maxlen:
