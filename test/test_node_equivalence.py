@@ -53,10 +53,11 @@ def _run(tmp_path, ros_env, bag, node_params, fix_delay_s=0.0, name="alignment_n
 
 
 def _received_and_published(mon, diffs, n_off) -> None:
-    """The poses the monitor received are at least half of the offline outputs, and the node's own count says it
-    published (nearly) all of them: a monitor starved on a loaded 2-core machine misses some of a 10x replay's poses
-    (the topic keeps the last 50; 339 of 401 with two CPU burners), the node does not skip any. State, not time."""
-    assert len(diffs) >= 0.5 * n_off, (len(diffs), n_off)
+    """The poses the monitor received are at least a quarter of the offline outputs (and 50), and the node's own count
+    says it published (nearly) all of them: a monitor starved on a loaded 2-core machine misses some of a 10x replay's
+    poses (the topic keeps the last 50; 339 of 401 with two CPU burners, 173 of 385 once beside the suite's other
+    worker), the node does not skip any; the equality is asserted on the poses received. State, not time."""
+    assert len(diffs) >= max(0.25 * n_off, 50), (len(diffs), n_off)
     assert mon.wait_for(lambda m: int(m.diag.get("outputs_published", "0")) >= 0.95 * n_off, 10.0), (
         mon.diag.get("outputs_published"), n_off)
 

@@ -275,8 +275,9 @@ class Fusion:
             self._fuse_velocity(vel)
 
     def _fuse_velocity(self, vel: GnssVelocity) -> None:
-        """One GNSS velocity into the core: the NIS gate of the fixes (while the attitude is claimed), then the
-        core's update; the flag's NIS window sees its NIS like a fix's."""
+        """One GNSS velocity into the core: the NIS gate of the fixes (while the attitude is claimed, or at a jump in
+        the velocity sequence: guard.velocity_jump), then the core's update; the flag's NIS window sees its NIS like
+        a fix's."""
         sess = self.s
         core, c = sess.core, sess.counters
         vel = GnssVelocityModel.of(vel)
@@ -286,13 +287,16 @@ class Fusion:
                 core.update(vel)  # not fused (core: auto's motion detector takes the speed while parked)
             return
         gate = sess.cfg.gnss_gate_nis
-        if gate > 0 and sess.monitor.attitude_claimed():
+        jump = sess.guard.velocity_jump(vel)  # a jump in the velocity sequence opens the gate before the claim
+        if gate > 0 and (sess.monitor.attitude_claimed() or jump > 0):
             pr = core.predict(vel)
             if pr.S.size and pr.nis > gate:
                 sess.inputs.reject("gnss_vel", "velocity", "gnss_vel_gated", f"NIS {pr.nis:.3g} above the gate {gate:g} "
-                             f"(|innovation| {np.linalg.norm(pr.innovation):.3g} m/s)")
+                             f"(|innovation| {np.linalg.norm(pr.innovation):.3g} m/s" +
+                             (f"; {jump:.3g} m/s beyond its sequence)" if jump > 0 else ")"))
                 sess.monitor.lower_flag("a GNSS velocity failed the NIS gate")
                 return
+        sess.guard.velocity_let_in(vel)
         res = core.update(sess.guard.floored_velocity(vel))
         sess._est_memo = None  # the floor read the estimate before the update
         if res.accepted:
