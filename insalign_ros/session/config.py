@@ -152,11 +152,12 @@ class SessionConfig:
     # -- divergence guard (issue 15; docs/session.md "Outliers and divergence") --
     #: a fix off the straight-line extrapolation of the two fixes before it by more than this acceleration allows
     #: (plus 5 sigma of the fix noise) is a GNSS jump [m/s^2]; gated fixes that start with a jump are bad fixes,
-    #: not a lost filter: the session holds the filter (IMU only, flag down) instead of re-initialising
+    #: not a lost filter: the session holds the filter (IMU only, flag down) instead of re-initialising. A GNSS
+    #: velocity off the one before it (or the fixes' velocity) beyond it is NIS-gated before the attitude is claimed
     gnss_jump_accel_m_s2: float = param(
         10.0,
         'a fix off the extrapolation of the two before it beyond this acceleration (+5 sigma) is a GNSS '
-        'jump: hold, not re-initialise [m/s^2]',
+        'jump: hold, not re-initialise; a GNSS velocity beyond it is gated even before the claim [m/s^2]',
         range=(0.0, 1000.0))
     #: the longest such hold [s data time]: fixes that still disagree with the held filter after it are believed
     #: (divergence, re-initialisation from the new fixes); also the window after a re-initialisation in which a GNSS
