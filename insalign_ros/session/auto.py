@@ -41,6 +41,8 @@ from ..filters.base import AlignmentCore, AlignmentEstimate, AlignmentStatus, Up
 from ..filters.hypotheses import YawHypothesisBank
 from ..filters.measurements import GnssPosition, GnssVelocity, GyroBiasPrior, ZeroAngularRate, ZeroVelocity
 from .auto_config import AutoConfig, D2R
+from .config import SessionConfig
+from .guard import sequence_jump
 from .motion import FixNoise, MotionConfig, MotionDetector, rate_hz_from_intervals
 from .rest import (REST_BLOCK_S, _BlockMean, block_variance, gyro_bias_from_rest, rest_rate_mean,
                    static_heading_support, zupt_nis_mean)
@@ -232,8 +234,7 @@ class AutoCore(AlignmentCore):
     def _static_rows(self, T: np.ndarray, W: np.ndarray, F: np.ndarray, dec) -> None:
         """Rows before the hand-over, their motion decisions made (``dec``: the last one's, None before the detector):
         the history, the rest blocks, the static core (one block); the hand-over when ``dec`` declares motion."""
-        # (each sample is the mean rate over (t_prev, t])
-        self._blocks.extend(self._block.add_rest_rows(self._t, T.tolist(), W))
+        self._blocks.extend(self._block.add_rest_rows(self._t, T.tolist(), W))  # samples: mean rates over intervals
         self._remember(T, W, F)
         self.static.propagate(T, W, F)
         if dec is not None and dec.moving:
@@ -338,8 +339,7 @@ class AutoCore(AlignmentCore):
         return res
 
     def _static_state(self, t: float, est: AlignmentEstimate) -> None:
-        # np.sqrt(np.clip(np.diag(P), 0, None)) in floats (per zero-velocity update; NaN stays NaN)
-        s = [math.sqrt(0.0 if x < 0.0 else x) for x in np.diag(est.P_att_n).tolist()]
+        s = [math.sqrt(0.0 if x < 0.0 else x) for x in np.diag(est.P_att_n).tolist()]  # np.sqrt(np.clip(d, 0))
         lvl, yaw = max(s[0], s[1]), s[2]
         floor_l = self.cfg.level_floor_rad()
         level = f"level 1-sigma {lvl / D2R:.3f} deg (floor b_acc/g {floor_l / D2R:.3f} deg)"
@@ -439,12 +439,14 @@ class AutoCore(AlignmentCore):
         from both fixes' covariances) goes to the motion detector: a car cruising at constant speed on a smooth road
         looks parked to the IMU (docs/motion_detector.md), and after a re-initialisation while driving the static
         core would otherwise take zero-velocity updates at 15 m/s."""
-        t = float(fix.stamp_s)
-        p, R = np.asarray(fix.p_e, float), np.asarray(fix.R_e, float)
+        t, p, R = float(fix.stamp_s), np.asarray(fix.p_e, float), np.asarray(fix.R_e, float)
         if not (np.all(np.isfinite(p)) and np.all(np.isfinite(R))):
             return
         while self._fixes and (t - self._fixes[0][0] > 3.0 * GNSS_SPEED_BASE_S or t <= self._fixes[-1][0]):
             self._fixes.popleft() if t - self._fixes[0][0] > 3.0 * GNSS_SPEED_BASE_S else self._fixes.pop()
+        seq = list(self._level_fixes)[-2:]  # the fix sequence (a jump: the session's test, on every fix seen)
+        if len(seq) == 2 and t > seq[-1][0] and sequence_jump(seq, t, p, R, SessionConfig.gnss_jump_accel_m_s2):
+            self._fixes.clear()  # a jump is no speed: the baseline restarts (a block of bad fixes has one each end)
         old = [f for f in self._fixes if t - f[0] >= GNSS_SPEED_BASE_S]
         self._fixes.append((t, p, R))
         if not self._level_fixes or t > self._level_fixes[-1][0]:
@@ -569,8 +571,7 @@ class AutoCore(AlignmentCore):
             est.status = AlignmentStatus.WAITING_FOR_MOTION
         est.reason = f"{self.state}: {self.reason}" if self.reason else self.state
         if self.motion is None and est.P_att_n is not None:
-            if self._nis_mean is None:
-                self._nis_mean = zupt_nis_mean(self._zupt_nis)
+            self._nis_mean = zupt_nis_mean(self._zupt_nis) if self._nis_mean is None else self._nis_mean
             est.P_att_n, why = static_heading_support(np.array(est.P_att_n, float), self._zupt_support, self._zupt_nis,
                                                       self.cfg.azimuth_floor_rad(self.lat), self._nis_mean)
             if why:

@@ -493,6 +493,14 @@ def fix_point(fix: GnssFix) -> tuple[float, np.ndarray, float]:
     return float(fix.stamp_s), np.asarray(fix.p_e, float), math.sqrt(max(float(np.trace(fix.R_e)) / 3.0, 0.0))
 
 
+def sequence_jump(prev, t: float, p_e, R_e, accel_m_s2: float) -> bool:
+    """Whether a fix (stamp ``t``, ECEF ``p_e``, covariance ``R_e``) is a jump after the two fixes ``prev`` ((t, p_e,
+    R_e) each): :func:`extrapolation_excess` > 0 (for a fix sequence kept as arrays: core auto's GNSS speed)."""
+    pts = [(float(a), np.asarray(b, float), math.sqrt(max(float(np.trace(c)) / 3.0, 0.0))) for a, b, c in prev]
+    return extrapolation_excess(pts, (float(t), np.asarray(p_e, float), math.sqrt(max(float(np.trace(R_e)) / 3.0,
+                                                                                       0.0))), accel_m_s2) > 0
+
+
 def extrapolation_excess(prev, point, accel_m_s2: float) -> float:
     """How far [m] a fix ``point`` lies beyond what the straight-line extrapolation of ``prev`` (two earlier
     points, each within 3 s of the next; points from :func:`fix_point`) allows: acceleration up to ``accel_m_s2``
