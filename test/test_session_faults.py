@@ -157,3 +157,20 @@ def test_two_fixes_at_one_stamp_before_the_initialisation():
     s.finish()
     assert s.counters["core_faults"] == 0 and s.core is not None
     assert s.counters["gnss_accepted"] >= 8
+
+
+def test_a_fix_let_in_before_the_first_imu_sample_and_rejected_by_it_is_counted_once():
+    """fuzz_session seed 14 (shrunk by hand: the reset and the burst after it are what matters): after a reset, a
+    fix arrives before any IMU sample (the door cannot check ``max_fix_ahead_s`` yet and lets it in: True); the first
+    sample rejects it as ``gnss_future`` (inputs._check_early_fixes, the door's counter). The property allowed no
+    late rejection (9 False answers against 10 door rejections); it now counts the inputs let in before the first
+    sample. Every other counter consistent, no flag-up output outside its 3-sigma."""
+    F = fz.Fault
+    case = fz.Case("car", 2, 30.0, "iekf", (F("burst", 0.5269241032686806, 0.6702972894206741, 13),
+                                             F("nan_fix", 0.4643633666863329, 0.30977585269720576, 32),
+                                             F("burst", 0.3997473145711195, 0.675510209339532, 12),
+                                             F("restart_source", 0.338229909502131, 0.207565924119694, 14),
+                                             F("reset", 0.40002854936867094, 0.6668000441329813, 15)))
+    rep = fz.run(case)
+    assert not rep.failures
+    assert rep.counters["gnss_future"] == 1
