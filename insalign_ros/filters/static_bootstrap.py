@@ -20,10 +20,11 @@ MIN_SEGMENT_POINTS = 3
 
 
 def bootstrap_fit(t: np.ndarray, V: np.ndarray, breaks: list[int], T: float) -> tuple:
-    """(c2 (2,), the slope at ``T`` (2,), k_rate, k_level, the number of points fitted) of the velocities ``V`` (n, 2) [m/s] at ``t`` (n,) [s
-    since the start of the window]: without ``breaks`` one quadratic (k = 1); with them (indices of the first point
-    of each new segment) one offset and slope per segment of at least MIN_SEGMENT_POINTS points and a common c2.
-    k_rate and k_level scale the single quadratic's standard deviations of c2 and of the slope at T."""
+    """(c2 (2,), the slope at ``T`` (2,), k_rate, k_level, the number of points fitted) of the velocities ``V``
+    (n, 2) [m/s] at ``t`` (n,) [s since the start of the window]: without ``breaks`` one quadratic (k = 1); with them
+    (indices of the first point of each new segment) one offset and slope per segment of at least
+    MIN_SEGMENT_POINTS points and a common c2. k_rate and k_level scale the single quadratic's standard deviations of
+    c2 and of the slope at T."""
     if not breaks:
         A = np.stack([np.ones_like(t), t, t * t], -1)
         coef, *_ = np.linalg.lstsq(A, V, rcond=None)  # (3, 2): rows c0, c1, c2; columns vN, vE

@@ -444,7 +444,7 @@ class AutoCore(AlignmentCore):
             return
         while self._fixes and (t - self._fixes[0][0] > 3.0 * GNSS_SPEED_BASE_S or t <= self._fixes[-1][0]):
             self._fixes.popleft() if t - self._fixes[0][0] > 3.0 * GNSS_SPEED_BASE_S else self._fixes.pop()
-        seq = list(self._level_fixes)[-2:]  # the fix sequence (a jump: the session's test, on every fix seen)
+        seq = list(self._level_fixes)[-2:]  # every fix seen (a jump: the session's test at its default accel)
         if len(seq) == 2 and t > seq[-1][0] and sequence_jump(seq, t, p, R, SessionConfig.gnss_jump_accel_m_s2):
             self._fixes.clear()  # a jump is no speed: the baseline restarts (a block of bad fixes has one each end)
         old = [f for f in self._fixes if t - f[0] >= GNSS_SPEED_BASE_S]
