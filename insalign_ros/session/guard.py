@@ -458,12 +458,14 @@ class FixScreen:
         new = list(c)
         self.reset()
         b = sess.buf
-        keep = [k for k in range(len(b.fix_t)) if b.fix_t[k] > t]
-        sess.counters["inputs_dropped"] += len(b.fix_t) - len(keep)
-        b.fix_t[:] = [b.fix_t[k] for k in keep]
-        b.fix[:] = [b.fix[k] for k in keep]
+        if sess.core is None:  # (a running filter's buffered fixes go to its jump test and NIS gate instead)
+            keep = [k for k in range(len(b.fix_t)) if b.fix_t[k] > t]
+            sess.counters["inputs_dropped"] += len(b.fix_t) - len(keep)
+            b.fix_t[:] = [b.fix_t[k] for k in keep]
+            b.fix[:] = [b.fix[k] for k in keep]
         sess.log("warn", "gnss_implausible", f"{len(new)} consistent GNSS fixes off the previous ones by {e:.3g} m: "
-                                             "following them (a new line; buffered fixes of the old one dropped)")
+                 "following them (a new line" + ("; buffered fixes of the old one dropped)" if sess.core is None
+                                                 else ")"))
         for q in new:
             self._join(q)
         return ""
