@@ -216,18 +216,16 @@ class DivergenceGuard:
         to ``gnss_jump_accel_m_s2`` over the time between them plus 5 sigma of both. Filter-free: a glitch or a unit
         error in a stream of good velocities (fuzz_session: 25 m/s at a 0.1-m/s sigma after a re-initialisation,
         fused by the fresh filter, left it 85 deg off at a 3-sigma of 1-14 deg). -inf: nothing to compare with."""
-        t = float(vel.stamp_s)
-        v = np.asarray(vel.v_n, float)[:2]
-        var = float(vel.R_n[0, 0] + vel.R_n[1, 1])
+        t, v, var = _horizontal(vel)
         ref, seq = self._vel_ref, self._fix_seq
         if ref is not None and 0.0 < t - ref[0] <= 3.0:
             span, v_ref, var_ref = t - ref[0], ref[1], ref[2]
         elif len(seq) >= 2 and 0.0 < seq[-1][0] - seq[-2][0] <= 3.0 and abs(t - seq[-1][0]) <= 3.0:
             (t0, p0, s0), (t1, p1, s1) = seq[-2], seq[-1]
-            lat, lon, _ = earth.ecef_to_geodetic(p1)
-            v_ref = (earth.C_n_e(lat, lon).T @ ((p1 - p0) / (t1 - t0)))[:2]
-            var_ref = 2.0 * (s0 * s0 + s1 * s1) / (t1 - t0) ** 2  # both horizontal axes
-            span = abs(t - 0.5 * (t0 + t1)) + 0.5 * (t1 - t0)
+            t_mid, v_f, R_f = earth.velocity_from_fixes([t0, t1], [p0, p1], [s0 * s0 * np.eye(3), s1 * s1 * np.eye(3)],
+                                                        max_dt_s=3.0)
+            v_ref, var_ref = v_f[0][:2], float(R_f[0][0, 0] + R_f[0][1, 1])
+            span = abs(t - float(t_mid[0])) + 0.5 * (t1 - t0)
         else:
             return -math.inf
         return float(np.linalg.norm(v - v_ref)) - (self.s.cfg.gnss_jump_accel_m_s2 * span
@@ -235,8 +233,7 @@ class DivergenceGuard:
 
     def velocity_let_in(self, vel) -> None:
         """A GNSS velocity not gated: the reference of :meth:`velocity_jump`."""
-        self._vel_ref = (float(vel.stamp_s), np.asarray(vel.v_n, float)[:2].copy(),
-                         float(vel.R_n[0, 0] + vel.R_n[1, 1]))
+        self._vel_ref = _horizontal(vel)
 
     def hold(self, fix: GnssFix, jump: bool, nis: float, innovation_m: float) -> bool:
         """A gated fix: True when the session holds the filter through bad fixes (a gated run that began with a
@@ -490,17 +487,25 @@ def scale_attitude_covariance(core, ratio: float) -> None:
         core.inflate_navigation(var, 0.0, 0.0)
 
 
+def _horizontal(vel) -> tuple[float, np.ndarray, float]:
+    """(stamp [s], horizontal v_n (2,) [m/s], the sum of its two variances [m^2/s^2]) of a GNSS velocity."""
+    return float(vel.stamp_s), np.array(vel.v_n, float)[:2], float(vel.R_n[0, 0] + vel.R_n[1, 1])
+
+
 def fix_point(fix: GnssFix) -> tuple[float, np.ndarray, float]:
     """(stamp [s], p_e [m], 1-sigma [m] per axis: the RMS of R_e's diagonal) of a fix: the jump detection's input."""
-    return float(fix.stamp_s), np.asarray(fix.p_e, float), math.sqrt(max(float(np.trace(fix.R_e)) / 3.0, 0.0))
+    return point_of(fix.stamp_s, fix.p_e, fix.R_e)
+
+
+def point_of(t: float, p_e, R_e) -> tuple[float, np.ndarray, float]:
+    """:func:`fix_point` of a fix given as its stamp [s], ECEF position [m] and covariance [m^2]."""
+    return float(t), np.asarray(p_e, float), math.sqrt(max(float(np.trace(R_e)) / 3.0, 0.0))
 
 
 def sequence_jump(prev, t: float, p_e, R_e, accel_m_s2: float) -> bool:
     """Whether a fix (stamp ``t``, ECEF ``p_e``, covariance ``R_e``) is a jump after the two fixes ``prev`` ((t, p_e,
     R_e) each): :func:`extrapolation_excess` > 0 (for a fix sequence kept as arrays: core auto's GNSS speed)."""
-    pts = [(float(a), np.asarray(b, float), math.sqrt(max(float(np.trace(c)) / 3.0, 0.0))) for a, b, c in prev]
-    return extrapolation_excess(pts, (float(t), np.asarray(p_e, float), math.sqrt(max(float(np.trace(R_e)) / 3.0,
-                                                                                       0.0))), accel_m_s2) > 0
+    return extrapolation_excess([point_of(*f) for f in prev], point_of(t, p_e, R_e), accel_m_s2) > 0
 
 
 def extrapolation_excess(prev, point, accel_m_s2: float) -> float:
