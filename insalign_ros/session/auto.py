@@ -42,7 +42,7 @@ from ..filters.hypotheses import YawHypothesisBank
 from ..filters.measurements import GnssPosition, GnssVelocity, GyroBiasPrior, ZeroAngularRate, ZeroVelocity
 from .auto_config import AutoConfig, D2R
 from .config import SessionConfig
-from .guard import sequence_jump
+from .guard import sequence_jump, velocities_agree
 from .motion import FixNoise, MotionConfig, MotionDetector, rate_hz_from_intervals
 from .rest import (REST_BLOCK_S, _BlockMean, block_variance, gyro_bias_from_rest, rest_rate_mean,
                    static_heading_support, zupt_nis_mean)
@@ -511,20 +511,20 @@ class AutoCore(AlignmentCore):
     def _gnss_velocity_n(self, lat_rad: float, lon_rad: float) -> tuple[np.ndarray, float] | None:
         """ENU velocity [m/s] from the last two fixes >= GNSS_SPEED_BASE_S apart and its 1-sigma: the fixes' noise
         plus NO_REST_ACC_M_S2 x (the base + the age of the newest fix) for the change since; a GNSS velocity stamped
-        within 1 s instead when it is tighter (as the sensors initialisation's); None: neither."""
+        within 1 s instead when it is tighter and agrees with it (as the sensors initialisation's); None: neither."""
         best = None
         old = [f for f in self._fixes if self._fixes[-1][0] - f[0] >= GNSS_SPEED_BASE_S]
         if old:
             (t0, p0, R0), (t1, p1, R1) = old[-1], self._fixes[-1]
             dt = t1 - t0
-            v_n = earth.C_n_e(lat_rad, lon_rad).T @ ((p1 - p0) / dt)
-            sig = math.sqrt(max(np.trace(R1 + R0) / 3.0, 0.0)) / dt
+            v_n, sig = earth.C_n_e(lat_rad, lon_rad).T @ ((p1 - p0) / dt), math.sqrt(max(np.trace(R1 + R0) / 3.0, 0.0)) / dt
             best = v_n, math.hypot(sig, NO_REST_ACC_M_S2 * (max(0.0, (self._t or t1) - t1) + dt))
         if self._vels:
             tv, vv, Rv = self._vels[-1]
             age_v = max(0.0, (self._t or tv) - tv)
             sig_v = math.hypot(math.sqrt(max(float(np.max(np.diag(Rv))), 0.0)), NO_REST_ACC_M_S2 * age_v)
-            if age_v <= 1.0 and (best is None or sig_v < best[1]):
+            if age_v <= 1.0 and (best is None or sig_v < best[1] and velocities_agree(vv, float(Rv[0, 0] + Rv[1, 1]),
+                                                                                  best[0], 2.0 * best[1] ** 2)):
                 return vv.copy(), sig_v
         return best
 

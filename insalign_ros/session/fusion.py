@@ -288,7 +288,8 @@ class Fusion:
             return
         gate = sess.cfg.gnss_gate_nis
         jump = sess.guard.velocity_jump(vel)  # a jump in the velocity sequence opens the gate before the claim
-        if gate > 0 and (sess.monitor.attitude_claimed() or jump > 0):
+        claimed = sess.monitor.attitude_claimed()
+        if gate > 0 and (claimed or jump > 0):
             pr = core.predict(vel)
             if pr.S.size and pr.nis > gate:
                 sess.inputs.reject("gnss_vel", "velocity", "gnss_vel_gated", f"NIS {pr.nis:.3g} above the gate {gate:g} "
@@ -296,6 +297,8 @@ class Fusion:
                              (f"; {jump:.3g} m/s beyond its sequence)" if jump > 0 else ")"))
                 sess.monitor.lower_flag("a GNSS velocity failed the NIS gate")
                 return
+        if gate > 0 and not claimed and self._speed_off(vel):  # (a yaw bank has no NIS to gate before the claim)
+            return
         sess.guard.velocity_let_in(vel)
         res = core.update(sess.guard.floored_velocity(vel))
         sess._est_memo = None  # the floor read the estimate before the update
@@ -307,6 +310,25 @@ class Fusion:
             sess.last_reject = f"gnss_vel: core: {res.reason}"
             sess.log("warn", "gnss_vel_filter_rejected", f"GNSS velocity rejected by the core: {res.reason}")
         sess.flag.on_update(sess.processed_t, res.accepted, res.nis, len(res.innovation) or 3)
+
+    def _speed_off(self, vel: GnssVelocityModel) -> bool:
+        """Before the claim: a velocity whose speed is off the filter's (guard.speed_off) is rejected (gnss_vel_gated),
+        unless it is the guard's SPEED_OFF_BELIEVED-th in a row (then the filter's speed is what is wrong)."""
+        sess = self.s
+        g = sess.guard
+        lever = np.asarray(sess.core_params.get("gnss_lever_arm_b_m") or (0.0, 0.0, 0.0), float)
+        w = sess.loop.hist_w[-1] if sess.loop.hist_w else np.zeros(3)
+        off = g.speed_off(vel, sess.outputs.estimate(), float(np.linalg.norm(w) * np.linalg.norm(lever)))
+        if not off > 0:
+            return False
+        g.speed_off_run += 1
+        if g.speed_off_run >= g.SPEED_OFF_BELIEVED:
+            sess.log("warn", "gnss_vel_speed", f"{g.speed_off_run} GNSS velocities in a row off the filter's speed: "
+                                                "believed (the filter's speed is what is wrong)")
+            return False
+        sess.inputs.reject("gnss_vel", "velocity", "gnss_vel_gated", f"speed {off:.3g} m/s off the filter's beyond 5 "
+                           "sigma of both (before the heading is known only the speed is tested)")
+        return True
 
     def zupt_due(self, t: float) -> bool:
         sess = self.s

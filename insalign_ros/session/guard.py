@@ -46,6 +46,7 @@ class DivergenceGuard:
         self._hold_innovation_m = 0.0  # |innovation| when the hold began (or the fixes last jumped)
         self._fix_seq: deque = deque(maxlen=3)  # the last fixes seen (stamp, p_e, sigma_m)
         self._vel_ref = None  # (stamp [s], v_n horizontal [m/s], its variance [m^2/s^2]) of the last velocity let in
+        self.speed_off_run = 0  # consecutive GNSS velocities whose speed is off the filter's (speed_off)
         self._nis_win: deque = deque(maxlen=max(self.s.cfg.divergence_nis_window, 1))
         self._level_bound_deg: float | None = None  # level 3-sigma bound of this filter
         self._cusum_llr = 0.0  # CUSUM of the NIS log-likelihood ratio while the attitude is claimed
@@ -234,6 +235,21 @@ class DivergenceGuard:
     def velocity_let_in(self, vel) -> None:
         """A GNSS velocity not gated: the reference of :meth:`velocity_jump`."""
         self._vel_ref = _horizontal(vel)
+        self.speed_off_run = 0
+
+    SPEED_OFF_BELIEVED = 3  #: velocities in a row off the filter's speed that are believed (its speed is wrong)
+
+    def speed_off(self, vel, est, lever_m_s: float) -> float:
+        """How far [m/s] a GNSS velocity's horizontal speed lies from the filter's beyond 5 sigma of both (its
+        horizontal variance; the trace of the filter's velocity error block, at least the along-track variance in
+        any convention) and the lever arm's ``lever_m_s`` (|omega| |l|); > 0: off. Any heading gives the filter the
+        same speed (a yaw error, a bank's hypotheses, only turn the velocity): a test before the heading is known."""
+        _, v, var = _horizontal(vel)
+        iv = [i for i, n in enumerate(est.state_names) if n.startswith(("nu_", "dv_", "v_"))][:3]
+        P = np.asarray(est.P, float)
+        var_f = float(sum(P[i, i] for i in iv)) if len(iv) == 3 and P.shape[0] > max(iv) else math.inf
+        d = abs(math.hypot(v[0], v[1]) - math.hypot(float(est.v_n[0]), float(est.v_n[1])))
+        return d - (5.0 * math.sqrt(max(var + var_f, 0.0)) + lever_m_s)
 
     def hold(self, fix: GnssFix, jump: bool, nis: float, innovation_m: float) -> bool:
         """A gated fix: True when the session holds the filter through bad fixes (a gated run that began with a
@@ -485,6 +501,13 @@ def scale_attitude_covariance(core, ratio: float) -> None:
     var = (ratio - 1.0) * float(np.max(np.diag(Pa)))
     if math.isfinite(var) and var > 0:
         core.inflate_navigation(var, 0.0, 0.0)
+
+
+def velocities_agree(v_a, var_a: float, v_b, var_b: float) -> bool:
+    """Two ENU velocities [m/s] agree horizontally within 5 sigma of both (var: the sum of the two horizontal
+    variances [m^2/s^2]): a GNSS velocity replaces the fixes' velocity of an initialisation only then."""
+    d = np.asarray(v_a, float)[:2] - np.asarray(v_b, float)[:2]
+    return bool(math.hypot(d[0], d[1]) <= 5.0 * math.sqrt(max(var_a + var_b, 0.0)))
 
 
 def _horizontal(vel) -> tuple[float, np.ndarray, float]:

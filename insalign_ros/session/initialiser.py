@@ -17,7 +17,7 @@ from ..filters import registry
 from ..filters.base import AlignmentCore, AlignmentStatus
 from ..filters.measurements import GnssPosition, GnssVelocity
 from . import catalog
-from .guard import extrapolation_excess, fix_point
+from .guard import extrapolation_excess, fix_point, velocities_agree
 from .truth import TruthSample
 
 #: a static core's first initialisation with one fix waits for a second one when the gyros turn faster than this
@@ -304,8 +304,8 @@ class Initialiser:
         dt = self.s.loop._median_dt or 0.0
         s = math.hypot(math.sqrt(max(float(np.max(np.diag(vel.R_n))), 0.0)), a_est * dt / math.sqrt(12.0)) \
             + a_est * (t - vel.stamp_s)
-        if not s < sig_v:
-            return v0, sig_v
+        if not s < sig_v or not velocities_agree(vel.v_n, float(vel.R_n[0, 0] + vel.R_n[1, 1]), v0, 2.0 * sig_v ** 2):
+            return v0, sig_v  # (not tighter, or off the fixes' velocity: a glitch is not the initial velocity)
         self.s._used_vel_stamp = vel.stamp_s  # the velocity that gave the initial one is not fused again
         return np.asarray(vel.v_n, float).copy(), s
 
