@@ -71,6 +71,17 @@ def _bias_indices(state_names: tuple, block: str) -> tuple[int, ...]:
     return tuple(i for i, n in enumerate(state_names) if n.rstrip("_xyz").lstrip("d") == block)
 
 
+#: the velocity error states' name prefixes in the cores' conventions (invariant cores ``nu_``, the EKF ``dv_``)
+VELOCITY_PREFIXES = ("nu_", "dv_", "v_")
+
+
+@functools.lru_cache(maxsize=64)
+def velocity_indices(state_names: tuple) -> tuple[int, ...]:
+    """Indices of the three velocity error states in a core's state order (a tuple); empty when it has fewer."""
+    ii = tuple(i for i, n in enumerate(state_names) if n.startswith(VELOCITY_PREFIXES))[:3]
+    return ii if len(ii) == 3 else ()
+
+
 def accel_noise_b(C_b_n: np.ndarray, q_m2_s3: float, q_up_m2_s3: float) -> np.ndarray:
     """The accelerometer's white-noise PSD per body axis [m^2/s^3]: ``q_m2_s3`` on each axis and ``q_up_m2_s3`` on the
     body axis of the vehicle's vertical, the one within 25 deg of Up in the attitude ``C_b_n`` (body to ENU) of the

@@ -13,6 +13,7 @@ import numpy as np
 
 from ..core import earth
 from ..core.types import GnssFix
+from ..filters.base import velocity_indices
 from ..filters.imu_grade import get_grade
 
 
@@ -245,9 +246,8 @@ class DivergenceGuard:
         any convention) and the lever arm's ``lever_m_s`` (|omega| |l|); > 0: off. Any heading gives the filter the
         same speed (a yaw error, a bank's hypotheses, only turn the velocity): a test before the heading is known."""
         _, v, var = _horizontal(vel)
-        iv = [i for i, n in enumerate(est.state_names) if n.startswith(("nu_", "dv_", "v_"))][:3]
-        P = np.asarray(est.P, float)
-        var_f = float(sum(P[i, i] for i in iv)) if len(iv) == 3 and P.shape[0] > max(iv) else math.inf
+        iv, P = velocity_indices(tuple(est.state_names)), np.asarray(est.P, float)
+        var_f = float(sum(P[i, i] for i in iv)) if iv and P.shape[0] > max(iv) else math.inf
         d = abs(math.hypot(v[0], v[1]) - math.hypot(float(est.v_n[0]), float(est.v_n[1])))
         return d - (5.0 * math.sqrt(max(var + var_f, 0.0)) + lever_m_s)
 

@@ -23,6 +23,7 @@ import numpy as np
 from ..core import earth
 from ..core.types import GnssFix, GnssVelocity
 from ..filters import registry
+from ..filters.base import VELOCITY_PREFIXES, bias_indices
 from ..filters.yaw_gsf import YawGsf, YawGsfConfig
 from ..filters.measurements import GnssPosition, GyroBiasPrior
 from .auto import AutoCore
@@ -215,9 +216,9 @@ def seeded_core(old, name: str, params: dict, yaw_rad: float, yaw_var_rad2: floa
             return default
         return math.sqrt(max(float(np.max(np.diag(P)[ii[:3]])), 0.0))
 
-    sig_v = max(sigma(("nu_", "dv_", "v_"), 0.5), 0.1)
+    sig_v = max(sigma(VELOCITY_PREFIXES, 0.5), 0.1)
     sig_p = max(sigma(("rho_", "dp_", "p_"), 2.0), 0.1)
-    gyro = [i for n, i in idx.items() if n.startswith(("dbg_", "bg_"))]
+    gyro = list(bias_indices(est.state_names, "bg"))
     new = registry.make_core(name, params)
     try:
         new.initialize(est.stamp_s, est.lat_rad, est.lon_rad, est.h_m, earth.C_b_n_from_rpy(rpy[0], rpy[1], yaw_rad),
