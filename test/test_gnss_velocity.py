@@ -318,7 +318,7 @@ def test_speed_off_is_the_speed_difference_beyond_five_sigma_whatever_the_headin
 def test_a_lone_velocity_off_the_fixes_does_not_start_core_autos_in_motion_core():
     """The same glitch while core auto is still static (the car drives off at 1.8 s, the detector undecided): it
     is the newest velocity at the hand-over, which starts the in-motion core with the GNSS velocity instead of the
-    fixes' only when the two agree within 5 sigma of both (guard.velocities_agree). Taken, it started the core 21x
+    fixes' only when the two agree within 5 sigma of both (fix_line.velocities_agree). Taken, it started the core 21x
     off its 3-sigma (fuzz_session, car seed 1); refused, the errors stay inside their 3-sigma."""
     import insalign_ros as ia
     from dataclasses import replace

@@ -78,7 +78,21 @@ VELOCITY_PREFIXES = ("nu_", "dv_", "v_")
 @functools.lru_cache(maxsize=64)
 def velocity_indices(state_names: tuple) -> tuple[int, ...]:
     """Indices of the three velocity error states in a core's state order (a tuple); empty when it has fewer."""
-    ii = tuple(i for i, n in enumerate(state_names) if n.startswith(VELOCITY_PREFIXES))[:3]
+    return _three(state_names, VELOCITY_PREFIXES)
+
+
+#: the position error states' name prefixes (invariant cores ``rho_``, the EKF ``dp_``)
+POSITION_PREFIXES = ("rho_", "dp_")
+
+
+@functools.lru_cache(maxsize=64)
+def position_indices(state_names: tuple) -> tuple[int, ...]:
+    """Indices of the three position error states [m] in a core's state order (a tuple); empty when it has fewer."""
+    return _three(state_names, POSITION_PREFIXES)
+
+
+def _three(state_names: tuple, prefixes: tuple) -> tuple[int, ...]:
+    ii = tuple(i for i, n in enumerate(state_names) if n.startswith(prefixes))[:3]
     return ii if len(ii) == 3 else ()
 
 

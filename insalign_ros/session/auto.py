@@ -42,7 +42,7 @@ from ..filters.hypotheses import YawHypothesisBank
 from ..filters.measurements import GnssPosition, GnssVelocity, GyroBiasPrior, ZeroAngularRate, ZeroVelocity
 from .auto_config import AutoConfig, D2R
 from .config import SessionConfig
-from .guard import sequence_jump, velocities_agree
+from .fix_line import sequence_jump, velocities_agree
 from .motion import FixNoise, MotionConfig, MotionDetector, rate_hz_from_intervals
 from .rest import (REST_BLOCK_S, _BlockMean, block_variance, gyro_bias_from_rest, rest_rate_mean,
                    static_heading_support, zupt_nis_mean)

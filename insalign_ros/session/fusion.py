@@ -16,7 +16,7 @@ from ..filters.measurements import GnssVelocity as GnssVelocityModel
 from ..filters.vehicle_models import GnssHeading as GnssHeadingModel
 from ..filters.vehicle_models import NonHolonomic  # (importing it registers the vehicle models' Jacobians)
 from ..filters.vehicle_models import WheelSpeed as WheelSpeedModel
-from .guard import fix_point
+from .fix_line import fix_point
 from .heading_check import HeadingCheck
 from .outputs import Output
 from .wheel_scale import WheelScale
@@ -214,6 +214,9 @@ class Fusion:
             sess.log("warn", "gnss_gated", f"fix at {fix.stamp_s + sess.stamp_offset_s:.3f} s not fused: "
                                            f"{sess.last_reject[6:]} (gnss_gated={sess.counters['gnss_gated']})")
             return
+        if sess.guard.jump_untold and gate > 0 and sess.guard._hold_since is None \
+                and not sess.monitor.attitude_claimed() and self._fix_off(fix):
+            return
         # a jump in the fix sequence is suspect by itself: gated even while the core does not claim its attitude
         if gate > 0 and (sess.monitor.attitude_claimed() or jump or sess.guard._hold_since is not None):
             pr = core.predict(fix)
@@ -328,6 +331,33 @@ class Fusion:
             return False
         sess.inputs.reject("gnss_vel", "velocity", "gnss_vel_gated", f"speed {off:.3g} m/s off the filter's beyond 5 "
                            "sigma of both (before the heading is known only the speed is tested)")
+        return True
+
+    def _fix_off(self, fix: GnssPosition) -> bool:
+        """Before the claim, where the jump test cannot tell (no two fixes within 3 s before it: the first fixes after
+        an initialisation or a driver's restart): a fix off the filter's position beyond what any attitude error allows
+        (guard.fix_off) is not fused (gnss_gated) and leaves the jump test's sequence (a lone outlier is no reference);
+        the guard's FIX_OFF_BELIEVED-th in a row is believed: the filter's position is what is wrong (a divergence,
+        re-initialisation from the sensors)."""
+        sess = self.s
+        g = sess.guard
+        lever = np.asarray(sess.core_params.get("gnss_lever_arm_b_m") or (0.0, 0.0, 0.0), float)
+        fixed = [t for t in (sess.init_t, sess.last_accepted_fix_t) if t is not None and t <= fix.stamp_s]
+        off = g.fix_off(fix, sess.outputs.estimate(), float(np.linalg.norm(lever)), fix.stamp_s - max(fixed, default=fix.stamp_s))
+        if not off > 0:
+            g.fix_off_run = 0
+            return False
+        g.fix_off_run += 1
+        if g.fix_off_run >= g.FIX_OFF_BELIEVED:
+            sess._diverged(f"{g.fix_off_run} fixes in a row off the filter's position ({off:.3g} m beyond what any "
+                           "attitude error allows): its position is what is wrong")
+            return True
+        g._fix_seq.pop()
+        sess.counters["gnss_gated"] += 1
+        sess.counters["gnss_rejected"] += 1
+        sess.last_reject = f"gnss: {off:.3g} m off the filter's position beyond what any attitude error allows"
+        sess.log("warn", "gnss_gated", f"fix at {fix.stamp_s + sess.stamp_offset_s:.3f} s not fused before the filter "
+                                       f"claims its attitude: {sess.last_reject[6:]} (gnss_gated={sess.counters['gnss_gated']})")
         return True
 
     def zupt_due(self, t: float) -> bool:

@@ -13,8 +13,10 @@ import numpy as np
 
 from ..core import earth
 from ..core.types import GnssFix
-from ..filters.base import velocity_indices
+from ..core.units import G0_M_S2
+from ..filters.base import position_indices, velocity_indices
 from ..filters.imu_grade import get_grade
+from .fix_line import extrapolation_excess, fix_point
 
 
 def course_rate(v1_n: np.ndarray, v2_n: np.ndarray, T: float) -> float:
@@ -48,6 +50,8 @@ class DivergenceGuard:
         self._fix_seq: deque = deque(maxlen=3)  # the last fixes seen (stamp, p_e, sigma_m)
         self._vel_ref = None  # (stamp [s], v_n horizontal [m/s], its variance [m^2/s^2]) of the last velocity let in
         self.speed_off_run = 0  # consecutive GNSS velocities whose speed is off the filter's (speed_off)
+        self.fix_off_run = 0  # consecutive fixes off the filter's position (fix_off)
+        self.jump_untold = False  # the last fix_jump had no two fixes within 3 s before the fix to tell
         self._nis_win: deque = deque(maxlen=max(self.s.cfg.divergence_nis_window, 1))
         self._level_bound_deg: float | None = None  # level 3-sigma bound of this filter
         self._cusum_llr = 0.0  # CUSUM of the NIS log-likelihood ratio while the attitude is claimed
@@ -203,6 +207,7 @@ class DivergenceGuard:
         point = fix_point(fix)
         err = extrapolation_excess((seq[-2], seq[-1]), point, sess.cfg.gnss_jump_accel_m_s2) \
             if len(seq) >= 2 else -math.inf
+        self.jump_untold = err == -math.inf  # no two fixes within 3 s before it: the test cannot tell (fix_off can)
         seq.append(point)
         if err <= 0:
             return False
@@ -250,6 +255,26 @@ class DivergenceGuard:
         var_f = float(sum(P[i, i] for i in iv)) if iv and P.shape[0] > max(iv) else math.inf
         d = abs(math.hypot(v[0], v[1]) - math.hypot(float(est.v_n[0]), float(est.v_n[1])))
         return d - (5.0 * math.sqrt(max(var + var_f, 0.0)) + lever_m_s)
+
+    #: fixes in a row off the filter's position (fix_off) that are believed: its position is what is wrong
+    FIX_OFF_BELIEVED = 3
+
+    def fix_off(self, fix: GnssFix, est, lever_m: float, since_s: float) -> float:
+        """How far [m] ``fix`` lies from the filter's position beyond what the filter can be off by before it claims
+        its attitude; > 0: off. The allowance: 5 sigma of both (the traces of the fix's covariance and of the
+        filter's position error block, each at least one direction's variance in any convention), the lever arm
+        ``lever_m`` (|l|), and the specific force's error of any attitude error (up to 2 g, integrated: g T^2) over
+        the ``since_s`` T since the filter's position was last fixed (its initialisation or its last fused fix). A
+        young filter's covariance is no gate (linearised about an attitude it does not know yet), but no attitude
+        error moves its position farther: a fix 1,000 km off after a re-initialisation from the truth was fused and
+        left the filter 50-110 deg off at a 3-sigma of 2-25 deg (fuzz_session). -inf: the core keeps no position."""
+        ip, P = position_indices(tuple(est.state_names)), np.asarray(est.P, float)
+        if not ip or P.shape[0] <= max(ip):
+            return -math.inf
+        var_f = float(sum(P[i, i] for i in ip))
+        d = float(np.linalg.norm(np.asarray(fix.p_e, float) - earth.geodetic_to_ecef(est.lat_rad, est.lon_rad, est.h_m)))
+        T = max(since_s, 0.0)
+        return d - (5.0 * math.sqrt(max(float(np.trace(fix.R_e)) + var_f, 0.0)) + lever_m + G0_M_S2 * T * T)
 
     def hold(self, fix: GnssFix, jump: bool, nis: float, innovation_m: float) -> bool:
         """A gated fix: True when the session holds the filter through bad fixes (a gated run that began with a
@@ -408,91 +433,6 @@ class DivergenceGuard:
         return True
 
 
-class FixScreen:
-    """Plausibility of a fix against the vehicle's own recent fixes, filter-free (from the first fix on): off the
-    straight-line extrapolation of the two fixes before it (:func:`extrapolation_excess`), or with one fix within
-    ``SPAN_S`` only, farther than its speed (``MAX_SPEED_M_S`` when unknown) and ``gnss_jump_accel_m_s2`` allow.
-    Enforced at the door while no filter runs (before the first initialisation, while a restart waits); a running
-    filter's fixes only keep the line current (the guard's jump test and NIS gate decide there, fusion.py). ``CONFIRM`` implausible fixes consistent with each other are a new
-    line (a re-acquisition shift, or a first fix that was the bad one): the line moves to them and buffered fixes
-    of the old line are dropped (``inputs_dropped``). docs/session.md, "Outliers and divergence"."""
-
-    SPAN_S = 10.0
-    MAX_SPEED_M_S = 600.0
-    CONFIRM = 3
-
-    def __init__(self, session) -> None:
-        self.s = session
-        self.reset()
-
-    def reset(self) -> None:
-        self.line: list = []  # plausible fixes (stamp, p_e, sigma), stamp order, the last SPAN_S
-        self.cand: list = []  # implausible fixes consistent with each other (a possible new line)
-
-    def excess(self, pts: list, point) -> float:
-        """How far [m] ``point`` lies beyond what the fixes ``pts`` (stamp order) allow; -inf: nothing to tell."""
-        t = point[0]
-        near = [q for q in pts if abs(q[0] - t) <= self.SPAN_S]
-        if not near:
-            return -math.inf
-        before = [q for q in near if q[0] < t]
-        accel = self.s.cfg.gnss_jump_accel_m_s2
-        if len(before) >= 2:
-            e = extrapolation_excess((before[-2], before[-1]), point, accel)
-            if e != -math.inf:
-                return e
-        q = min(near, key=lambda q: abs(q[0] - t))
-        dt = abs(q[0] - t)
-        i = near.index(q)
-        pair = (near[i - 1], q) if i > 0 else (q, near[i + 1]) if i + 1 < len(near) else None
-        speed = self.MAX_SPEED_M_S
-        if pair is not None and 0.0 < pair[1][0] - pair[0][0] <= 3.0:
-            speed = float(np.linalg.norm(pair[1][1] - pair[0][1])) / (pair[1][0] - pair[0][0])
-        noise = 5.0 * math.hypot(q[2], point[2])
-        return float(np.linalg.norm(point[1] - q[1])) - ((speed + accel * dt) * dt + 0.5 * accel * dt * dt + noise)
-
-    def check(self, fix: GnssFix) -> str:
-        """"" when ``fix`` is plausible (it joins the line), else the reason (enforced only while no filter claims
-        its attitude: the caller decides)."""
-        sess = self.s
-        point = fix_point(fix)
-        t = point[0]
-        e = self.excess(self.line, point)
-        if not e > 0:
-            self._join(point)
-            return ""
-        c = self.cand
-        if c and (self.excess(c, point) > 0 or not 0.0 < t - c[-1][0] <= 3.0):
-            c.clear()
-        c.append(point)
-        if len(c) < self.CONFIRM:
-            return (f"{e:.3g} m beyond what the vehicle's recent fixes allow (extrapolation, speed and "
-                    f"{sess.cfg.gnss_jump_accel_m_s2:g} m/s^2)")
-        new = list(c)
-        self.reset()
-        b = sess.buf
-        if sess.core is None:  # (a running filter's buffered fixes go to its jump test and NIS gate instead)
-            keep = [k for k in range(len(b.fix_t)) if b.fix_t[k] > t]
-            sess.counters["inputs_dropped"] += len(b.fix_t) - len(keep)
-            b.fix_t[:] = [b.fix_t[k] for k in keep]
-            b.fix[:] = [b.fix[k] for k in keep]
-        sess.log("warn", "gnss_implausible", f"{len(new)} consistent GNSS fixes off the previous ones by {e:.3g} m: "
-                 "following them (a new line" + ("; buffered fixes of the old one dropped)" if sess.core is None
-                                                 else ")"))
-        for q in new:
-            self._join(q)
-        return ""
-
-    def _join(self, point) -> None:
-        line = self.line
-        k = len(line)
-        while k > 0 and line[k - 1][0] > point[0]:
-            k -= 1
-        line.insert(k, point)
-        while line and line[-1][0] - line[0][0] > self.SPAN_S:
-            line.pop(0)
-
-
 def scale_attitude_covariance(core, ratio: float) -> None:
     """Widen ``core``'s attitude covariance by ``ratio`` through the core interface (``inflate_navigation``:
     isotropic): the largest attitude variance times (ratio - 1) added to each axis (the heading's 1-sigma grows by
@@ -503,47 +443,9 @@ def scale_attitude_covariance(core, ratio: float) -> None:
         core.inflate_navigation(var, 0.0, 0.0)
 
 
-def velocities_agree(v_a, var_a: float, v_b, var_b: float) -> bool:
-    """Two ENU velocities [m/s] agree horizontally within 5 sigma of both (var: the sum of the two horizontal
-    variances [m^2/s^2]): a GNSS velocity replaces the fixes' velocity of an initialisation only then."""
-    d = np.asarray(v_a, float)[:2] - np.asarray(v_b, float)[:2]
-    return bool(math.hypot(d[0], d[1]) <= 5.0 * math.sqrt(max(var_a + var_b, 0.0)))
-
-
 def _horizontal(vel) -> tuple[float, np.ndarray, float]:
     """(stamp [s], horizontal v_n (2,) [m/s], the sum of its two variances [m^2/s^2]) of a GNSS velocity."""
     return float(vel.stamp_s), np.array(vel.v_n, float)[:2], float(vel.R_n[0, 0] + vel.R_n[1, 1])
-
-
-def fix_point(fix: GnssFix) -> tuple[float, np.ndarray, float]:
-    """(stamp [s], p_e [m], 1-sigma [m] per axis: the RMS of R_e's diagonal) of a fix: the jump detection's input."""
-    return point_of(fix.stamp_s, fix.p_e, fix.R_e)
-
-
-def point_of(t: float, p_e, R_e) -> tuple[float, np.ndarray, float]:
-    """:func:`fix_point` of a fix given as its stamp [s], ECEF position [m] and covariance [m^2]."""
-    return float(t), np.asarray(p_e, float), math.sqrt(max(float(np.trace(R_e)) / 3.0, 0.0))
-
-
-def sequence_jump(prev, t: float, p_e, R_e, accel_m_s2: float) -> bool:
-    """Whether a fix (stamp ``t``, ECEF ``p_e``, covariance ``R_e``) is a jump after the two fixes ``prev`` ((t, p_e,
-    R_e) each): :func:`extrapolation_excess` > 0 (for a fix sequence kept as arrays: core auto's GNSS speed)."""
-    return extrapolation_excess([point_of(*f) for f in prev], point_of(t, p_e, R_e), accel_m_s2) > 0
-
-
-def extrapolation_excess(prev, point, accel_m_s2: float) -> float:
-    """How far [m] a fix ``point`` lies beyond what the straight-line extrapolation of ``prev`` (two earlier
-    points, each within 3 s of the next; points from :func:`fix_point`) allows: acceleration up to ``accel_m_s2``
-    plus 5 sigma of the three fixes' noise. -inf when the fixes are too far apart in time to tell."""
-    (t0, p0, s0), (t1, p1, s1) = prev
-    t, p, sigma_m = point
-    d1, d2 = t1 - t0, t - t1
-    if not (0 < d1 <= 3.0 and 0 < d2 <= 3.0):
-        return -math.inf
-    r = d2 / d1
-    pred = p1 + (p1 - p0) * r
-    noise = math.sqrt(s0 * s0 * r * r + s1 * s1 * (1 + r) ** 2 + sigma_m * sigma_m)
-    return float(np.linalg.norm(p - pred)) - (0.5 * accel_m_s2 * d2 * (d1 + d2) + 5.0 * noise)
 
 
 def covariance_problem(P_att: np.ndarray, level_3sigma_deg: float) -> str:

@@ -17,7 +17,7 @@ from ..filters import registry
 from ..filters.base import AlignmentCore, AlignmentStatus
 from ..filters.measurements import GnssPosition, GnssVelocity
 from . import catalog
-from .guard import extrapolation_excess, fix_point, velocities_agree
+from .fix_line import extrapolation_excess, fix_point, velocities_agree
 from .truth import TruthSample
 
 #: a static core's first initialisation with one fix waits for a second one when the gyros turn faster than this

@@ -15,7 +15,7 @@ from ..core.types import GnssFix, GnssHeading, GnssVelocity, ImuSample, WheelSpe
 from ..filters.checks import check_velocity
 from ..io.validation import check_covariance
 from .buffers import RecentStamps, row_norms
-from .guard import FixScreen
+from .fix_line import FixScreen
 from .truth import TruthDict, TruthSample, TruthTable, truth_table_valid
 
 #: a GNSS velocity faster than this is not a vehicle's [m/s]
