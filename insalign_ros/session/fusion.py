@@ -198,7 +198,8 @@ class Fusion:
             core.update(fix)  # not fused (core: auto's motion detector takes the GNSS speed)
             return
         gate = sess.cfg.gnss_gate_nis
-        jump = sess.guard.fix_jump(fix)
+        excess = sess.guard.fix_jump(fix)  # -inf: no two fixes before it to tell
+        jump = excess > 0
         fix = GnssPosition.of(sess.guard.floored(fix))  # divergence guard: the model's error budget under the receiver's sigma
         if jump and sess.guard.restart_young_reinit():  # divergence guard
             return
@@ -214,7 +215,7 @@ class Fusion:
             sess.log("warn", "gnss_gated", f"fix at {fix.stamp_s + sess.stamp_offset_s:.3f} s not fused: "
                                            f"{sess.last_reject[6:]} (gnss_gated={sess.counters['gnss_gated']})")
             return
-        if sess.guard.jump_untold and gate > 0 and sess.guard._hold_since is None \
+        if excess == -math.inf and gate > 0 and sess.guard._hold_since is None \
                 and not sess.monitor.attitude_claimed() and self._fix_off(fix):
             return
         # a jump in the fix sequence is suspect by itself: gated even while the core does not claim its attitude
@@ -319,9 +320,8 @@ class Fusion:
         unless it is the guard's SPEED_OFF_BELIEVED-th in a row (then the filter's speed is what is wrong)."""
         sess = self.s
         g = sess.guard
-        lever = np.asarray(sess.core_params.get("gnss_lever_arm_b_m") or (0.0, 0.0, 0.0), float)
         w = sess.loop.hist_w[-1] if sess.loop.hist_w else np.zeros(3)
-        off = g.speed_off(vel, sess.outputs.estimate(), float(np.linalg.norm(w) * np.linalg.norm(lever)))
+        off = g.speed_off(vel, sess.outputs.estimate(), float(np.linalg.norm(w)) * self._lever_m())
         if not off > 0:
             return False
         g.speed_off_run += 1
@@ -341,9 +341,8 @@ class Fusion:
         re-initialisation from the sensors)."""
         sess = self.s
         g = sess.guard
-        lever = np.asarray(sess.core_params.get("gnss_lever_arm_b_m") or (0.0, 0.0, 0.0), float)
         fixed = [t for t in (sess.init_t, sess.last_accepted_fix_t) if t is not None and t <= fix.stamp_s]
-        off = g.fix_off(fix, sess.outputs.estimate(), float(np.linalg.norm(lever)), fix.stamp_s - max(fixed, default=fix.stamp_s))
+        off = g.fix_off(fix, sess.outputs.estimate(), self._lever_m(), fix.stamp_s - max(fixed, default=fix.stamp_s))
         if not off > 0:
             g.fix_off_run = 0
             return False
@@ -359,6 +358,10 @@ class Fusion:
         sess.log("warn", "gnss_gated", f"fix at {fix.stamp_s + sess.stamp_offset_s:.3f} s not fused before the filter "
                                        f"claims its attitude: {sess.last_reject[6:]} (gnss_gated={sess.counters['gnss_gated']})")
         return True
+
+    def _lever_m(self) -> float:
+        """|l| [m], the configured GNSS antenna lever arm's length (0 when none)."""
+        return float(np.linalg.norm(self.s.core_params.get("gnss_lever_arm_b_m") or (0.0, 0.0, 0.0)))
 
     def zupt_due(self, t: float) -> bool:
         sess = self.s

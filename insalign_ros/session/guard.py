@@ -51,7 +51,6 @@ class DivergenceGuard:
         self._vel_ref = None  # (stamp [s], v_n horizontal [m/s], its variance [m^2/s^2]) of the last velocity let in
         self.speed_off_run = 0  # consecutive GNSS velocities whose speed is off the filter's (speed_off)
         self.fix_off_run = 0  # consecutive fixes off the filter's position (fix_off)
-        self.jump_untold = False  # the last fix_jump had no two fixes within 3 s before the fix to tell
         self._nis_win: deque = deque(maxlen=max(self.s.cfg.divergence_nis_window, 1))
         self._level_bound_deg: float | None = None  # level 3-sigma bound of this filter
         self._cusum_llr = 0.0  # CUSUM of the NIS log-likelihood ratio while the attitude is claimed
@@ -197,24 +196,24 @@ class DivergenceGuard:
         R = raised_to(fix.R_e, f, 1e-6)
         return fix if R is None else GnssFix(fix.stamp_s, fix.p_e, R)
 
-    def fix_jump(self, fix: GnssFix) -> bool:
-        """Whether ``fix`` breaks the fix sequence: off the straight-line extrapolation of the two fixes before it
-        (within 3 s each) by more than ``gnss_jump_accel_m_s2`` allows, plus 5 sigma of the fixes' noise (the
-        extrapolation error of three independent fixes: sqrt(1 + (1 + r)^2 + r^2) sigma, r = dt2/dt1). Filter-free:
-        a fix block hundreds of metres off starts (and ends) with a jump; a lost filter leaves the fixes smooth."""
+    def fix_jump(self, fix: GnssFix) -> float:
+        """How far [m] ``fix`` breaks the fix sequence (> 0: a jump; -inf: no two fixes within 3 s before it to
+        tell): off the straight-line extrapolation of the two fixes before it (within 3 s each) by more than
+        ``gnss_jump_accel_m_s2`` allows, plus 5 sigma of the fixes' noise (the extrapolation error of three
+        independent fixes: sqrt(1 + (1 + r)^2 + r^2) sigma, r = dt2/dt1). Filter-free: a fix block hundreds of
+        metres off starts (and ends) with a jump; a lost filter leaves the fixes smooth."""
         sess = self.s
         seq = self._fix_seq
         point = fix_point(fix)
         err = extrapolation_excess((seq[-2], seq[-1]), point, sess.cfg.gnss_jump_accel_m_s2) \
             if len(seq) >= 2 else -math.inf
-        self.jump_untold = err == -math.inf  # no two fixes within 3 s before it: the test cannot tell (fix_off can)
         seq.append(point)
         if err <= 0:
-            return False
+            return err
         sess.counters["gnss_jumps"] += 1
         sess.log("warn", "gnss_jumps", f"GNSS jump at t={fix.stamp_s + sess.stamp_offset_s:.3f} s: the fix is {err:.1f} m "
                                        f"beyond the extrapolation of the two before it (gnss_jumps={sess.counters['gnss_jumps']})")
-        return True
+        return err
 
     def velocity_jump(self, vel) -> float:
         """How far [m/s] a GNSS velocity's horizontal part lies beyond what its sequence allows (> 0: a jump, which
