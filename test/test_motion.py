@@ -4,9 +4,11 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from insalign_ros.filters.imu_grade import DEFAULT_IMU_GRADE, GRADES, SCENARIO_IMU_GRADE
-from insalign_ros.session.motion import MotionConfig, MotionDetector, detect_motion
+from insalign_ros.session.motion import MotionConfig, MotionDetector, detect_motion, percentile
 from insalign_ros.sim.scenarios import make_scenario
 
 SHORT_PARK = dict(duration_s=40.0, park_s=30.0, door_at_s=10.0)  # person gets in at 10 s, drive-off at 30 s
@@ -263,3 +265,14 @@ def test_fix_noise_restarts_at_a_stamp_not_after_the_last_one():
         assert np.isinf(fn.push(399.0, p[399])) and len(fn.h) == 1  # the same stamp again
         assert all(np.isinf(fn.push(399.0 + k, p[k])) for k in range(1, 9))
         assert np.isfinite(fn.push(408.0, p[9]))
+
+
+@settings(max_examples=300, deadline=None, derandomize=True)
+@given(st.lists(st.floats(min_value=0.0, max_value=1e3, allow_subnormal=True), min_size=1, max_size=150),
+       st.sampled_from([0.0, 5.0, 20.0, 50.0, 95.0, 99.0, 100.0, 33.3]))
+def test_the_learners_percentile_is_numpys_bit_for_bit(values, q):
+    """The vibration learner's percentile (plain floats, once per block while parked) against np.percentile: the
+    same float, bit for bit, over any spreads and the learner's two percentiles (95 and 20) among others."""
+    got, want = percentile(values, q), float(np.percentile(np.array(values), q))
+    assert got == want or (math.isnan(got) and math.isnan(want)), (got, want)
+    assert math.isnan(percentile(values + [math.nan], q)) and math.isnan(float(np.percentile(values + [math.nan], q)))
