@@ -80,16 +80,32 @@ class YawSeed:
         self.seeded_by = ""  # what gave the in-motion core its yaw (the status)
         self._prev_fix: GnssFix | None = None
         self._have_topic = False
-        self.counters = {"gsf_velocities": 0, "gsf_seeds": 0, "gsf_core_levels": 0}
+        self._parked = False  # core auto parked: the GSF waits for the hand-over (_takes)
+        self.counters = {"gsf_velocities": 0, "gsf_seeds": 0, "gsf_core_levels": 0, "gsf_parked": 0}
 
     # ------------------------------------------------------------------ data
     def imu(self, t: float, w, f) -> None:
-        if not self.done and not self._settled():
+        if not self.done and not self._settled() and self._takes():
             self.gsf.propagate_arrays([t], [w], [f])
 
     def imu_arrays(self, T, W, F) -> None:
-        if not self.done and not self._settled():
+        if not self.done and not self._settled() and self._takes():
             self.gsf.propagate_arrays(T, W, F)
+
+    def _takes(self) -> bool:
+        """Whether the GSF takes data now: not while ``core: auto`` is parked (its detector has declared rest and
+        there is no in-motion core yet). A parked vehicle's zero velocity holds no heading, there is no in-motion
+        core to seed, and the GSF was a fifth of a parked session's time. A fresh GSF starts at the hand-over."""
+        core = self.s.core
+        parked = (isinstance(core, AutoCore) and core.motion is None and core.detector is not None
+                  and core.detector.decision.decided and not core.detector.decision.moving)
+        if parked != self._parked:
+            self._parked = parked
+            if parked:
+                self.counters["gsf_parked"] += 1
+            else:
+                self.gsf = YawGsf(gsf_config(self.s.cfg.vehicle))
+        return not parked
 
     def _settled(self) -> bool:
         """Stop the GSF (it costs a third of a default run) once it can no longer seed anything: the core is static
@@ -111,14 +127,14 @@ class YawSeed:
         if self.done:
             return
         prev, self._prev_fix = self._prev_fix, fix
-        if self._have_topic or prev is None:
+        if not self._takes() or self._have_topic or prev is None:
             return
         t_mid, v_n, R_n = earth.velocity_from_fixes([prev.stamp_s, fix.stamp_s], [prev.p_e, fix.p_e], [prev.R_e, fix.R_e])
         if len(t_mid):
             self._update(float(t_mid[0]), v_n[0], R_n[0])
 
     def velocity(self, vel: GnssVelocity) -> None:
-        if self.done:
+        if self.done or not self._takes():
             return
         self._have_topic = True
         self._update(float(vel.stamp_s), vel.v_n, vel.R_n)
