@@ -207,7 +207,7 @@ def _gsf_after_drive_off(heading_deg: float, end_s: float) -> tuple[dict, float]
 
 
 @pytest.mark.parametrize("heading_deg", [10.0, 190.0])
-def test_core_auto_parked_pauses_the_gsf_and_its_replayed_drive_off_is_as_good_as_running_throughout(
+def test_core_auto_parked_pauses_the_gsf_and_a_fresh_one_after_the_drive_off_is_as_good_as_running_throughout(
         heading_deg, monkeypatch):
     """Parked, the GSF is not fed (zero velocity holds no heading; it was a fifth of a parked session's time); a
     fresh GSF starts at the hand-over. 6 and 7 s after the drive-off (before the GSF stops at 38 s: the core finds
