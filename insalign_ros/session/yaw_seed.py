@@ -23,7 +23,7 @@ import numpy as np
 from ..core import earth
 from ..core.types import GnssFix, GnssVelocity
 from ..filters import registry
-from ..filters.base import VELOCITY_PREFIXES, bias_indices
+from ..filters.base import bias_indices, position_indices, velocity_indices
 from ..filters.yaw_gsf import YawGsf, YawGsfConfig
 from ..filters.measurements import GnssPosition, GyroBiasPrior
 from .auto import AutoCore
@@ -223,17 +223,16 @@ def seeded_core(old, name: str, params: dict, yaw_rad: float, yaw_var_rad2: floa
     P_att = np.array(est.P_att_n, float)
     P_att[2, :] = P_att[:, 2] = 0.0
     P_att[2, 2] = yaw_var_rad2
-    idx = {n: i for i, n in enumerate(est.state_names)}
     P = np.asarray(est.P, float)
 
-    def sigma(prefixes: tuple, default: float) -> float:
-        ii = [i for n, i in idx.items() if n.startswith(prefixes)]
-        if len(ii) < 3 or P.shape[0] <= max(ii):
+    def sigma(ii: tuple, default: float) -> float:  # the largest 1-sigma of the three states ii
+        if not ii or P.shape[0] <= max(ii):
             return default
-        return math.sqrt(max(float(np.max(np.diag(P)[ii[:3]])), 0.0))
+        return math.sqrt(max(float(np.max(np.diag(P)[list(ii)])), 0.0))
 
-    sig_v = max(sigma(VELOCITY_PREFIXES, 0.5), 0.1)
-    sig_p = max(sigma(("rho_", "dp_", "p_"), 2.0), 0.1)
+    names = tuple(est.state_names)
+    sig_v = max(sigma(velocity_indices(names), 0.5), 0.1)
+    sig_p = max(sigma(position_indices(names), 2.0), 0.1)
     gyro = list(bias_indices(est.state_names, "bg"))
     new = registry.make_core(name, params)
     try:
