@@ -8,13 +8,15 @@
    run of the node code in DIR (a checkout, e.g. ``git worktree add /tmp/old <commit>``; run with ``python -P`` and
    PYTHONPATH=DIR, so that neither the current directory nor the installed package shadows it), and the ratio: this
    machine's CPU figures move by 1.5x between minutes, a comparison needs both codes in the same minutes.
+   ``--floor``: before each cost run, benchmarks/floor_node.py in the node's place (the node's inputs and outputs,
+   nothing computed: the floor of rclpy and Fast DDS at this rate).
 2. **load**: the same at 1,250 Imu messages/s (rate factor 10, sensor-data QoS as a driver would use), optionally
    with ``--burners`` CPU burners running: sent vs received (drops), gaps counted by the session, the per-Imu
    callback time (median, p99; the callback only converts and pushes), the session's processing rate (samples per
    second of processing time), and the published estimates outside their own published 3-sigma (any axis, after
    ``--settle-s``) next to the same count for ``insalign_ros.align`` on the same data (the load's own effect).
 
-    .venv/bin/python benchmarks/node_latency.py [--cores liekf iekf ekf pi_liekf] [--burners 2] [--ref DIR]
+    .venv/bin/python benchmarks/node_latency.py [--cores liekf iekf ekf pi_liekf] [--burners 2] [--ref DIR] [--floor]
         [--truth on|off|both] [--profile DIR]
 """
 
@@ -88,12 +90,13 @@ STATIC_CORES = {"pkf", "ekf10", "earth_iekf", "coarse"}
 
 
 def run_case(core, rate_hz, rate_factor, duration_s, qos, log_dir, executor="events", settle_s=60.0, ref=None,
-             truth=True, profile=None, scenario=None):
+             truth=True, profile=None, scenario=None, floor=False):
     """One run. ``truth``: the simulator publishes ground_truth/pose (10 Hz) and the node starts from it with an
     error (the benchmark's case); False: what a user runs, no truth topic and the node's default parameters (only
     ``core`` and ``imu_qos`` given; initialised from the sensors). ``profile``: a path for a py-spy flame graph
     (raw/collapsed format) of the node over the measured window (py-spy's sampling costs the node CPU: not for the
-    cost figures). ``scenario``: the simulator's scenario (default: static for the static cores, else ship)."""
+    cost figures). ``scenario``: the simulator's scenario (default: static for the static cores, else ship).
+    ``floor``: benchmarks/floor_node.py in the node's place (the same inputs and outputs, nothing computed)."""
     env = isolated_ros_env()
     env["INSALIGN_EXECUTOR"] = executor
     for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
@@ -106,7 +109,11 @@ def run_case(core, rate_hz, rate_factor, duration_s, qos, log_dir, executor="eve
         params = {"core": core, "imu_qos": qos}
         if truth:
             params.update(init_from_ground_truth=True, imu_timeout_s=0.0, init_rpy_error_deg="[3.0, -3.0, 30.0]")
-        if ref:
+        if floor:
+            align = start_process([sys.executable, "-P", str(Path(__file__).with_name("floor_node.py")),
+                                   *ros_args(params)], dict(env, PYTHONPATH=str(Path(__file__).resolve().parents[1])),
+                                  f"floor_{core}", log_dir)
+        elif ref:
             ref_env = dict(env, PYTHONPATH=str(ref))
             align = start_process([sys.executable, "-P", "-m", "insalign_ros.nodes.alignment_node", *ros_args(params)],
                                   ref_env, f"align_{core}_ref", log_dir)
@@ -132,7 +139,7 @@ def run_case(core, rate_hz, rate_factor, duration_s, qos, log_dir, executor="eve
         spy = None
         if profile:
             spy = subprocess.Popen([str(Path(sys.executable).with_name("py-spy")), "record", "--pid", str(pid),
-                                    "--format", "raw", "--rate", "200", "--nonblocking", "--output", str(profile),
+                                    "--format", "raw", "--rate", "1000", "--nonblocking", "--output", str(profile),
                                     "--duration", str(max(1, int(duration_s / rate_factor - warm - 2)))],
                                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         # the CPU time every INTERVAL_S of wall time while the stream runs (the median of those shares)
@@ -200,6 +207,9 @@ def main(argv=None) -> int:
     ap.add_argument("--burners", type=int, default=0, help="CPU burners (python busy loops) during the load runs")
     ap.add_argument("--skip-cost", action="store_true")
     ap.add_argument("--ref", type=Path, help="a checkout of older node code: run before each cost run, same minutes")
+    ap.add_argument("--floor", action="store_true",
+                    help="before each cost run, the same run of benchmarks/floor_node.py in the node's place: what "
+                         "rclpy and Fast DDS cost with the node's inputs and outputs and nothing computed")
     ap.add_argument("--skip-load", action="store_true")
     ap.add_argument("--no-single", action="store_true", help="no SingleThreadedExecutor run in the cost table")
     ap.add_argument("--truth", choices=("on", "off", "both"), default="both",
@@ -224,15 +234,19 @@ def main(argv=None) -> int:
             args.profile.mkdir(parents=True, exist_ok=True)
         for spec, ex, tr in cases:
             core, _, scenario = spec.partition("@")
-            for ref in ([args.ref] if args.ref else []) + [None]:
+            runs = (["floor"] if args.floor and ex == "events" else []) + ([args.ref] if args.ref else []) + [None]
+            for ref in runs:
+                floor = ref == "floor"
                 prof = (args.profile / f"{spec.replace('@', '_')}_{ex}_truth-{'on' if tr else 'off'}.txt"
                         if args.profile and not ref else None)
-                r = run_case(core, 125.0, 1.0, args.cost_duration_s, "sensor_data", log_dir, ex, ref=ref, truth=tr,
-                             profile=prof, scenario=scenario or None)
-                if ref:
+                r = run_case(core, 125.0, 1.0, args.cost_duration_s, "sensor_data", log_dir, ex,
+                             ref=None if floor else ref, truth=tr, profile=prof, scenario=scenario or None,
+                             floor=floor)
+                if ref and not floor:
                     ref_share = r["cpu_share"]
                 ratio = f" ({r['cpu_share'] / ref_share:.2f}x the ref)" if args.ref and not ref else ""
-                print(f"| {spec} | {'yes' if tr else 'no (defaults)'} | {'ref' if ref else 'this'} | {ex} | "
+                label = "floor" if floor else "ref" if ref else "this"
+                print(f"| {spec} | {'yes' if tr else 'no (defaults)'} | {label} | {ex} | "
                       f"{r['msgs_per_s']:.0f} | "
                       f"{100 * r['cpu_share']:.1f} %{ratio} | {100 * r['cpu_share_median_interval']:.1f} % "
                       f"({r['cpu_share_intervals']}) | {100 * r['python_thread_share']:.1f} / "
