@@ -37,7 +37,6 @@ sys.path[:0] = [str(ROOT), str(ROOT / "research"), str(ROOT / "benchmarks")]
 import insalign_ros as ia  # noqa: E402
 import pi_gain_solvers as R  # noqa: E402
 from insalign_ros.filters.lmi import LmiResult  # noqa: E402
-from insalign_ros.filters.pi_liekf import PiLiekf  # noqa: E402
 from insalign_ros.filters.registry import make_config  # noqa: E402
 from recorded_core import register_recorded  # noqa: E402
 
@@ -61,8 +60,8 @@ def core_for(formulation: str, record: list) -> str:
         return register_recorded("pi_liekf_recorded", "pi_liekf", record)
     if formulation.startswith("fixed:"):
         kp, ki = (float(x) for x in formulation[6:].split("/"))
-        return register_recorded(f"pi_liekf_{formulation}", "pi_liekf", record, factory=lambda cfg: PiLiekf(
-            cfg, gain_solver_factory=lambda c: FixedGains(kp, ki, c.lmi_window_updates)))
+        return register_recorded(f"pi_liekf_{formulation}", "pi_liekf", record,
+                                 gain_solver_factory=lambda c: FixedGains(kp, ki, c.lmi_window_updates))
     name = {"window": "pi_liekf_window", "interval_paper": "pi_liekf_interval_paper",
             "interval_structured": "pi_liekf_interval_structured"}.get(formulation)
     if name is None:

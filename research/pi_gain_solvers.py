@@ -361,11 +361,11 @@ def register_research_cores(record: list | None = None) -> tuple[str, ...]:
     for name, (formulation, structure) in RESEARCH_CORES.items():
         factory = research_solver_factory(formulation, structure, "max_integral")
 
-        def make(cfg, factory=factory):
-            core = PiLiekf(cfg, gain_solver_factory=factory)
-            if record is not None:
-                record.append(core)
-            return core
+        class Research(PiLiekf):
+            def __init__(self, cfg, factory=factory):
+                super().__init__(cfg, gain_solver_factory=factory)
+                if record is not None:
+                    record.append(self)
 
-        register(name, make, PiLiekfConfig)
+        register(name, Research, PiLiekfConfig)
     return tuple(RESEARCH_CORES)

@@ -71,3 +71,13 @@ def test_a_new_sensor_is_a_model_not_a_method_on_every_core():
         core.close()
     hits = [f"{c.__name__}.{n}" for c in classes for n in vars(c) if per_sensor.match(n)]
     assert not hits, hits
+
+
+def test_no_session_stage_reaches_into_another_stages_private_state():
+    """The session's stages talk through what each declares public: no ``sess.guard._x`` (or through any other
+    stage); the orchestrator's own shared state (``sess._x``) is the session package's."""
+    stages = "guard|loop|grade_check|initialiser|fusion|yaw_seed|outputs|inputs|monitor|buf|flag"
+    pattern = re.compile(rf"\b(sess|session|self\.s|self)\.({stages})\._[a-z]")
+    hits = [f"{p.relative_to(PKG)}:{n}" for p in sorted(PKG.rglob("*.py"))
+            for n, line in enumerate(p.read_text().splitlines(), 1) if pattern.search(line)]
+    assert not hits, hits

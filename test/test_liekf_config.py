@@ -31,12 +31,50 @@ def test_registry_names_and_errors():
         registry.make_core("nope")
     with pytest.raises(ValueError, match="unknown parameter"):
         registry.make_core("liekf", {"gyro_arw": 1.0})
-    registry.register("liekf_copy", registry.CORES["liekf"][0], registry.CORES["liekf"][1])
+    registry.register("liekf_copy", registry.core_class("liekf"), registry.CORES["liekf"][1])
     try:
         assert "liekf_copy" in registry.CORE_NAMES
         assert registry.make_core("liekf_copy").name == "liekf"
     finally:
         del registry.CORES["liekf_copy"]
+
+
+@pytest.mark.parametrize("name, params", [(n, {}) for n in registry.core_names()] + [
+    ("iekf", {"yaw_hypotheses": 4}), ("liekf", {"init_sigma_yaw_deg": 7.5}), ("pkf", {"init_sigma_v_m_s": 0.2}),
+    ("auto", {"static_core": "ekf10"})])
+def test_registry_declares_what_a_built_core_has(name, params):
+    """What the session reads before it builds a core (registry.declared: the models accepted from the
+    initialisation on, the initial 1-sigmas) is what the core it builds has, a bank of yaw hypotheses included."""
+    import insalign_ros.session  # noqa: F401  (registers core 'auto')
+
+    accepts, sigmas = registry.declared(name, params)
+    core = registry.make_core(name, params)
+    try:
+        assert accepts == core.accepts and sigmas == core.initial_sigmas, name
+        assert isinstance(accepts, frozenset) and len(sigmas) == 3 and len(sigmas[0]) == 3
+    finally:
+        core.close()
+
+
+def test_a_session_builds_one_core_per_initialisation():
+    """No throw-away core: an alignment that initialises once builds exactly one core (the session reads what a
+    core accepts and its initial sigmas from the registry, not from a probe)."""
+    import insalign_ros as ia
+
+    built = []
+
+    class Counted(registry.core_class("iekf")):
+        def __init__(self, cfg):
+            super().__init__(cfg)
+            built.append(self)
+
+    registry.register("iekf_counted", Counted, registry.CORES["iekf"][1])
+    try:
+        res = ia.align("car", core="iekf_counted", duration_s=20.0, seed=3, init_mode="guess")
+    finally:
+        del registry.CORES["iekf_counted"]
+    assert len(res.t_s) > 100 and res.status[-1] != "WAITING_FOR_DATA"
+    assert len(built) == 1, len(built)
 
 
 @pytest.mark.parametrize("params, match", [

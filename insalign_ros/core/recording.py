@@ -121,10 +121,6 @@ class ScenarioData:
         for j in range(self.gnss_vel_t_s.shape[0]):
             yield GnssVelocity(float(self.gnss_vel_t_s[j]), self.gnss_vel_n[j], self.gnss_vel_R_n[j])
 
-    def imu_samples(self, start: int = 0, stop: int | None = None) -> Iterator[ImuSample]:
-        for k in range(start, self.n if stop is None else stop):
-            yield ImuSample(float(self.t_s[k]), self.omega_ib_b[k], self.f_ib_b[k])
-
     def gnss_fixes(self) -> Iterator[GnssFix]:
         for j in range(self.gnss_t_s.shape[0]):
             yield GnssFix(float(self.gnss_t_s[j]), self.gnss_p_e[j], self.gnss_R_e[j])

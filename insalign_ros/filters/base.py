@@ -155,9 +155,9 @@ class AlignmentCore(ABC):
     #: ``propagate(..., backward=True)`` works (filters/backtrack.py)
     supports_backtracking: bool = False
     #: initial 1-sigmas the core was tuned for: ((roll, pitch, yaw) [deg], velocity [m/s], position [m]); the session
-    #: uses them unless the user gives others. Default: level known to a few degrees from the accelerometers, heading
-    #: unknown (the static cores' bootstrap handles any azimuth); cores tuned by their configuration set their own
-    initial_sigmas: tuple = ((5.0, 5.0, 100.0), 0.01, 1.0)
+    #: uses them unless the user gives others. Each core takes them from its configuration's ``initial_sigmas`` (the
+    #: one source: registry.declared reads them there before any core is built)
+    initial_sigmas: tuple
     #: the core runs its own zero-velocity updates (earth_iekf's ``auto_zupt_period_s``: its backward passes need
     #: them inside the passes); the session then schedules none for it
     schedules_own_zero_velocity: bool = False
@@ -274,6 +274,12 @@ class AlignmentCore(ABC):
         """The measurement model types :meth:`update` fuses: the models with terms for ``convention`` whose state
         blocks the core keeps, and ``own_models`` (a composite core, ``auto``, changes its set with its state)."""
         return update_pipeline.models_for(self.convention, self.state_blocks, self.own_models)
+
+    @classmethod
+    def accepts_for(cls, cfg) -> frozenset:
+        """:attr:`accepts` of a core of this class with configuration ``cfg`` from its initialisation on, read
+        before any is built (registry.declared)."""
+        return update_pipeline.models_for(cls.convention, cls.state_blocks, cls.own_models)
 
     def update(self, meas) -> UpdateResult:
         """Fuse a measurement model (filters/measurements.py) at the core's current time (the caller propagates

@@ -151,6 +151,7 @@ class CoarseAlignment(AlignmentCore):
 
     def __init__(self, cfg: CoarseConfig):
         self.cfg = cfg
+        self.initial_sigmas = cfg.initial_sigmas
         self._init = False
 
     def initialize(self, stamp_s, lat_rad, lon_rad, h_m, C_b_n, v_n, P_att_n, sigma_v_m_s, sigma_p_m):

@@ -43,20 +43,19 @@ def _rot_up(angle_rad: float) -> np.ndarray:
 class YawHypothesisBank(AlignmentCore):
     """K copies of one core at evenly spaced yaw offsets, weighted by their GNSS innovation likelihoods."""
 
-    def __init__(self, factory, cfg):
-        self._factory = factory
+    def __init__(self, core_class: type[AlignmentCore], cfg):
+        self._core_class = core_class
         self.cfg = cfg
         self.K = int(cfg.yaw_hypotheses)
         if self.K < 2:
             raise ValueError(f"yaw_hypotheses: a bank needs >= 2 hypotheses, got {self.K}")
-        proto = factory(cfg)
-        self.name = proto.name
-        self.needs_motion = proto.needs_motion
-        self.convention, self.state_blocks, self.own_models = proto.convention, proto.state_blocks, proto.own_models
+        c = core_class  # what each member declares, read from its class and configuration (none built here)
+        self.name = c.name
+        self.needs_motion = c.needs_motion
+        self.convention, self.state_blocks, self.own_models = c.convention, c.state_blocks, c.own_models
         self.supports_backtracking = False
-        self.att_index, self.vel_index, self.pos_index = proto.att_index, proto.vel_index, proto.pos_index
-        self.initial_sigmas = proto.initial_sigmas
-        proto.close()
+        self.att_index, self.vel_index, self.pos_index = c.att_index, c.vel_index, c.pos_index
+        self.initial_sigmas = cfg.initial_sigmas
         self.hyps: list[AlignmentCore] = []
         self.offsets_rad: list[float] = []
         self.logw = np.zeros(0)
@@ -91,7 +90,7 @@ class YawHypothesisBank(AlignmentCore):
         for o, lw in zip(offs, logw):
             if not np.isfinite(lw):
                 continue
-            core = self._factory(self.cfg)
+            core = self._core_class(self.cfg)
             core.initialize(stamp_s, lat_rad, lon_rad, h_m, _rot_up(o) @ np.asarray(C_b_n, float), v_n, P_h,
                             sigma_v_m_s, sigma_p_m)
             self.hyps.append(core)

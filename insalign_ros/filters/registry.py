@@ -1,8 +1,10 @@
-"""Core registry: ``make_core(name, params) -> AlignmentCore`` and ``CORE_NAMES``.
+"""Core registry: ``make_core(name, params) -> AlignmentCore``, ``declared(name, params)`` and ``CORE_NAMES``.
 
-Registration is a plain dict: ``CORES[name] = (factory, config_class)`` where ``factory(config)`` returns a
-core and ``config_class.from_dict(params)`` validates the parameters (ValueError with the reason). Other
-cores (static PKF/EKF10, coarse, backtracking) add themselves with :func:`register`.
+Registration is a plain dict: ``CORES[name] = (load, config_class)`` where ``load()`` returns the core's class
+(imported on first use), ``core_class(config)`` builds a core and ``config_class.from_dict(params)`` validates the
+parameters (ValueError with the reason). Other cores (static PKF/EKF10, coarse, ``auto``) add themselves with
+:func:`register`. What a core accepts and its initial 1-sigmas are read from its class and configuration
+(:func:`declared`): nothing builds a core to find out.
 """
 
 from __future__ import annotations
@@ -14,43 +16,43 @@ from .config import EkfConfig, IekfConfig, LiekfConfig, PiLiekfConfig
 from .imu_grade import apply_aliases, grade_params
 
 
-def _liekf(cfg):
+def _liekf():
     from .liekf import Liekf
 
-    return Liekf(cfg)
+    return Liekf
 
 
-def _pi_liekf(cfg):
+def _pi_liekf():
     from .pi_liekf import PiLiekf
 
-    return PiLiekf(cfg)
+    return PiLiekf
 
 
-def _iekf(cfg):
+def _iekf():
     from .iekf import ImperfectIekf
 
-    return ImperfectIekf(cfg)
+    return ImperfectIekf
 
 
-def _ekf(cfg):
+def _ekf():
     from .ekf import ConventionalEkf
 
-    return ConventionalEkf(cfg)
+    return ConventionalEkf
 
 
-def _earth_iekf(cfg):
+def _earth_iekf():
     from .earth_iekf import EarthIekf
 
-    return EarthIekf(cfg)
+    return EarthIekf
 
 
-def _liekf_backtrack(cfg):
+def _liekf_backtrack():
     from .backtrack import BacktrackLiekf
 
-    return BacktrackLiekf(cfg)
+    return BacktrackLiekf
 
 
-#: name -> (factory(config) -> AlignmentCore, config dataclass with from_dict)
+#: name -> (load() -> the AlignmentCore class, config dataclass with from_dict)
 CORES: dict[str, tuple[Callable, type]] = {
     "liekf": (_liekf, LiekfConfig),
     "pi_liekf": (_pi_liekf, PiLiekfConfig),
@@ -67,9 +69,9 @@ CORES["liekf_backtrack"] = (_liekf_backtrack, LiekfConfig)
 INMOTION_CORE_NAMES: tuple[str, ...] = ("liekf", "pi_liekf", "iekf", "ekf")
 
 
-def register(name: str, factory: Callable, config_class: type) -> None:
-    """Add a core: ``factory(config_class.from_dict(params))`` must return an AlignmentCore."""
-    CORES[name] = (factory, config_class)
+def register(name: str, core: type[AlignmentCore], config_class: type) -> None:
+    """Add a core: ``core(config_class.from_dict(params))`` builds it."""
+    CORES[name] = (lambda: core, config_class)
 
 
 def core_names() -> tuple[str, ...]:
@@ -82,15 +84,29 @@ def make_config(name: str, params: dict | None = None):
     return CORES[name][1].from_dict(params)
 
 
+def core_class(name: str) -> type[AlignmentCore]:
+    if name not in CORES:
+        raise ValueError(f"unknown core {name!r}; choose one of {sorted(CORES)}")
+    return CORES[name][0]()
+
+
 def make_core(name: str, params: dict | None = None) -> AlignmentCore:
     """Build a core by name with validated parameters (ValueError on an unknown name or a bad parameter)."""
     cfg = make_config(name, params)
-    factory = CORES[name][0]
+    cls = core_class(name)
     if getattr(cfg, "yaw_hypotheses", 1) > 1:  # unknown heading: a bank of yaw hypotheses (filters/hypotheses.py)
         from .hypotheses import YawHypothesisBank
 
-        return YawHypothesisBank(factory, cfg)
-    return factory(cfg)
+        return YawHypothesisBank(cls, cfg)
+    return cls(cfg)
+
+
+def declared(name: str, params: dict | None = None) -> tuple[frozenset, tuple]:
+    """What the core ``name`` with ``params`` declares before it is built: (the measurement model types it accepts
+    from its initialisation on, its initial 1-sigmas ((roll, pitch, yaw) [deg], velocity [m/s], position [m])). A
+    bank of yaw hypotheses declares what each of its members does."""
+    cfg = make_config(name, params)
+    return core_class(name).accepts_for(cfg), cfg.initial_sigmas
 
 
 def __getattr__(attr):  # CORE_NAMES stays current when others register()

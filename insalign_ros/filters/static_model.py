@@ -162,6 +162,12 @@ class StaticConfig(ConfigDict):
     #: information (measured: docs). 0 = no filter.
     specific_force_lowpass_s: float = 1.0
 
+    @property
+    def initial_sigmas(self) -> tuple:
+        """``AlignmentCore.initial_sigmas``: the level to a few degrees from the accelerometers, the heading unknown
+        (the bootstrap handles any azimuth), ``init_sigma_v_m_s``, position 1 m."""
+        return ((5.0, 5.0, 100.0), self.init_sigma_v_m_s, 1.0)
+
     def validate(self) -> None:
         self.check_field_types(non_negative=True)
         for name in ("init_sigma_v_m_s", "status_yaw_3sigma_deg", "azimuth_feedback_sigma_deg"):
@@ -208,7 +214,7 @@ class StaticZuptCore(AlignmentCore):
 
     def __init__(self, cfg: StaticConfig):
         self.cfg = cfg
-        self.initial_sigmas = ((5.0, 5.0, 100.0), cfg.init_sigma_v_m_s, 1.0)
+        self.initial_sigmas = cfg.initial_sigmas
         self._init = False
 
     # ------------------------------------------------------------------ interface
@@ -506,11 +512,6 @@ class StaticZuptCore(AlignmentCore):
 
     def _feedback_bias(self) -> None:
         pass
-
-    def attitude_estimate(self) -> np.ndarray:
-        """C_b_n with the azimuth still held in the state applied."""
-        return misaligned_attitude_nb(float(self.x[2]), float(self.x[3]), float(self.x[4]),
-                                      np.ascontiguousarray(self.mech.C_b_n, float))
 
     def estimate(self) -> AlignmentEstimate:
         if not self._init:

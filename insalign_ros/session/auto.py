@@ -72,6 +72,7 @@ class AutoCore(AlignmentCore):
     (stamp [s], state, reason) at every change."""
 
     name = "auto"
+    own_models = frozenset({ZeroVelocity})  # its static core fuses it; after the hand-over: the in-motion core's set
 
     def __init__(self, cfg: AutoConfig):
         self.cfg = cfg
@@ -108,9 +109,7 @@ class AutoCore(AlignmentCore):
         self._nis_mean: float | None = None  # rest.zupt_nis_mean of them (None: to compute; read per output)
         self.counters = {"handovers": 0, "stops": 0, "stop_holds": 0, "zupt_rejected_moving": 0, "zero_rate_updates": 0,
                          "zero_rate_rejected": 0}
-        with_static = registry.make_core(cfg.static_core, cfg.static_params())
-        self.initial_sigmas = with_static.initial_sigmas
-        with_static.close()
+        self.initial_sigmas = cfg.initial_sigmas
 
     # ------------------------------------------------------------------ life cycle
     def initialize(self, stamp_s, lat_rad, lon_rad, h_m, C_b_n, v_n, P_att_n, sigma_v_m_s, sigma_p_m) -> None:

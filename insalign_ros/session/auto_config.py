@@ -117,6 +117,11 @@ class AutoConfig(ConfigDict):
     def static_params(self) -> dict:
         return self.grade_params(self.static_core)
 
+    @property
+    def initial_sigmas(self) -> tuple:
+        """The static core's (``AlignmentCore.initial_sigmas``): ``auto`` starts static."""
+        return registry.make_config(self.static_core, self.static_params()).initial_sigmas
+
     def level_floor_rad(self) -> float:
         """Level floor b_acc/g [rad] (imu_grade.level_floor_rad)."""
         return imu_grade.level_floor_rad(self.acc_bias_mg)

@@ -77,11 +77,11 @@ class Fusion:
             fix = b.fix.pop(0)
             sess.yaw_seed.fix(fix)
             if fix.stamp_s == sess._used_fix_stamp:
-                sess.guard._fix_seq.append(fix_point(fix))  # divergence guard: the jump test goes on from the init's fixes
+                sess.guard.fix_seq.append(fix_point(fix))  # divergence guard: the jump test goes on from the init's fixes
                 continue  # gave the initial position: not fused twice
             if fix.stamp_s < sess.init_t:
                 sess.counters["gnss_before_init"] += 1
-                sess.guard._fix_seq.append(fix_point(fix))  # divergence guard (as above)
+                sess.guard.fix_seq.append(fix_point(fix))  # divergence guard (as above)
                 continue
             sess._est_memo = None
             self._fuse_fix(fix)
@@ -152,7 +152,7 @@ class Fusion:
         return (t >= sess.next_nhc_t and sess.cfg.vehicle in NHC_SIGMA_M_S and sess.bt is None
                 and NonHolonomic in sess.core.accepts and sess.nhc_off_until_t <= t)
 
-    def _nhc(self, t: float) -> None:
+    def nhc(self, t: float) -> None:
         """The non-holonomic constraint at ``t`` (NHC_RATE_HZ): lateral and vertical velocity of the vehicle ~ 0 with
         the vehicle's sigmas and a chi-square gate; NHC_OFF_AFTER rejections in a row (skidding, the IMU not on the
         vehicle's axes) switch it off for NHC_OFF_S, said in the status."""
@@ -203,23 +203,23 @@ class Fusion:
         fix = GnssPosition.of(sess.guard.floored(fix))  # divergence guard: the model's error budget under the receiver's sigma
         if jump and sess.guard.restart_young_reinit():  # divergence guard
             return
-        if jump and gate > 0 and sess.guard._hold_since is None and not sess.monitor.attitude_claimed():
+        if jump and gate > 0 and sess.guard.hold_since is None and not sess.monitor.attitude_claimed():
             # a jump before the claim: a young filter's covariance lets it through any NIS gate (a fix stamped 5 s
             # ahead with the position of now: 60 m on a car, NIS < 100); not fused (the fix screen's rule), and the
             # jump test goes on from the fixes before it (a lone outlier does not make the next fix a jump; a real
             # shift is fused once the fixes before it are more than 3 s old)
-            sess.guard._fix_seq.pop()
+            sess.guard.fix_seq.pop()
             sess.counters["gnss_gated"] += 1
             sess.counters["gnss_rejected"] += 1
             sess.last_reject = "gnss: a jump in the fix sequence before the filter claims its attitude"
             sess.log("warn", "gnss_gated", f"fix at {fix.stamp_s + sess.stamp_offset_s:.3f} s not fused: "
                                            f"{sess.last_reject[6:]} (gnss_gated={sess.counters['gnss_gated']})")
             return
-        if excess == -math.inf and gate > 0 and sess.guard._hold_since is None \
+        if excess == -math.inf and gate > 0 and sess.guard.hold_since is None \
                 and not sess.monitor.attitude_claimed() and self._fix_off(fix):
             return
         # a jump in the fix sequence is suspect by itself: gated even while the core does not claim its attitude
-        if gate > 0 and (sess.monitor.attitude_claimed() or jump or sess.guard._hold_since is not None):
+        if gate > 0 and (sess.monitor.attitude_claimed() or jump or sess.guard.hold_since is not None):
             pr = core.predict(fix)
             if pr.S.size and pr.nis > gate:
                 sess.counters["gnss_gated"] += 1
@@ -239,10 +239,10 @@ class Fusion:
                                    "continuous with the fixes before them: the filter is lost")
                 return
         sess.guard.gated_run = 0
-        if sess.guard._hold_since is not None:
+        if sess.guard.hold_since is not None:
             sess.log("info", "gnss_hold", f"GNSS agrees with the held filter again after "
-                                          f"{fix.stamp_s - sess.guard._hold_since:.1f} s: fusing fixes")
-            sess.guard._hold_since = None
+                                          f"{fix.stamp_s - sess.guard.hold_since:.1f} s: fusing fixes")
+            sess.guard.hold_since = None
         res = (sess.bt if sess.bt is not None else core).update(fix)
         sess._est_memo = None
         if res is None:
@@ -351,7 +351,7 @@ class Fusion:
             sess._diverged(f"{g.fix_off_run} fixes in a row off the filter's position ({off:.3g} m beyond what any "
                            "attitude error allows): its position is what is wrong")
             return True
-        g._fix_seq.pop()
+        g.fix_seq.pop()
         sess.counters["gnss_gated"] += 1
         sess.counters["gnss_rejected"] += 1
         sess.last_reject = f"gnss: {off:.3g} m off the filter's position beyond what any attitude error allows"
@@ -369,7 +369,7 @@ class Fusion:
         return (sess.cfg.zupt_rate_hz > 0 and t >= sess.next_zupt_t and not c.schedules_own_zero_velocity
                 and ZeroVelocity in c.accepts and GnssPosition not in c.accepts)
 
-    def _zupt(self, t: float) -> None:
+    def zupt(self, t: float) -> None:
         self.s._est_memo = None
         self.zupt_done(t, self.s.core.update(self.zupt_model(t)))
 

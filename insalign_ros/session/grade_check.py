@@ -37,7 +37,7 @@ class GradeCheck:
         self.reset()
 
     def reset(self) -> None:
-        self._nis: deque = deque(maxlen=self.WINDOW)
+        self.nis_per_dof: deque = deque(maxlen=self.WINDOW)
         self._core = None  # the core whose prior (b0, P0) is held
         self._b0 = self._P0 = None
         self.z_max = 0.0  # the largest bias consistency statistic so far (diagnostics)
@@ -87,7 +87,7 @@ class GradeCheck:
         return findings
 
     def _moving(self) -> bool:
-        seq = self.s.guard._fix_seq
+        seq = self.s.guard.fix_seq
         if len(seq) < 2:
             return False
         (t1, p1, _), (t2, p2, _) = seq[-2], seq[-1]
@@ -97,7 +97,7 @@ class GradeCheck:
         """One accepted fused fix: its NIS while moving, then the bias estimates."""
         sess = self.s
         if math.isfinite(nis) and dof > 0 and self._moving():
-            self._nis.append(nis / dof)
+            self.nis_per_dof.append(nis / dof)
         findings = self._bias_findings()
         if not findings:
             return

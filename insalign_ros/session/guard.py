@@ -45,15 +45,15 @@ class DivergenceGuard:
 
     def reset(self) -> None:
         self.gated_run = 0
-        self._hold_since: float | None = None  # holding the filter through a GNSS jump since [s]
+        self.hold_since: float | None = None  # holding the filter through a GNSS jump since [s]
         self._hold_innovation_m = 0.0  # |innovation| when the hold began (or the fixes last jumped)
-        self._fix_seq: deque = deque(maxlen=3)  # the last fixes seen (stamp, p_e, sigma_m)
-        self._vel_ref = None  # (stamp [s], v_n horizontal [m/s], its variance [m^2/s^2]) of the last velocity let in
+        self.fix_seq: deque = deque(maxlen=3)  # the last fixes seen (stamp, p_e, sigma_m)
+        self.vel_ref = None  # (stamp [s], v_n horizontal [m/s], its variance [m^2/s^2]) of the last velocity let in
         self.speed_off_run = 0  # consecutive GNSS velocities whose speed is off the filter's (speed_off)
         self.fix_off_run = 0  # consecutive fixes off the filter's position (fix_off)
-        self._nis_win: deque = deque(maxlen=max(self.s.cfg.divergence_nis_window, 1))
+        self.nis_recent: deque = deque(maxlen=max(self.s.cfg.divergence_nis_window, 1))
         self._level_bound_deg: float | None = None  # level 3-sigma bound of this filter
-        self._cusum_llr = 0.0  # CUSUM of the NIS log-likelihood ratio while the attitude is claimed
+        self.cusum_llr = 0.0  # CUSUM of the NIS log-likelihood ratio while the attitude is claimed
         self._inflated_at: float | None = None  # the last step-1 response (covariance widened, flag down) [s]
         self.last_floor_m = 0.0  # the model floor added to the last fix's sigma [m]
         self._floor_prev = None  # (stamp [s], v_n horizontal [m/s]) at the last floored fix
@@ -128,7 +128,7 @@ class DivergenceGuard:
         all: KITTI 0042 starts in a 25-deg/s turn at 10 m/s, and its first RT3003 velocity (2.8 cm/s) fused with
         nothing for the 10-Hz IMU's timing left the level 0.5-1 deg off at a 3-sigma of 0.4 for the whole drive."""
         sess = self.s
-        dt = sess.loop._median_dt
+        dt = sess.loop.median_dt
         v_n = np.asarray(sess.outputs.estimate().v_n, float)[:2]
         if dt is None or not dt > 0:
             return (t, v_n), None
@@ -203,7 +203,7 @@ class DivergenceGuard:
         independent fixes: sqrt(1 + (1 + r)^2 + r^2) sigma, r = dt2/dt1). Filter-free: a fix block hundreds of
         metres off starts (and ends) with a jump; a lost filter leaves the fixes smooth."""
         sess = self.s
-        seq = self._fix_seq
+        seq = self.fix_seq
         point = fix_point(fix)
         err = extrapolation_excess((seq[-2], seq[-1]), point, sess.cfg.gnss_jump_accel_m_s2) \
             if len(seq) >= 2 else -math.inf
@@ -223,7 +223,7 @@ class DivergenceGuard:
         error in a stream of good velocities (fuzz_session: 25 m/s at a 0.1-m/s sigma after a re-initialisation,
         fused by the fresh filter, left it 85 deg off at a 3-sigma of 1-14 deg). -inf: nothing to compare with."""
         t, v, var = _horizontal(vel)
-        ref, seq = self._vel_ref, self._fix_seq
+        ref, seq = self.vel_ref, self.fix_seq
         if ref is not None and 0.0 < t - ref[0] <= 3.0:
             span, v_ref, var_ref = t - ref[0], ref[1], ref[2]
         elif len(seq) >= 2 and 0.0 < seq[-1][0] - seq[-2][0] <= 3.0 and abs(t - seq[-1][0]) <= 3.0:
@@ -239,7 +239,7 @@ class DivergenceGuard:
 
     def velocity_let_in(self, vel) -> None:
         """A GNSS velocity not gated: the reference of :meth:`velocity_jump`."""
-        self._vel_ref = _horizontal(vel)
+        self.vel_ref = _horizontal(vel)
         self.speed_off_run = 0
 
     SPEED_OFF_BELIEVED = 3  #: velocities in a row off the filter's speed that are believed (its speed is wrong)
@@ -283,22 +283,22 @@ class DivergenceGuard:
         changed by more than ``gnss_hold_drift_m`` since the hold began, with no jump in between (a constant offset
         keeps it; a filter that absorbed a walking bias before the jump back drifts at the walk's rate)."""
         sess = self.s
-        if self.gated_run == 1 and jump and self._hold_since is None:
-            self._hold_since = float(fix.stamp_s)
+        if self.gated_run == 1 and jump and self.hold_since is None:
+            self.hold_since = float(fix.stamp_s)
             self._hold_innovation_m = innovation_m
             sess.counters["gnss_holds"] += 1
             sess.log("warn", "gnss_holds", f"GNSS jumped and the filter gates the new fixes (NIS {nis:.3g}): bad fixes, not a "
                                            f"lost filter; holding the filter on the IMU for up to {sess.cfg.gnss_hold_max_s:g} s")
-        if self._hold_since is None:
+        if self.hold_since is None:
             return False
-        held = float(fix.stamp_s) - self._hold_since
+        held = float(fix.stamp_s) - self.hold_since
         sess.last_reject = f"gnss: holding the filter through bad fixes ({held:.0f} s); {sess.last_reject[6:]}"
         if jump:  # the fixes jumped again while held: a new reference for the drift
             self._hold_innovation_m = innovation_m
         drift = abs(innovation_m - self._hold_innovation_m)
         if held <= sess.cfg.gnss_hold_max_s and drift <= sess.cfg.gnss_hold_drift_m:
             return True
-        self._hold_since = None
+        self.hold_since = None
         why = (f"fixes disagree with the held filter for {held:.0f} s after a GNSS jump" if drift <= sess.cfg.gnss_hold_drift_m
                else f"the held filter drifts away from consistent fixes (|innovation| changed by {drift:.0f} m in "
                     f"{held:.0f} s without a jump)")
@@ -314,10 +314,10 @@ class DivergenceGuard:
         cfg = sess.cfg
         reason, key = self._cusum(nis, dof), "divergences_cusum"
         if cfg.divergence_nis_window > 0 and math.isfinite(nis):
-            self._nis_win.append(float(nis))
-            mean = sum(self._nis_win) / len(self._nis_win)
-            if len(self._nis_win) >= cfg.divergence_nis_window and mean > cfg.divergence_nis_mean:
-                reason, key = reason or (f"mean NIS {mean:.3g} of the last {len(self._nis_win)} fixes above "
+            self.nis_recent.append(float(nis))
+            mean = sum(self.nis_recent) / len(self.nis_recent)
+            if len(self.nis_recent) >= cfg.divergence_nis_window and mean > cfg.divergence_nis_mean:
+                reason, key = reason or (f"mean NIS {mean:.3g} of the last {len(self.nis_recent)} fixes above "
                                f"{cfg.divergence_nis_mean:g} (chi-square(3) mean 3)"), "divergences_nis"
         if not reason:
             P = sess.outputs.estimate().P_att_n
@@ -356,11 +356,11 @@ class DivergenceGuard:
         if not self.WIDEN_FIRST or (self._inflated_at is not None and t - self._inflated_at <= self.ESCALATE_S):
             return False
         self._inflated_at = t
-        self._cusum_llr = 0.0
+        self.cusum_llr = 0.0
         # by the H1 the CUSUM accepted (r), or by what the recent innovations say when that is more: the mean
         # NIS/3 of the last fixes (a 60-deg kick: hundreds; a sharp turn: 2-5), so a wrong estimate is widened
         # enough to be pulled back instead of settling beside the truth
-        q = float(np.mean(self._nis_win)) / 3.0 if self._nis_win else 0.0
+        q = float(np.mean(self.nis_recent)) / 3.0 if self.nis_recent else 0.0
         r = min(max(sess.cfg.divergence_cusum_ratio, q if math.isfinite(q) else 0.0), 1e4)
         sess.counters["divergence_widened"] += 1
         sess.monitor.lower_flag(f"inconsistent innovations: {reason}")
@@ -383,17 +383,17 @@ class DivergenceGuard:
         cfg = sess.cfg
         armed = sess.monitor.attitude_claimed(cfg.divergence_cusum_arm_factor)
         if cfg.divergence_cusum_llr <= 0 or not math.isfinite(nis) or not armed:
-            self._cusum_llr = 0.0
+            self.cusum_llr = 0.0
             return ""
         r = cfg.divergence_cusum_ratio
-        self._cusum_llr = max(0.0, self._cusum_llr - 0.5 * dof * math.log(r) + 0.5 * nis * (1.0 - 1.0 / r))
+        self.cusum_llr = max(0.0, self.cusum_llr - 0.5 * dof * math.log(r) + 0.5 * nis * (1.0 - 1.0 / r))
         widened = self._inflated_at is not None and (sess.processed_t or 0.0) - self._inflated_at <= self.ESCALATE_S
         limit = cfg.divergence_cusum_flag_llr if widened and cfg.divergence_cusum_flag_llr > 0 else cfg.divergence_cusum_llr
-        if self._cusum_llr > limit:  # a widened filter the fixes still contradict: the flag level decides
-            return (f"CUSUM of the NIS log-likelihood ratio {self._cusum_llr:.3g} above {limit:g} "
+        if self.cusum_llr > limit:  # a widened filter the fixes still contradict: the flag level decides
+            return (f"CUSUM of the NIS log-likelihood ratio {self.cusum_llr:.3g} above {limit:g} "
                     f"(last NIS {nis:.3g}; the filter claims its attitude with a covariance {r:g}x too small)")
-        if cfg.divergence_cusum_flag_llr > 0 and self._cusum_llr > cfg.divergence_cusum_flag_llr:
-            sess.monitor.lower_flag(f"inconsistent innovations (NIS {nis:.3g}, CUSUM {self._cusum_llr:.3g})")
+        if cfg.divergence_cusum_flag_llr > 0 and self.cusum_llr > cfg.divergence_cusum_flag_llr:
+            sess.monitor.lower_flag(f"inconsistent innovations (NIS {nis:.3g}, CUSUM {self.cusum_llr:.3g})")
         return ""
 
     def gated_run_evidence(self, nis: float, dof: int) -> bool:
@@ -406,7 +406,7 @@ class DivergenceGuard:
         True when the session restarted."""
         sess = self.s
         flag_llr = sess.cfg.divergence_cusum_flag_llr
-        if self.gated_run < 2 and not (self.gated_run == 1 and 0 < flag_llr < self._cusum_llr):
+        if self.gated_run < 2 and not (self.gated_run == 1 and 0 < flag_llr < self.cusum_llr):
             return False
         reason = self._cusum(min(nis, sess.cfg.gnss_gate_nis), dof)
         if not reason:  # gated fixes, smooth among themselves, that the filter cannot explain: evidence, no widening
@@ -421,7 +421,7 @@ class DivergenceGuard:
         filter's CUSUM fire, then jumped back), and a young filter (a yaw bank: no gate yet) would fuse the jump.
         Re-initialise again from the fixes after the jump (three consistent ones). True when the session restarted."""
         sess = self.s
-        if not (sess.initialiser._sensors_reinit and sess.init_t is not None and sess.processed_t is not None
+        if not (sess.initialiser.sensors_reinit and sess.init_t is not None and sess.processed_t is not None
                 and sess.processed_t - sess.init_t <= sess.cfg.gnss_hold_max_s and not sess.monitor.attitude_claimed()):
             return False
         sess.counters["reinit_restarts"] += 1

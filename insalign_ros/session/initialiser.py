@@ -38,24 +38,23 @@ class Initialiser:
         self.reset()
 
     def reset(self) -> None:
-        self._probe = None
-        self._sensors_reinit = False
-        self._kept_level = None  # (t, C_b_n, level 1-sigma) of the lost filter, if it claimed its level
+        self._declared = None
+        self.sensors_reinit = False
+        self.kept_level = None  # (t, C_b_n, level 1-sigma) of the lost filter, if it claimed its level
         #: a restart (time jump, reset, fault, divergence): the vehicle may be moving; start from what the data say
         self.after_restart = False
         self.pre_init: deque = deque(maxlen=4000)  # IMU samples before the initialisation (level from sensors)
 
     def capabilities(self):
-        """(accepts GNSS positions, initial_sigmas) of the configured core, from one probe built once (not per
-        sample while the session waits for its first fix)."""
+        """(accepts GNSS positions, initial_sigmas) of the configured core as the registry declares them (read once,
+        not per sample while the session waits for its first fix)."""
         sess = self.s
-        if self._probe is None:
-            probe = registry.make_core(sess.cfg.core, sess.core_params)
-            self._probe = (GnssPosition in probe.accepts, probe.initial_sigmas)
-            probe.close()
-        return self._probe
+        if self._declared is None:
+            accepts, sigmas = registry.declared(sess.cfg.core, sess.core_params)
+            self._declared = (GnssPosition in accepts, sigmas)
+        return self._declared
 
-    def _core_name(self, params: dict) -> str:
+    def core_name(self, params: dict) -> str:
         """The configured core, or its backtrackable form when backtracking passes are asked for (session/catalog.py)."""
         cfg = self.s.cfg
         if cfg.backtrack_passes > 0 and int(params.get("yaw_hypotheses", 1)) == 1:
@@ -65,7 +64,7 @@ class Initialiser:
     def try_initialize(self, t: float) -> None:
         sess = self.s
         cfg = sess.cfg
-        if cfg.init_mode == "sensors" or self._sensors_reinit:
+        if cfg.init_mode == "sensors" or self.sensors_reinit:
             self._from_sensors(t)
             return self._still_faulted()  # divergence guard: FAULT stays until a new filter runs
         tr = sess.buf.truth.get(t) if cfg.init_mode == "truth" else None
@@ -99,7 +98,7 @@ class Initialiser:
             v0 = np.asarray(cfg.initial_velocity_enu_m_s, float)
         sig_rpy = [u if math.isfinite(u) else d for u, d in zip(cfg.init_sigma_rpy_deg, sig_rpy)]
         P_att = np.diag((np.asarray(sig_rpy, float) * D2R) ** 2)
-        core = registry.make_core(self._core_name(sess.core_params), sess.core_params)
+        core = registry.make_core(self.core_name(sess.core_params), sess.core_params)
         try:
             core.initialize(t, pos[0], pos[1], pos[2], earth.C_b_n_from_rpy(*rpy), v0, P_att, sig_v, sig_p)
         except Exception:
@@ -186,7 +185,7 @@ class Initialiser:
                 return
             # -- divergence guard: a re-initialisation waits for three fixes consistent with each other (the
             # fixes that made the filter diverge may be the bad ones); any initialisation refuses three that are not
-            if len(recent) < 3 and self._sensors_reinit:
+            if len(recent) < 3 and self.sensors_reinit:
                 sess.status = AlignmentStatus.WAITING_FOR_GNSS
                 sess.reason = f"re-initialising: waiting for three consistent GNSS fixes ({len(recent)} of 3 within 3 s)"
                 return
@@ -246,7 +245,7 @@ class Initialiser:
         params = dict(sess.core_params)
         if gnss_core and params.get("yaw_hypotheses", 1) == 1 and cfg.unknown_heading_hypotheses > 1:
             params["yaw_hypotheses"] = cfg.unknown_heading_hypotheses
-        core = registry.make_core(self._core_name(params), params)
+        core = registry.make_core(self.core_name(params), params)
         sig_yaw = 1e4 if gnss_core else sig_rpy0[2]  # unknown: uniform over the bank's hypotheses
         user = cfg.init_sigma_rpy_deg
         sig = [u * D2R if math.isfinite(u) else d for u, d in zip(user, (sig_level, sig_level, sig_yaw * D2R))]
@@ -301,7 +300,7 @@ class Initialiser:
         vel = b.vel[k - 1]
         # where the velocity belongs within the IMU period is unknown (the guard's model floor, session/guard.py):
         # a_est dt / sqrt(12), 0.14 m/s in a 25-deg/s turn at 10 m/s with a 10-Hz IMU
-        dt = self.s.loop._median_dt or 0.0
+        dt = self.s.loop.median_dt or 0.0
         s = math.hypot(math.sqrt(max(float(np.max(np.diag(vel.R_n))), 0.0)), a_est * dt / math.sqrt(12.0)) \
             + a_est * (t - vel.stamp_s)
         if not s < sig_v or not velocities_agree(vel.v_n, float(vel.R_n[0, 0] + vel.R_n[1, 1]), v0, 2.0 * sig_v ** 2):
@@ -346,9 +345,9 @@ class Initialiser:
         """The level kept at the divergence carried to ``t`` with the gyros (the samples since the divergence; the
         heading of C_b_n does not matter: a rotation about the vertical leaves roll and pitch): (roll, pitch,
         1-sigma [rad]) with the kept 1-sigma doubled (0.5-deg floor), or None."""
-        if self._kept_level is None:
+        if self.kept_level is None:
             return None
-        t0, C, sig = self._kept_level
+        t0, C, sig = self.kept_level
         prev = t0
         for tt, w_, _ in self.pre_init:
             if prev < tt <= t:

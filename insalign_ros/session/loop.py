@@ -34,7 +34,7 @@ class Loop:
 
     def reset(self) -> None:
         self.dts: deque = deque(maxlen=101)
-        self._median_dt: float | None = None
+        self.median_dt: float | None = None
         self._gap_thr: float | None = None  # the longest interval that is not a gap (gaps.gap_threshold)
         self._dt_count = 0
         self._spread = None
@@ -92,7 +92,7 @@ class Loop:
         sess = self.s
         core, cfg = sess.core, sess.cfg
         prev = sess.processed_t
-        if prev is None or self._median_dt is None or not self.hist_w or i >= plan.n_fast \
+        if prev is None or self.median_dt is None or not self.hist_w or i >= plan.n_fast \
                 or self._dt_count < self.dts.maxlen:  # the rate model is updated at every interval until then
             return i
         Tl = plan.Tl
@@ -119,7 +119,7 @@ class Loop:
                           else plan.candidate_at(i, self.hist_w[-1], self.hist_f[-1])):
                 return i
         c0 = self._dt_count
-        if self._gap_thr > cfg.gap_factor * self._median_dt:
+        if self._gap_thr > cfg.gap_factor * self.median_dt:
             # jittery stamps (gaps.gap_threshold over gap_factor medians): the run ends before the next update of
             # the rate model, so every interval is checked against the threshold the per-sample path would use (the
             # spike check's cut, max(3 medians, it), is never below it)
@@ -150,12 +150,12 @@ class Loop:
         if mc is None or mc[1] != c0 or mc[3] is not self.dts or c0 - mc[2] > self.dts.maxlen:
             mc = (min(self.dts), c0, c0, self.dts)
         d_min = min(d)
-        lb = min(mc[0], d_min, self._median_dt)
+        lb = min(mc[0], d_min, self.median_dt)
         if max(d) > min(fac * lb, self._gap_thr) or plan.dnextl[j - 1] > min(fac * lb, self._gap_thr):
             old = list(self.dts)
             alld = np.array(old + d)
             lb = float(alld.min()) if len(old) < self.dts.maxlen else float(np.partition(alld, 50)[50])
-            lb = min(lb, self._median_dt)
+            lb = min(lb, self.median_dt)
             thr = min(fac * lb, self._gap_thr)
             over = np.flatnonzero(np.array(d) > thr)
             if over.size:
@@ -184,12 +184,12 @@ class Loop:
         if p > c0:
             if q > c0:
                 self.dts.extend(d[:q - c0])
-                self._median_dt = median(self.dts)
-                self._gap_thr = gaps.gap_threshold(self.dts, cfg.gap_factor, self._median_dt, self._gap_thr)
+                self.median_dt = median(self.dts)
+                self._gap_thr = gaps.gap_threshold(self.dts, cfg.gap_factor, self.median_dt, self._gap_thr)
                 self.dts.extend(d[q - c0:p - c0])
             else:
                 self.dts.extend(d[:p - c0])
-            self._median_dt = median(self.dts)
+            self.median_dt = median(self.dts)
             self.dts.extend(d[p - c0:])
         else:
             self.dts.extend(d)
@@ -322,9 +322,9 @@ class Loop:
         sess = self.s
         cfg = sess.cfg
         if (cfg.imu_spike_rad_s <= 0 and cfg.imu_spike_m_s2 <= 0) or nxt is None or not self.hist_w \
-                or self._median_dt is None or sess.processed_t is None:
+                or self.median_dt is None or sess.processed_t is None:
             return False
-        cut = max(3.0 * self._median_dt, self._gap_thr)  # jitter is not a spike's interval either
+        cut = max(3.0 * self.median_dt, self._gap_thr)  # jitter is not a spike's interval either
         if t - sess.processed_t > cut or nxt[0] - t > cut:
             return False
         if self._dt_count % 100 == 1 or self._spread is None:
@@ -383,9 +383,9 @@ class Loop:
         if sess.core is None:  # a divergence restarted the session
             return
         if sess.fusion.zupt_due(t):
-            sess.fusion._zupt(t)
+            sess.fusion.zupt(t)
         if sess.fusion.nhc_due(t):
-            sess.fusion._nhc(t)
+            sess.fusion.nhc(t)
         if t >= sess.next_out_t - 1e-9:
             sess.next_out_t = t + sess.cfg.output_period_s
             out.append(sess.outputs.output(t))
@@ -395,10 +395,10 @@ class Loop:
         self.dts.append(dt)
         self._dt_count += 1
         c = self._dt_count
-        if self._median_dt is None or c % 20 == 0 or c <= self.dts.maxlen:
-            self._median_dt = median(list(self.dts))
+        if self.median_dt is None or c % 20 == 0 or c <= self.dts.maxlen:
+            self.median_dt = median(list(self.dts))
             if c % gaps.MODEL_EVERY == 0 or c <= self.dts.maxlen:
-                self._gap_thr = gaps.gap_threshold(self.dts, self.s.cfg.gap_factor, self._median_dt, self._gap_thr)
+                self._gap_thr = gaps.gap_threshold(self.dts, self.s.cfg.gap_factor, self.median_dt, self._gap_thr)
 
     def _on_gap(self, t_a: float, t_b: float, w_b: np.ndarray, f_b: np.ndarray) -> None:
         """An IMU gap (t_a, t_b): bridge it and inflate the covariance by what the bridge may have got wrong.
@@ -411,7 +411,7 @@ class Loop:
         (docs/session.md, "Gaps"). Without enough history: linear, and the rate spread times the missing time."""
         sess = self.s
         sess.counters["imu_gaps"] += 1
-        h = self._median_dt
+        h = self.median_dt
         n_mid = max(int(round((t_b - t_a) / h)) - 1, 0)
         step = (t_b - t_a) / (n_mid + 1)
         t_mid = t_a + step * np.arange(1, n_mid + 1)

@@ -120,17 +120,17 @@ class Monitor:
         d.update(nis_last=f"{sess.last_nis:.3f}", nis_window_sum=f"{sess.flag.nis_sum:.3f}",
                  nis_band=f"[{lo:.2f}, {hi:.2f}]", last_reject=sess.last_reject)
         # divergence guard: the statistics behind a FAULT (docs/session.md)
-        d["divergence_cusum_llr"] = f"{sess.guard._cusum_llr:.3f}"
+        d["divergence_cusum_llr"] = f"{sess.guard.cusum_llr:.3f}"
         d["fix_sigma_floor_m"] = f"{sess.guard.last_floor_m:.3f}"
-        if sess.grade_check._nis:
-            d["moving_nis_per_dof_mean"] = f"{float(np.mean(sess.grade_check._nis)):.3f}"
+        if sess.grade_check.nis_per_dof:
+            d["moving_nis_per_dof_mean"] = f"{float(np.mean(sess.grade_check.nis_per_dof)):.3f}"
         d["grade_bias_z_max"] = f"{sess.grade_check.z_max:.2f}"  # grade_check: bias estimate vs the grade's prior
-        if sess.guard._nis_win:
-            d["divergence_nis_window_mean"] = f"{float(np.mean(sess.guard._nis_win)):.3f}"
+        if sess.guard.nis_recent:
+            d["divergence_nis_window_mean"] = f"{float(np.mean(sess.guard.nis_recent)):.3f}"
         if sess.processed_t is not None and sess.last_accepted_fix_t is not None:
             d["gnss_age_s"] = f"{sess.processed_t - sess.last_accepted_fix_t:.2f}"
-        if sess.loop._median_dt is not None:
-            d["imu_period_median_ms"] = f"{sess.loop._median_dt * 1e3:.3f}"
+        if sess.loop.median_dt is not None:
+            d["imu_period_median_ms"] = f"{sess.loop.median_dt * 1e3:.3f}"
         d["wheel_speed"] = ("fused" if sess.fusion.wheel_speed_used() else
                             "unused (vehicle car | wheeled_robot and an in-motion core fuse it)")
         d.update(sess.fusion.wheel_scale.diagnostics())  # the odometry's scale factor (session/wheel_scale.py)

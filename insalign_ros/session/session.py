@@ -255,12 +255,12 @@ class AlignmentSession:
     def _reinitialise(self, why: str) -> None:
         """FAULT with ``why`` and a re-initialisation from the sensors, keeping the fix sequence (jump detection)
         and the level the lost filter claims (if it does)."""
-        seq, vref = self.guard._fix_seq, self.guard._vel_ref
+        seq, vref = self.guard.fix_seq, self.guard.vel_ref
         kept = self.initialiser.claimed_level()
         self._restart(why)
-        self.guard._fix_seq, self.guard._vel_ref = seq, vref  # jump detection continues across the re-initialisation
-        self.initialiser._kept_level = kept
-        self.initialiser._sensors_reinit = True  # whatever the first initialisation was: a guess or the truth no longer holds
+        self.guard.fix_seq, self.guard.vel_ref = seq, vref  # jump detection continues across the re-initialisation
+        self.initialiser.kept_level = kept
+        self.initialiser.sensors_reinit = True  # whatever the first initialisation was: a guess or the truth no longer holds
 
     def _fault(self, exc: Exception) -> None:
         self.counters["core_faults"] += 1

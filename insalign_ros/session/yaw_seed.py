@@ -185,7 +185,7 @@ class YawSeed:
         auto = isinstance(core, AutoCore)  # core: auto: its in-motion core is seeded
         target = core.motion if auto else core
         name, params = (core.cfg.motion_core, core.cfg.grade_params(core.cfg.motion_core)) if auto \
-            else (sess.initialiser._core_name(sess.core_params), dict(sess.core_params))
+            else (sess.initialiser.core_name(sess.core_params), dict(sess.core_params))
         params["yaw_hypotheses"] = 1
         # core: auto starts its in-motion core from the gyro bias measured at rest (when it had one), as at its hand-over
         new = seeded_core(target, name, params, self.gsf.yaw_rad, SEED_VAR_FACTOR * var,
