@@ -14,11 +14,132 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from insalign_ros.core import earth, lie
-from insalign_ros.core.mechanization import propagate_eci, propagate_eci_inverse
+from insalign_ros.core.lie import _A_SERIES, _B_SERIES, _C1_SERIES, _C2_SERIES, _coeff_batch
+from insalign_ros.core.mechanization import NavStateEci, navigation_from_state_eci
 from insalign_ros.filters import (
-    checks, earth_iekf, ekf10, liekf, measurements, pi_liekf, pkf, static_model, update,
+    backtrack, checks, earth_iekf, ekf10, liekf, measurements, pi_liekf, pkf, static_model, update,
 )
-from insalign_ros.filters.eci_batch import covariance_batch, propagate_eci_batch, step_increments_batch
+from insalign_ros.filters.eci_batch import covariance_batch, prefix_products
+
+
+# ------------------------------------------------------------------- ECI mechanization (core/mechanization.py)
+def step_increments(omega_ib_b: np.ndarray, f_ib_b: np.ndarray, dt_s: float):
+    """Body-frame increments of one step: (exp(phi), J_l(phi) f dt, Gamma_2(phi) f dt^2)."""
+    phi = omega_ib_b * dt_s
+    return (
+        lie.so3_exp(phi),
+        lie.so3_left_jacobian(phi) @ f_ib_b * dt_s,
+        lie.so3_gamma2(phi) @ f_ib_b * (dt_s * dt_s),
+    )
+
+
+def gravity_mid_i(p_i: np.ndarray, v_i: np.ndarray, dt_s: float) -> np.ndarray:
+    """ECI gravitation [m/s^2] at the predicted midpoint of a step (core/mechanization.py's docstring)."""
+    return earth.gravitation_e(p_i + 0.5 * dt_s * v_i)
+
+
+def propagate_eci(C_b_i, v_i, p_i, omega_ib_b, f_ib_b, dt_s):
+    """One forward step of the ECI mechanization; returns (C_b_i, v_i, p_i) at the end of the step."""
+    dC, dv_b, dp_b = step_increments(omega_ib_b, f_ib_b, dt_s)
+    g = gravity_mid_i(p_i, v_i, dt_s)
+    v_new = v_i + C_b_i @ dv_b + g * dt_s
+    p_new = p_i + v_i * dt_s + C_b_i @ dp_b + 0.5 * dt_s * dt_s * g
+    return C_b_i @ dC, v_new, p_new
+
+
+def propagate_eci_inverse(C_b_i, v_i, p_i, omega_ib_b, f_ib_b, dt_s, iterations: int = 3):
+    """Inverse step: from the state at the end of a step and its sample, the state at its start (the implicit
+    gravity term by a short fixed-point iteration)."""
+    dC, dv_b, dp_b = step_increments(omega_ib_b, f_ib_b, dt_s)
+    C_prev = C_b_i @ dC.T
+    dv_i = C_prev @ dv_b
+    dp_i = C_prev @ dp_b
+    v_prev, p_prev = v_i - dv_i, p_i - v_i * dt_s  # gravity-free first guess
+    for _ in range(iterations):
+        g = gravity_mid_i(p_prev, v_prev, dt_s)
+        v_prev = v_i - dv_i - g * dt_s
+        p_prev = p_i - v_prev * dt_s - dp_i - 0.5 * dt_s * dt_s * g
+    return C_prev, v_prev, p_prev
+
+
+def geodetic_from_state_eci(state: NavStateEci, t0_s: float):
+    """(lat_rad, lon_rad, h_m, C_b_n, v_n) of an ECI state."""
+    return navigation_from_state_eci(state, t0_s, np.zeros((3, 3)), False)[:5]
+
+
+# ------------------------------------------------------------------- the same over a batch, vectorised numpy
+def so3_exp_batch(phi: np.ndarray) -> np.ndarray:
+    """(N, 3) rotation vectors -> (N, 3, 3) rotation matrices (same series split as lie.so3_exp)."""
+    theta = np.linalg.norm(phi, axis=-1)
+    a = _coeff_batch(theta, _A_SERIES, lambda t: np.sin(t) / t)
+    b = _coeff_batch(theta, _B_SERIES, lambda t: (1.0 - np.cos(t)) / t**2)
+    K = lie.hat3_batch(phi)
+    return np.eye(3) + a[:, None, None] * K + b[:, None, None] * (K @ K)
+
+
+def so3_left_jacobian_batch(phi: np.ndarray) -> np.ndarray:
+    """(N, 3) -> (N, 3, 3) SO(3) left Jacobians (same series/closed-form split as lie.so3_left_jacobian)."""
+    theta = np.linalg.norm(phi, axis=-1)
+    b = _coeff_batch(theta, _B_SERIES, lambda t: (1.0 - np.cos(t)) / t**2)
+    c = _coeff_batch(theta, _C1_SERIES, lambda t: (t - np.sin(t)) / t**3)
+    K = lie.hat3_batch(phi)
+    return np.eye(3) + b[:, None, None] * K + c[:, None, None] * (K @ K)
+
+
+def so3_gamma2_batch(phi: np.ndarray) -> np.ndarray:
+    """(N, 3) -> (N, 3, 3) Gamma_2 (lie.so3_gamma2) for a batch."""
+    theta = np.linalg.norm(phi, axis=-1)
+    c1 = _coeff_batch(theta, _C1_SERIES, lambda t: (t - np.sin(t)) / t**3)
+    c2 = _coeff_batch(theta, _C2_SERIES, lambda t: (0.5 * t * t + np.cos(t) - 1.0) / t**4)
+    K = lie.hat3_batch(phi)
+    return 0.5 * np.eye(3) + c1[:, None, None] * K + c2[:, None, None] * (K @ K)
+
+
+def step_increments_batch(omega_ib_b: np.ndarray, f_ib_b: np.ndarray, dt_s: np.ndarray):
+    """:func:`step_increments` per sample: (exp(phi), J_l(phi) f dt, Gamma_2(phi) f dt^2)."""
+    phi = omega_ib_b * dt_s[:, None]
+    dC = so3_exp_batch(phi)
+    dv_b = np.einsum("nij,nj->ni", so3_left_jacobian_batch(phi), f_ib_b) * dt_s[:, None]
+    dp_b = np.einsum("nij,nj->ni", so3_gamma2_batch(phi), f_ib_b) * (dt_s * dt_s)[:, None]
+    return dC, dv_b, dp_b
+
+
+def propagate_eci_batch(C_b_i, v_i, p_i, dt_s, dC, dv_b, dp_b, gravity_passes: int = 2):
+    """:func:`propagate_eci` over a batch, vectorised: attitude by prefix products, velocity and position by
+    cumulative sums, the mid-point gravity by a fixed point (``gravity_passes`` batched re-evaluations; residual
+    below 1e-10 m over 100 samples). Returns (C_prev (N,3,3) attitude at each step's start, C_end, v_end, p_end)."""
+    n = dt_s.shape[0]
+    C_all = C_b_i @ prefix_products(dC)  # attitude at the end of each step
+    C_prev = np.empty_like(C_all)
+    C_prev[0] = C_b_i
+    C_prev[1:] = C_all[:-1]
+    dv_i = np.einsum("nij,nj->ni", C_prev, dv_b)
+    dp_i = np.einsum("nij,nj->ni", C_prev, dp_b)
+    dt = dt_s[:, None]
+    g = np.broadcast_to(earth.gravitation_e(p_i + 0.5 * dt_s[0] * v_i), (n, 3))
+    for it in range(gravity_passes + 1):
+        v_inc = np.cumsum(dv_i + g * dt, axis=0)
+        v_prev = np.empty((n, 3))
+        v_prev[0] = 0.0
+        v_prev[1:] = v_inc[:-1]
+        v_prev += v_i
+        p_inc = np.cumsum(v_prev * dt + dp_i + 0.5 * g * dt * dt, axis=0)
+        if it == gravity_passes:
+            break
+        p_prev = np.empty((n, 3))
+        p_prev[0] = 0.0
+        p_prev[1:] = p_inc[:-1]
+        p_prev += p_i
+        g = earth.gravitation_e_batch(p_prev + 0.5 * dt * v_prev)
+    return C_prev, C_all[-1], v_i + v_inc[-1], p_i + p_inc[-1]
+
+
+def eci_steps(C_b_i, v_i, p_i, omega_ib_b, f_ib_b, dt_s):
+    """filters/eci_batch.eci_steps in numpy batches."""
+    dC, dv_b, dp_b = step_increments_batch(np.asarray(omega_ib_b, float), np.asarray(f_ib_b, float), dt_s)
+    C_prev, C, v, p = propagate_eci_batch(np.asarray(C_b_i, float), np.asarray(v_i, float), np.asarray(p_i, float),
+                                          dt_s, dC, dv_b, dp_b)
+    return dC, dv_b, dp_b, C_prev, C, v, p
 
 
 # ------------------------------------------------------------------- Earth-frame mechanization (mechanization_e)
@@ -235,6 +356,8 @@ def use_reference_paths(monkeypatch) -> None:
     monkeypatch.setattr(liekf, "retract_se23", retract_se23)
     monkeypatch.setattr(liekf, "orthonormalize", orthonormalize)
     monkeypatch.setattr(liekf.BatchedEciCore, "_propagate_block", _propagate_block)
+    for mod in (earth_iekf, backtrack):
+        monkeypatch.setattr(mod, "eci_steps", eci_steps)
     monkeypatch.setitem(measurements._TERMS, (measurements.GnssPosition, "eci_left"), _position_terms_floored)
     monkeypatch.setattr(checks, "spd3", spd3)
     monkeypatch.setattr(checks, "usable_imu_arrays", usable_imu_arrays)

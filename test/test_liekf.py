@@ -13,6 +13,8 @@ from insalign_ros.core import lie
 from insalign_ros.core import mechanization as M
 from insalign_ros.filters import eci_batch as LK
 from insalign_ros.filters.registry import make_core
+import oracles
+from oracles import propagate_eci
 
 from reference_loops import EventRunner, initial_guess
 import lie_ref  # noqa: E402  (test/lie_ref.py: the SE2(3) functions only the tests use)
@@ -35,7 +37,7 @@ def _fd_transition(s, w, f, dt):
     The error map is exactly linear in the Lie algebra (Ad and F_dt are automorphisms) except for the gravity
     gradient, so large steps are fine: 1e-2 rad, 0.1 m/s and m (ECI positions are ~6.4e6 m, so small
     steps would drown in rounding)."""
-    C1, v1, p1 = M.propagate_eci(s.C_b_i, s.v_i, s.p_i, w, f, dt)
+    C1, v1, p1 = propagate_eci(s.C_b_i, s.v_i, s.p_i, w, f, dt)
     X1_hat = lie.se23_from(C1, v1, p1)
     X0_hat = lie.se23_from(s.C_b_i, s.v_i, s.p_i)
     J = np.zeros((9, 9))
@@ -46,7 +48,7 @@ def _fd_transition(s, w, f, dt):
             xi[j] = sgn * eps
             X0 = X0_hat @ lie.se23_exp(xi)
             C, v, p = lie.se23_parts(X0)
-            C2, v2, p2 = M.propagate_eci(C, v, p, w, f, dt)
+            C2, v2, p2 = propagate_eci(C, v, p, w, f, dt)
             J[:, j] += sgn * lie_ref.se23_box_minus(lie.se23_from(C2, v2, p2), X1_hat) / (2 * eps)
     return J
 
@@ -68,7 +70,7 @@ def liekf_A_eq41(omega_ib_b: np.ndarray, f_ib_b: np.ndarray, dt_s: float) -> np.
 def test_transition_matches_finite_difference_of_true_error_dynamics(dt):
     s, w, f = _state()
     J_fd = _fd_transition(s, w, f, dt)
-    dC, dv_b, dp_b = LK.step_increments_batch(w[None], f[None], np.array([dt]))
+    dC, dv_b, dp_b = LK.eci_steps(s.C_b_i, s.v_i, s.p_i, w[None], f[None], np.array([dt]))[:3]
     Phi = LK.liekf_transition_batch(dC, dv_b, dp_b, np.array([dt]))[0]
     # exact discrete transition: only the neglected gravity gradient (~3e-6 s^-2 * dt^2) and FD rounding remain
     assert np.max(np.abs(Phi - J_fd)) < 1e-6
@@ -83,7 +85,10 @@ def test_transition_matches_finite_difference_of_true_error_dynamics(dt):
     assert np.max(np.abs(_fd_transition(s2, w, f, dt) - J_fd)) < 1e-6
 
 
-def test_batched_mechanization_equals_sequential_propagate_eci():
+@pytest.mark.parametrize("steps", [LK.eci_steps, oracles.eci_steps], ids=["compiled", "numpy_batch"])
+def test_batched_mechanization_equals_sequential_propagate_eci(steps):
+    """The cores' mechanization over a batch (compiled) and the tests' vectorised numpy reference of it, against
+    the sequential numpy steps of core/mechanization.py's scheme."""
     s, _, _ = _state()
     rng = np.random.default_rng(3)
     n = 400
@@ -93,9 +98,8 @@ def test_batched_mechanization_equals_sequential_propagate_eci():
     dt[7] = 0.013  # uneven steps are allowed
     C, v, p = s.C_b_i, s.v_i, s.p_i
     for k in range(n):
-        C, v, p = M.propagate_eci(C, v, p, w[k], f[k], dt[k])
-    dC, dv_b, dp_b = LK.step_increments_batch(w, f, dt)
-    _, Cb, vb, pb = LK.propagate_eci_batch(s.C_b_i, s.v_i, s.p_i, dt, dC, dv_b, dp_b)
+        C, v, p = propagate_eci(C, v, p, w[k], f[k], dt[k])
+    _, _, _, _, Cb, vb, pb = steps(s.C_b_i, s.v_i, s.p_i, w, f, dt)
     assert np.linalg.norm(pb - p) < 1e-7
     assert np.linalg.norm(vb - v) < 1e-9
     assert np.linalg.norm(lie.so3_log(Cb.T @ C)) < 1e-12

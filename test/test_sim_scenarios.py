@@ -10,6 +10,7 @@ from insalign_ros.core import lie
 from insalign_ros.core import mechanization as M
 from insalign_ros.sim import error_model
 from insalign_ros.sim.scenarios import SCENARIOS, make_scenario, scenario_parameters
+from oracles import geodetic_from_state_eci, propagate_eci
 
 
 def _integrate(sc):
@@ -17,9 +18,9 @@ def _integrate(sc):
     C, v, p = s.C_b_i, s.v_i, s.p_i
     worst_att = 0.0
     for k in range(1, sc.n):
-        C, v, p = M.propagate_eci(C, v, p, sc.omega_ib_b[k], sc.f_ib_b[k], sc.t_s[k] - sc.t_s[k - 1])
+        C, v, p = propagate_eci(C, v, p, sc.omega_ib_b[k], sc.f_ib_b[k], sc.t_s[k] - sc.t_s[k - 1])
         if k % 1000 == 0 or k == sc.n - 1:
-            lat, lon, h, C_b_n, _ = M.geodetic_from_state_eci(M.NavStateEci(sc.t_s[k], C, v, p), sc.t0_s)
+            lat, lon, h, C_b_n, _ = geodetic_from_state_eci(M.NavStateEci(sc.t_s[k], C, v, p), sc.t0_s)
             worst_att = max(worst_att, float(np.linalg.norm(lie.so3_log(C_b_n.T @ sc.C_b_n[k]))))
     p_true = E.geodetic_to_ecef(sc.lat_rad[-1], sc.lon_rad[-1], sc.h_m[-1])
     pos_err = float(np.linalg.norm(E.geodetic_to_ecef(lat, lon, h) - p_true))

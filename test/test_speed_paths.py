@@ -23,11 +23,11 @@ import insalign_ros as ia
 from insalign_ros.filters.measurements import GnssPosition, ZeroVelocity
 from insalign_ros.core import earth
 from insalign_ros.core import mechanization_numba as nb
-from insalign_ros.core.mechanization import propagate_eci
 from insalign_ros.core.types import GnssFix, ImuSample
 from insalign_ros.filters import registry
 from insalign_ros.session.offline import events_in_arrival_order
 from insalign_ros.session.session import AlignmentSession
+from oracles import propagate_eci
 
 import oracles
 

@@ -165,15 +165,6 @@ def hat3_batch(phi: np.ndarray) -> np.ndarray:
     return K
 
 
-def so3_left_jacobian_batch(phi: np.ndarray) -> np.ndarray:
-    """(N, 3) -> (N, 3, 3) SO(3) left Jacobians (same series/closed-form split as so3_left_jacobian)."""
-    theta = np.linalg.norm(phi, axis=-1)
-    b = _coeff_batch(theta, _B_SERIES, lambda t: (1.0 - np.cos(t)) / t**2)
-    c = _coeff_batch(theta, _C1_SERIES, lambda t: (t - np.sin(t)) / t**3)
-    K = hat3_batch(phi)
-    return np.eye(3) + b[:, None, None] * K + c[:, None, None] * (K @ K)
-
-
 def so3_left_jacobian_inv_batch(phi: np.ndarray) -> np.ndarray:
     """(N, 3) -> (N, 3, 3) inverses of the SO(3) left Jacobian."""
     theta = np.linalg.norm(phi, axis=-1)

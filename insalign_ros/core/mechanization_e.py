@@ -12,11 +12,11 @@ Inverse-alignment paper (Liu et al. 2025, "group affine inverse alignment"), eqs
 Exact relation to the ECI mechanization (the implementation, filters/earth_iekf.py, uses it; its numpy form, one step
 forward and back, is test/oracles.py ``propagate_e`` / ``propagate_e_inverse``): with an ECI epoch at the start of a
 step, ``(C_b_e, vbar_e, p_e) = C_i_e(t) (C_b_i, v_i, p_i)``, because ``v_i = C_e_i (v_e + omega x p_e)``. A step of
-the Earth-frame mechanization is therefore one step of core/mechanization.propagate_eci with the epoch at the step
+the Earth-frame mechanization is therefore one step of core/mechanization.py's ECI scheme with the epoch at the step
 start, followed by the rotation ``C_i_e(dt) = exp(-omega_ie_e dt)``. This keeps the IMU-sample timing convention of
 core/mechanization.py (sample k is the average over (t_{k-1}, t_k]) and makes the simulators' data (discrete-
-consistent with propagate_eci) integrate to the truth in this frame too. The inverse step (eqs. (6)-(10) of the paper,
-in the Earth frame) undoes the rotation and calls propagate_eci_inverse, so forward then inverse returns to the start
+consistent with that scheme) integrate to the truth in this frame too. The inverse step (eqs. (6)-(10) of the paper,
+in the Earth frame) undoes the rotation and inverts the ECI step, so forward then inverse returns to the start
 to rounding error (test/test_mechanization_e.py).
 
 The 5x5 element ``X = [[C_b_e, vbar_e, p_e], [0, 1, 0], [0, 0, 1]]`` (eq. (32)) obeys a group-affine vector field

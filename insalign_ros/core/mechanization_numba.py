@@ -5,9 +5,9 @@ samples (docs/speed.md has the measurements and the decision):
 
 * :func:`local_level_steps` = ``LocalLevelMechanization.step`` (core/mechanization_n.py) over a batch, with the
   interval sums of the static cores (specific force in ENU times dt, dt);
-* :func:`eci_steps` = ``propagate_eci`` (core/mechanization.py) over a batch: body increments, attitude,
-  velocity and position with the gravitation at each step's predicted mid-point (the batched numpy path solves the
-  same mid-point gravity by a fixed point, residual < 1e-10 m);
+* :func:`eci_steps` = core/mechanization.py's ECI step (numpy form: test/oracles.py ``propagate_eci``) over a
+  batch: body increments, attitude, velocity and position with the gravitation at each step's predicted mid-point
+  (the tests' vectorised numpy reference solves the same mid-point gravity by a fixed point, residual < 1e-10 m);
 * :func:`covariance_steps` = ``P <- Phi_k P Phi_k^T + diag(q_k)`` sample by sample, and the product of the Phi_k.
 
 The kernels are the implementation (one source per equation); test/oracles.py keeps the numpy formulas they replace
@@ -254,8 +254,9 @@ def _eci_scratch():
 
 @_jit
 def eci_steps(C, v, p, W, F, DT, zn, zj, dC_out, dv_out, dp_out, Cprev_out):
-    """``propagate_eci`` for each row of W, F (N, 3) and DT (N,): updates C (C_b_i), v (v_i), p (p_i) in place and
-    writes the body increments exp(phi), J_l(phi) f dt, Gamma_2(phi) f dt^2 and the attitude at each step's start."""
+    """The ECI step (test/oracles.py ``propagate_eci``) for each row of W, F (N, 3) and DT (N,): updates C (C_b_i),
+    v (v_i), p (p_i) in place and writes the body increments exp(phi), J_l(phi) f dt, Gamma_2(phi) f dt^2 and the
+    attitude at each step's start."""
     J, G2, T, g, dpa, dva, vk = _eci_scratch()
     for k in range(W.shape[0]):
         Cprev_out[k] = C

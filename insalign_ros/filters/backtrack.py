@@ -27,7 +27,7 @@ from scipy.spatial.transform import Rotation
 
 from ..core.types import GnssFix
 from .base import AlignmentCore, UpdateResult
-from .eci_batch import covariance_batch, propagate_eci_batch, step_increments_batch
+from .eci_batch import covariance_batch, eci_steps
 from .liekf import Liekf
 from .measurements import GnssPosition
 
@@ -53,8 +53,7 @@ class BacktrackLiekf(Liekf):
             w = np.asarray(omega_ib_b[i:i + mb], float) - self.b_g
             f = np.asarray(f_ib_b[i:i + mb], float) - self.b_a
             dt = -np.diff(t, prepend=self.t_s)
-            dC, dv_b, dp_b = step_increments_batch(-w, f, dt)
-            C_prev, C, v, p = propagate_eci_batch(self.C, -self.v, self.p, dt, dC, dv_b, dp_b)
+            dC, dv_b, dp_b, C_prev, C, v, p = eci_steps(self.C, -self.v, self.p, -w, f, dt)
             Phi, Qd = self._transitions(dC, dv_b, dp_b, dt, C_prev, f)
             Pr, _ = covariance_batch(self.P * DD, Phi, Qd)
             self.P = Pr * DD

@@ -42,7 +42,7 @@ from ..core.units import (
 from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, ImuSample, UpdateResult, accel_noise_b
 from .config import InMotionConfig
 from .checks import check_imu, usable_imu_arrays
-from .eci_batch import liekf_transition_batch, prefix_products, propagate_eci_batch, step_increments_batch
+from .eci_batch import eci_steps, liekf_transition_batch, prefix_products
 from .kalman import joseph_update
 from . import measurements  # noqa: F401  (registers its zero-velocity model)
 
@@ -290,8 +290,7 @@ class EarthIekf(AlignmentCore):
         self.t_s = float(t[-1])
 
     def _batch(self, C, v, p, w, f, dt, P):
-        dC, dv_b, dp_b = step_increments_batch(w, f, dt)
-        _, C1, v1, p1 = propagate_eci_batch(C, v, p, dt, dC, dv_b, dp_b)
+        dC, dv_b, dp_b, _, C1, v1, p1 = eci_steps(C, v, p, w, f, dt)
         Phi = bias_transitions(liekf_transition_batch(dC, dv_b, dp_b, dt), dt)
         q = np.zeros((dt.shape[0], 6))
         q[:, 0:3] = self._q_gyro * dt[:, None]

@@ -1,38 +1,19 @@
-"""Batched (vectorised numpy) ECI strapdown helpers and compiled SE2(3) kernels shared by the ECI cores.
+"""ECI strapdown over a batch of samples and the SE2(3) transitions shared by the ECI cores.
 
-Body increments, attitude prefix products by a log-depth scan, velocity/position by cumulative sums with gravity at
-the mid-points by a two-pass fixed point, the left-invariant transitions of PI-LIEKF eq. (41) and covariance by
-suffix products (filters/liekf.py has the conventions; test/test_liekf.py checks them against the sequential
-mechanization). The compiled kernels are the implementation; test/oracles.py keeps numpy references for the tests.
+The mechanization itself is one compiled kernel (mechanization_numba.eci_steps, called through :func:`eci_steps`);
+here: the left-invariant transitions of PI-LIEKF eq. (41), prefix products by a log-depth scan and the covariance by
+suffix products (filters/liekf.py has the conventions). The compiled kernels are the implementation;
+test/oracles.py keeps numpy references for the tests (the sequential mechanization among them).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..core import earth, lie
+from ..core import lie
 from ..core import mechanization_numba as nb
-from ..core.lie import _A_SERIES, _B_SERIES, _C1_SERIES, _C2_SERIES, _coeff_batch
 
 _I3 = np.eye(3)
-
-
-def so3_exp_batch(phi: np.ndarray) -> np.ndarray:
-    """(N, 3) rotation vectors -> (N, 3, 3) rotation matrices (same series split as lie.so3_exp)."""
-    theta = np.linalg.norm(phi, axis=-1)
-    a = _coeff_batch(theta, _A_SERIES, lambda t: np.sin(t) / t)
-    b = _coeff_batch(theta, _B_SERIES, lambda t: (1.0 - np.cos(t)) / t**2)
-    K = lie.hat3_batch(phi)
-    return _I3 + a[:, None, None] * K + b[:, None, None] * (K @ K)
-
-
-def so3_gamma2_batch(phi: np.ndarray) -> np.ndarray:
-    """(N, 3) -> (N, 3, 3) Gamma_2 (lie.so3_gamma2) for a batch."""
-    theta = np.linalg.norm(phi, axis=-1)
-    c1 = _coeff_batch(theta, _C1_SERIES, lambda t: (t - np.sin(t)) / t**3)
-    c2 = _coeff_batch(theta, _C2_SERIES, lambda t: (0.5 * t * t + np.cos(t) - 1.0) / t**4)
-    K = lie.hat3_batch(phi)
-    return 0.5 * _I3 + c1[:, None, None] * K + c2[:, None, None] * (K @ K)
 
 
 def prefix_products(M: np.ndarray) -> np.ndarray:
@@ -48,49 +29,19 @@ def prefix_products(M: np.ndarray) -> np.ndarray:
     return S
 
 
-def step_increments_batch(omega_ib_b: np.ndarray, f_ib_b: np.ndarray, dt_s: np.ndarray):
-    """Batched mechanization.step_increments: (exp(phi), J_l(phi) f dt, Gamma_2(phi) f dt^2) per sample."""
-    phi = omega_ib_b * dt_s[:, None]
-    dC = so3_exp_batch(phi)
-    dv_b = np.einsum("nij,nj->ni", lie.so3_left_jacobian_batch(phi), f_ib_b) * dt_s[:, None]
-    dp_b = np.einsum("nij,nj->ni", so3_gamma2_batch(phi), f_ib_b) * (dt_s * dt_s)[:, None]
-    return dC, dv_b, dp_b
-
-
-def propagate_eci_batch(C_b_i, v_i, p_i, dt_s, dC, dv_b, dp_b, gravity_passes: int = 2):
-    """The ECI mechanization of core/mechanization.propagate_eci over a batch of samples, vectorised.
-
-    Returns (C_prev (N,3,3) attitude at the start of each step, C_end, v_end, p_end). The mid-point gravity
-    is a fixed point (gravity depends on the positions it produces): start from the gravity at the first
-    mid-point, then ``gravity_passes`` batched re-evaluations; the residual is below 1e-10 m over 100 samples
-    (the gravity gradient is ~3e-6 s^-2). test_liekf.py checks this against the sequential propagate_eci.
-    """
+def eci_steps(C_b_i, v_i, p_i, omega_ib_b, f_ib_b, dt_s):
+    """The ECI mechanization (core/mechanization.py's scheme; compiled: mechanization_numba.eci_steps, the one
+    implementation) over a batch of samples from (C_b_i, v_i, p_i), each core's forward and time-reversed steps.
+    Returns the body increments of each step (exp(phi), J_l(phi) f dt, Gamma_2(phi) f dt^2), the attitude at each
+    step's start, and (C_b_i, v_i, p_i) at the end."""
     n = dt_s.shape[0]
-    C_rel = prefix_products(dC)
-    C_all = C_b_i @ C_rel  # attitude at the end of each step
-    C_prev = np.empty_like(C_all)
-    C_prev[0] = C_b_i
-    C_prev[1:] = C_all[:-1]
-    dv_i = np.einsum("nij,nj->ni", C_prev, dv_b)
-    dp_i = np.einsum("nij,nj->ni", C_prev, dp_b)
-    dt = dt_s[:, None]
-    g = np.broadcast_to(earth.gravitation_e(p_i + 0.5 * dt_s[0] * v_i), (n, 3))
-    for it in range(gravity_passes + 1):
-        v_inc = np.cumsum(dv_i + g * dt, axis=0)
-        v_prev = np.empty((n, 3))
-        v_prev[0] = 0.0
-        v_prev[1:] = v_inc[:-1]
-        v_prev += v_i
-        p_inc = np.cumsum(v_prev * dt + dp_i + 0.5 * g * dt * dt, axis=0)
-        if it == gravity_passes:
-            break
-        p_prev = np.empty((n, 3))
-        p_prev[0] = 0.0
-        p_prev[1:] = p_inc[:-1]
-        p_prev += p_i
-        g = earth.gravitation_e_batch(p_prev + 0.5 * dt * v_prev)
-    return C_prev, C_all[-1], v_i + v_inc[-1], p_i + p_inc[-1]
-
+    c = np.ascontiguousarray
+    C, v, p = np.array(C_b_i, float), np.array(v_i, float), np.array(p_i, float)
+    dC, C_prev = np.empty((n, 3, 3)), np.empty((n, 3, 3))
+    dv_b, dp_b = np.empty((n, 3)), np.empty((n, 3))
+    nb.eci_steps(C, v, p, c(omega_ib_b, float), c(f_ib_b, float), c(dt_s, float), nb._ZONAL_N, nb._ZONAL_J, dC, dv_b,
+                 dp_b, C_prev)
+    return dC, dv_b, dp_b, C_prev, C, v, p
 
 
 def orthonormalize(C: np.ndarray) -> np.ndarray:

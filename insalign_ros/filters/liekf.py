@@ -42,7 +42,7 @@ from ..core.units import deg_sqrt_h_to_rad_sqrt_s, m_s_sqrt_h_to_m_s_sqrt_s
 from .base import AlignmentCore, AlignmentEstimate, AlignmentStatus, ImuSample, UpdateResult, accel_noise_b
 from .checks import ImuBuffer, check_imu, usable_imu_arrays
 from .config import LiekfConfig
-from .eci_batch import covariance_batch, liekf_transition_batch, orthonormalize, retract_se23
+from .eci_batch import covariance_batch, eci_steps, liekf_transition_batch, orthonormalize, retract_se23
 from . import measurements  # noqa: F401  (registers the models of the cores' conventions)
 
 _I3 = np.eye(3)
@@ -228,11 +228,7 @@ class BatchedEciCore(AlignmentCore):
         dt = np.empty(t.shape[0])
         dt[0] = t[0] - self.t_s
         np.subtract(t[1:], t[:-1], out=dt[1:])
-        n = dt.shape[0]  # compiled sequential loops (docs/speed.md)
-        C, v, p = self.C.copy(), self.v.copy(), self.p.copy()
-        dC, C_prev = np.empty((n, 3, 3)), np.empty((n, 3, 3))
-        dv_b, dp_b = np.empty((n, 3)), np.empty((n, 3))
-        nb.eci_steps(C, v, p, w, f, dt, nb._ZONAL_N, nb._ZONAL_J, dC, dv_b, dp_b, C_prev)
+        dC, dv_b, dp_b, C_prev, C, v, p = eci_steps(self.C, self.v, self.p, w, f, dt)  # compiled (docs/speed.md)
         Phi, Qd = self._transitions(dC, dv_b, dp_b, dt, C_prev, f)
         q = np.diagonal(Qd, axis1=1, axis2=2)
         if np.count_nonzero(Qd) == np.count_nonzero(q):  # diagonal Q_k (every core here)
