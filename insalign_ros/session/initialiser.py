@@ -243,7 +243,10 @@ class Initialiser:
             level_from = "the lost filter's level, gyro-propagated"
         # -- end divergence guard
         params = dict(sess.core_params)
-        if gnss_core and params.get("yaw_hypotheses", 1) == 1 and cfg.unknown_heading_hypotheses > 1:
+        # heading unknown: a bank of hypotheses; with backtracking one filter with a flat heading prior (the passes
+        # need one filter and converge its heading; a bank here would fault at every start: docs/backtracking.md)
+        if gnss_core and params.get("yaw_hypotheses", 1) == 1 and cfg.unknown_heading_hypotheses > 1 \
+                and cfg.backtrack_passes == 0:
             params["yaw_hypotheses"] = cfg.unknown_heading_hypotheses
         core = registry.make_core(self.core_name(params), params)
         sig_yaw = 1e4 if gnss_core else sig_rpy0[2]  # unknown: uniform over the bank's hypotheses
