@@ -276,9 +276,9 @@ class AlignmentCore(ABC):
         return update_pipeline.models_for(self.convention, self.state_blocks, self.own_models)
 
     @classmethod
-    def accepts_for(cls, cfg) -> frozenset:
-        """:attr:`accepts` of a core of this class with configuration ``cfg`` from its initialisation on, read
-        before any is built (registry.declared)."""
+    def declared_accepts(cls) -> frozenset:
+        """:attr:`accepts` of a core of this class from its initialisation on, read before any is built
+        (registry.declared; the class attributes decide, as they do for a built core)."""
         return update_pipeline.models_for(cls.convention, cls.state_blocks, cls.own_models)
 
     def update(self, meas) -> UpdateResult:

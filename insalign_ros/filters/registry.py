@@ -106,7 +106,7 @@ def declared(name: str, params: dict | None = None) -> tuple[frozenset, tuple]:
     from its initialisation on, its initial 1-sigmas ((roll, pitch, yaw) [deg], velocity [m/s], position [m])). A
     bank of yaw hypotheses declares what each of its members does."""
     cfg = make_config(name, params)
-    return core_class(name).accepts_for(cfg), cfg.initial_sigmas
+    return core_class(name).declared_accepts(), cfg.initial_sigmas
 
 
 def __getattr__(attr):  # CORE_NAMES stays current when others register()
